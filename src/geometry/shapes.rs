@@ -1,0 +1,202 @@
+//! Simple closed triangle surfaces with known volumes, for tests and benchmarks.
+//!
+//! Every function returns `(vertices, triangles)` with shared (welded) vertices and outward
+//! right-hand orientation, in the same length units as its size arguments.
+
+use std::collections::HashMap;
+
+use nalgebra::Point3;
+
+/// Vertices and triangles of a surface.
+pub type Mesh = (Vec<Point3<f64>>, Vec<[usize; 3]>);
+
+/// Icosphere of radius `radius` centred at the origin: an icosahedron whose faces are split
+/// `subdivisions` times into 4, with all vertices projected onto the sphere
+/// (`20 · 4^subdivisions` triangles; 5 subdivisions give 20 480).
+pub fn icosphere(subdivisions: u32, radius: f64) -> Mesh {
+    let phi = (1.0 + 5f64.sqrt()) / 2.0;
+    let raw = [
+        [-1.0, phi, 0.0],
+        [1.0, phi, 0.0],
+        [-1.0, -phi, 0.0],
+        [1.0, -phi, 0.0],
+        [0.0, -1.0, phi],
+        [0.0, 1.0, phi],
+        [0.0, -1.0, -phi],
+        [0.0, 1.0, -phi],
+        [phi, 0.0, -1.0],
+        [phi, 0.0, 1.0],
+        [-phi, 0.0, -1.0],
+        [-phi, 0.0, 1.0],
+    ];
+    let mut vertices: Vec<Point3<f64>> = raw
+        .iter()
+        .map(|c| Point3::from(Point3::new(c[0], c[1], c[2]).coords.normalize() * radius))
+        .collect();
+    let mut triangles: Vec<[usize; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..subdivisions {
+        let mut midpoint: HashMap<(usize, usize), usize> = HashMap::new();
+        let mut mid = |a: usize, b: usize, vertices: &mut Vec<Point3<f64>>| {
+            *midpoint.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                let m = nalgebra::center(&vertices[a], &vertices[b]);
+                vertices.push(Point3::from(m.coords.normalize() * radius));
+                vertices.len() - 1
+            })
+        };
+        let mut next = Vec::with_capacity(triangles.len() * 4);
+        for &[a, b, c] in &triangles {
+            let ab = mid(a, b, &mut vertices);
+            let bc = mid(b, c, &mut vertices);
+            let ca = mid(c, a, &mut vertices);
+            next.extend_from_slice(&[[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
+        }
+        triangles = next;
+    }
+    (vertices, triangles)
+}
+
+/// Torus around the z axis through the origin: tube centre radius `major`, tube radius
+/// `minor`, `n_major × n_minor` quads split into two triangles each
+/// (volume of the smooth torus: 2π² · major · minor²).
+pub fn torus(major: f64, minor: f64, n_major: usize, n_minor: usize) -> Mesh {
+    let tau = std::f64::consts::TAU;
+    let mut vertices = Vec::with_capacity(n_major * n_minor);
+    for i in 0..n_major {
+        let u = tau * i as f64 / n_major as f64;
+        for j in 0..n_minor {
+            let v = tau * j as f64 / n_minor as f64;
+            let rho = major + minor * v.cos();
+            vertices.push(Point3::new(rho * u.cos(), rho * u.sin(), minor * v.sin()));
+        }
+    }
+    let id = |i: usize, j: usize| (i % n_major) * n_minor + (j % n_minor);
+    let mut triangles = Vec::with_capacity(2 * n_major * n_minor);
+    for i in 0..n_major {
+        for j in 0..n_minor {
+            let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
+            triangles.push([a, b, c]);
+            triangles.push([a, c, d]);
+        }
+    }
+    (vertices, triangles)
+}
+
+/// Boundary surface of a union of axis-aligned voxels of edge `size`: voxel `[i, j, k]` is the
+/// cube `[i, i+1] × [j, j+1] × [k, k+1]` scaled by `size`. Every exposed voxel face becomes two
+/// triangles split along the diagonal from its lowest to its highest corner, so vertices lie on
+/// the lattice and horizontal faces are split along lines `x − y = const`.
+///
+/// Voxel sets whose voxels touch only along an edge or at a corner give a non-manifold (but
+/// still closed) surface.
+pub fn voxel_surface(voxels: &[[i32; 3]], size: f64) -> Mesh {
+    let occupied: std::collections::HashSet<[i32; 3]> = voxels.iter().copied().collect();
+    let mut index: HashMap<[i32; 3], usize> = HashMap::new();
+    let mut vertices = Vec::new();
+    let mut triangles = Vec::new();
+    let mut vid = |c: [i32; 3], vertices: &mut Vec<Point3<f64>>| {
+        *index.entry(c).or_insert_with(|| {
+            vertices.push(Point3::new(
+                c[0] as f64 * size,
+                c[1] as f64 * size,
+                c[2] as f64 * size,
+            ));
+            vertices.len() - 1
+        })
+    };
+    let mut sorted: Vec<[i32; 3]> = occupied.iter().copied().collect();
+    sorted.sort_unstable();
+    for v in sorted {
+        for axis in 0..3 {
+            for dir in [-1i32, 1] {
+                let mut nb = v;
+                nb[axis] += dir;
+                if occupied.contains(&nb) {
+                    continue;
+                }
+                // Face on the plane coordinate v[axis] (+1 if dir > 0), spanned by axes u, w.
+                let (u, w) = ((axis + 1) % 3, (axis + 2) % 3);
+                let mut base = v;
+                if dir > 0 {
+                    base[axis] += 1;
+                }
+                let corner = |du: i32, dw: i32| {
+                    let mut c = base;
+                    c[u] += du;
+                    c[w] += dw;
+                    c
+                };
+                let c00 = vid(corner(0, 0), &mut vertices);
+                let c10 = vid(corner(1, 0), &mut vertices);
+                let c11 = vid(corner(1, 1), &mut vertices);
+                let c01 = vid(corner(0, 1), &mut vertices);
+                // (u, w, axis) is right-handed, so (c00, c10, c11) has normal +axis.
+                if dir > 0 {
+                    triangles.push([c00, c10, c11]);
+                    triangles.push([c00, c11, c01]);
+                } else {
+                    triangles.push([c00, c11, c10]);
+                    triangles.push([c00, c01, c11]);
+                }
+            }
+        }
+    }
+    (vertices, triangles)
+}
+
+/// Signed enclosed volume of a surface by the divergence theorem (positive for outward
+/// orientation), in length units³.
+pub fn signed_volume(vertices: &[Point3<f64>], triangles: &[[usize; 3]]) -> f64 {
+    triangles
+        .iter()
+        .map(|&[a, b, c]| {
+            vertices[a]
+                .coords
+                .dot(&vertices[b].coords.cross(&vertices[c].coords))
+                / 6.0
+        })
+        .sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn volumes_and_orientation() {
+        let (v, t) = icosphere(3, 2.0);
+        assert_eq!(t.len(), 1280);
+        let vol = signed_volume(&v, &t);
+        let exact = 4.0 / 3.0 * std::f64::consts::PI * 8.0;
+        assert!(vol > 0.95 * exact && vol < exact, "{vol} vs {exact}");
+
+        let (v, t) = torus(1.0, 0.25, 96, 48);
+        let vol = signed_volume(&v, &t);
+        let exact = 2.0 * std::f64::consts::PI.powi(2) * 1.0 * 0.0625;
+        assert!((vol / exact - 1.0).abs() < 0.01, "{vol} vs {exact}");
+
+        let l = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]];
+        let (v, t) = voxel_surface(&l, 0.5);
+        assert!((signed_volume(&v, &t) - 4.0 * 0.125).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,22 @@
+//! livereg: biomechanical registration of a deforming liver for surgical augmented reality.
+//!
+//! The modules follow the data's path:
+//! - [`mesh`]: triangle surfaces and point files (reading, validation, primitives);
+//! - [`geometry`]: boxes, triangle–box overlap, inside/outside tests;
+//! - [`grid`]: the immersed weighted-cell grid, its quadrature and the embedding H;
+//! - [`linalg`]: sparse symmetric matrices and linear solvers;
+//! - [`mechanics`]: materials, the hexahedral cell, assembly, loads, penalties, Newton;
+//! - [`scene`]: the scene file; [`simulation`]: a scene turned into a solved model;
+//! - [`cli`]: the command line.
+//!
+//! Lower layers never import higher ones. Inside the mechanics everything is SI (m, N, Pa, J).
+#![warn(missing_docs)]
+
+pub mod cli;
+pub mod geometry;
+pub mod grid;
+pub mod linalg;
+pub mod mechanics;
+pub mod mesh;
+pub mod scene;
+pub mod simulation;

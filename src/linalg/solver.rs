@@ -1,0 +1,620 @@
+//! Solver front-end: sparse Cholesky / Bunch–Kaufman (faer) and Jacobi CG.
+
+use std::time::Instant;
+
+use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
+use faer::linalg::cholesky::lblt::factor::LbltParams;
+use faer::linalg::cholesky::llt::factor::LltParams;
+use faer::perm::PermRef;
+use faer::sparse::linalg::cholesky::{
+    factorize_symbolic_cholesky, CholeskySymbolicParams, IntranodeLbltRef, LltRef,
+    SymbolicCholesky, SymbolicCholeskyRaw, SymmetricOrdering,
+};
+use faer::sparse::linalg::SupernodalThreshold;
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
+use faer::{Conj, MatMut, Par, Side, Spec};
+use serde::{Deserialize, Serialize};
+
+use super::cg::{self, CgWork, FullOperator};
+use super::{LinalgError, SymmetricCsc};
+
+/// Largest dimension (degrees of freedom) for which [`SolverKind::Auto`]
+/// uses the direct sparse Cholesky factorisation; larger systems use Jacobi
+/// conjugate gradients.
+///
+/// Chosen by measurement on 3-dof linear-elasticity matrices of `m³`-node
+/// grids (27-point stencil, see [`super::testing`]) on a 2-core machine:
+/// numeric factorisation plus solve (symbolic analysis reused, as in Newton
+/// iterations) stays faster than, or within a small factor of, Jacobi CG
+/// to `1e-10` up to about this size, and the direct solver is far more robust
+/// for the ill-conditioned cut-cell matrices, so the threshold is biased
+/// towards the direct solver. Beyond it the factor's memory (`O(n^{4/3})`)
+/// and time (`O(n²)`) grow faster than CG's.
+pub const AUTO_DIRECT_MAX_DOFS: usize = 200_000;
+
+/// Which linear solver [`SparseSolver`] uses.
+///
+/// Serialised in kebab-case: `"auto"`, `"cholesky"`, `"ldlt"`, `"jacobi-cg"`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SolverKind {
+    /// [`SolverKind::Cholesky`] up to [`AUTO_DIRECT_MAX_DOFS`] unknowns,
+    /// [`SolverKind::JacobiCg`] beyond.
+    #[default]
+    Auto,
+    /// Sparse supernodal Cholesky `LLᵀ` (AMD ordering); if the matrix turns out
+    /// not to be positive definite, automatically refactorised with the
+    /// intranodal Bunch–Kaufman `LBLᵀ` on the same symbolic structure.
+    Cholesky,
+    /// Directly the indefinite-capable intranodal Bunch–Kaufman `LBLᵀ`
+    /// factorisation (symmetric pivoting inside each supernode).
+    Ldlt,
+    /// Conjugate gradient preconditioned by the diagonal (Jacobi), `x₀ = 0`.
+    JacobiCg,
+}
+
+/// Statistics of one [`SparseSolver::solve`] call.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SolveStats {
+    /// Method actually used: `"cholesky"`, `"ldlt-bunch-kaufman"`,
+    /// `"cholesky-fallback-ldlt-bunch-kaufman"` (Cholesky requested but the
+    /// matrix was not positive definite) or `"jacobi-cg"`.
+    pub method: &'static str,
+    /// Conjugate-gradient iterations (direct methods: number of iterative
+    /// refinement steps performed, usually 0).
+    pub iterations: usize,
+    /// Achieved relative residual `‖b − Kx‖₂ / ‖b‖₂` (0 when `b = 0`),
+    /// computed with the true residual.
+    pub relative_residual: f64,
+    /// Wall time of the last [`SparseSolver::factorize`] (milliseconds),
+    /// including a symbolic analysis if one was needed.
+    pub factor_ms: f64,
+    /// Wall time of this solve (milliseconds).
+    pub solve_ms: f64,
+}
+
+/// Method names reported in [`SolveStats::method`].
+const M_CHOLESKY: &str = "cholesky";
+const M_LBLT: &str = "ldlt-bunch-kaufman";
+const M_FALLBACK: &str = "cholesky-fallback-ldlt-bunch-kaufman";
+const M_CG: &str = "jacobi-cg";
+
+/// Relative residual above which a direct solve is iteratively refined.
+const REFINE_TOL: f64 = 1e-12;
+/// Maximum number of iterative refinement steps after a direct solve.
+const MAX_REFINE: usize = 3;
+
+/// Pattern identity: fingerprint, dimension, number of stored entries.
+type PatternKey = (u64, usize, usize);
+
+fn pattern_key(k: &SymmetricCsc) -> PatternKey {
+    (k.pattern_id(), k.n, k.row_idx.len())
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum DirectFactor {
+    Llt,
+    Lblt,
+}
+
+/// Cached symbolic analysis plus numeric factor of the direct solver.
+struct Direct {
+    key: PatternKey,
+    symbolic: SymbolicCholesky<usize>,
+    l_values: Vec<f64>,
+    subdiag: Vec<f64>,
+    perm_fwd: Vec<usize>,
+    perm_inv: Vec<usize>,
+    mem: MemBuffer,
+    factor: Option<DirectFactor>,
+}
+
+/// Cached operator structure and preconditioner of the CG solver.
+struct Cg {
+    key: PatternKey,
+    op: FullOperator,
+    inv_diag: Vec<f64>,
+    work: CgWork,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Active {
+    Direct,
+    Cg,
+}
+
+/// Solves `K x = b` for a sequence of symmetric matrices sharing one sparsity
+/// pattern (the Newton tangent matrices of one grid).
+///
+/// The pattern-dependent analysis (fill-reducing ordering, elimination tree
+/// and supernodes for the direct solvers; the full row-wise operator structure
+/// for CG) is computed on the first [`SparseSolver::factorize`] and reused as
+/// long as [`SymmetricCsc::pattern_id`] (and `n`, `nnz`) are unchanged;
+/// [`SparseSolver::symbolic_analyses`] counts how often it was computed.
+///
+/// Parallelism: faer's kernels and the CG kernels run on the current rayon
+/// thread pool; results do not depend on the number of threads beyond
+/// rounding (CG: bitwise identical).
+pub struct SparseSolver {
+    kind: SolverKind,
+    rel_tol: f64,
+    max_iter: Option<usize>,
+    direct: Option<Direct>,
+    cg: Option<Cg>,
+    active: Option<Active>,
+    analyses: usize,
+    factor_ms: f64,
+    factorized_key: Option<PatternKey>,
+}
+
+impl std::fmt::Debug for SparseSolver {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SparseSolver")
+            .field("kind", &self.kind)
+            .field("rel_tol", &self.rel_tol)
+            .field("max_iter", &self.max_iter)
+            .field("active", &self.active)
+            .field("symbolic_analyses", &self.analyses)
+            .field("factor_ms", &self.factor_ms)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Default for SparseSolver {
+    fn default() -> Self {
+        Self::new(SolverKind::Auto)
+    }
+}
+
+fn par() -> Par {
+    let t = rayon::current_num_threads();
+    if t > 1 {
+        Par::rayon(t)
+    } else {
+        Par::Seq
+    }
+}
+
+fn ms_since(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+fn faer_view(k: &SymmetricCsc) -> SparseColMatRef<'_, usize, f64> {
+    let sym = SymbolicSparseColMatRef::new_checked(k.n, k.n, &k.col_ptr, None, &k.row_idx);
+    SparseColMatRef::new(sym, &k.values)
+}
+
+impl SparseSolver {
+    /// Default relative tolerance `‖b − Kx‖ / ‖b‖` of the conjugate gradient.
+    pub const DEFAULT_CG_REL_TOL: f64 = 1e-10;
+    /// Upper bound of the default CG iteration cap (`min(5 n, 20 000)`).
+    pub const DEFAULT_CG_MAX_ITER_CAP: usize = 20_000;
+
+    /// Creates a solver of the given kind with default CG settings
+    /// (`rel_tol = 1e-10`, `max_iter = min(5 n, 20 000)`).
+    pub fn new(kind: SolverKind) -> Self {
+        Self {
+            kind,
+            rel_tol: Self::DEFAULT_CG_REL_TOL,
+            max_iter: None,
+            direct: None,
+            cg: None,
+            active: None,
+            analyses: 0,
+            factor_ms: 0.0,
+            factorized_key: None,
+        }
+    }
+
+    /// Sets the conjugate-gradient stopping rule: relative residual
+    /// `‖b − Kx‖₂ / ‖b‖₂ ≤ rel_tol`, at most `max_iter` iterations (clamped to
+    /// at least 1).
+    pub fn with_cg_settings(mut self, rel_tol: f64, max_iter: usize) -> Self {
+        self.rel_tol = rel_tol;
+        self.max_iter = Some(max_iter.max(1));
+        self
+    }
+
+    /// The configured kind (possibly [`SolverKind::Auto`]).
+    pub fn kind(&self) -> SolverKind {
+        self.kind
+    }
+
+    /// What the configured kind resolves to for an `n × n` system
+    /// ([`SolverKind::Auto`] becomes [`SolverKind::Cholesky`] for
+    /// `n ≤ AUTO_DIRECT_MAX_DOFS`, else [`SolverKind::JacobiCg`]; other
+    /// kinds are returned unchanged).
+    pub fn chosen_method(&self, n: usize) -> SolverKind {
+        match self.kind {
+            SolverKind::Auto if n <= AUTO_DIRECT_MAX_DOFS => SolverKind::Cholesky,
+            SolverKind::Auto => SolverKind::JacobiCg,
+            k => k,
+        }
+    }
+
+    /// Number of pattern analyses (symbolic factorisations, or CG operator
+    /// structures) computed so far. Stays constant across `factorize` calls
+    /// on matrices with an unchanged pattern.
+    pub fn symbolic_analyses(&self) -> usize {
+        self.analyses
+    }
+
+    /// Method name of the current factorisation (same strings as
+    /// [`SolveStats::method`]), or `None` if nothing is factorised.
+    pub fn factorized_method(&self) -> Option<&'static str> {
+        match self.active? {
+            Active::Cg => Some(M_CG),
+            Active::Direct => {
+                let d = self.direct.as_ref()?;
+                match (d.factor?, self.chosen_kind_for_direct()) {
+                    (DirectFactor::Llt, _) => Some(M_CHOLESKY),
+                    (DirectFactor::Lblt, SolverKind::Ldlt) => Some(M_LBLT),
+                    (DirectFactor::Lblt, _) => Some(M_FALLBACK),
+                }
+            }
+        }
+    }
+
+    fn chosen_kind_for_direct(&self) -> SolverKind {
+        match self.kind {
+            SolverKind::Ldlt => SolverKind::Ldlt,
+            _ => SolverKind::Cholesky,
+        }
+    }
+
+    /// Number of stored values of the current direct factor (0 if none), a
+    /// measure of its memory use (8 bytes each).
+    pub fn factor_nnz(&self) -> usize {
+        self.direct.as_ref().map_or(0, |d| d.l_values.len())
+    }
+
+    /// Factorises `k` (direct kinds) or prepares the Jacobi preconditioner
+    /// (CG). The pattern analysis is computed on the first call and reused
+    /// while `k.pattern_id()`, `k.n` and the number of entries are unchanged.
+    ///
+    /// Errors: [`LinalgError::InvalidPattern`] (pattern invariants violated),
+    /// [`LinalgError::NonFinite`] (NaN/∞ in `k`), [`LinalgError::Singular`]
+    /// (zero pivot / zero diagonal for CG), [`LinalgError::NotPositiveDefinite`]
+    /// (CG only: negative diagonal), [`LinalgError::Faer`] (allocation). After
+    /// an error nothing is factorised and `solve` returns
+    /// [`LinalgError::NotFactorized`].
+    pub fn factorize(&mut self, k: &SymmetricCsc) -> Result<(), LinalgError> {
+        let t0 = Instant::now();
+        self.active = None;
+        self.factorized_key = None;
+        if k.values.len() != k.row_idx.len() || k.col_ptr.len() != k.n + 1 {
+            k.validate()?;
+        }
+        if !k.values.iter().all(|v| v.is_finite()) {
+            return Err(LinalgError::NonFinite);
+        }
+        let key = pattern_key(k);
+        let result = match self.chosen_method(k.n) {
+            SolverKind::JacobiCg => self.prepare_cg(k, key).map(|_| Active::Cg),
+            _ => self.factorize_direct(k, key).map(|_| Active::Direct),
+        };
+        self.factor_ms = ms_since(t0);
+        let active = result?;
+        self.active = Some(active);
+        self.factorized_key = Some(key);
+        Ok(())
+    }
+
+    fn prepare_cg(&mut self, k: &SymmetricCsc, key: PatternKey) -> Result<(), LinalgError> {
+        if self.cg.as_ref().is_none_or(|c| c.key != key) {
+            self.cg = None;
+            k.validate()?;
+            let op = FullOperator::new(k)?;
+            self.analyses += 1;
+            self.cg = Some(Cg {
+                key,
+                op,
+                inv_diag: Vec::new(),
+                work: CgWork::default(),
+            });
+        }
+        let cg = self.cg.as_mut().ok_or(LinalgError::NotFactorized)?;
+        cg.inv_diag.clear();
+        cg.inv_diag.reserve(k.n);
+        for d in k.diagonal() {
+            if d == 0.0 {
+                return Err(LinalgError::Singular);
+            }
+            if d < 0.0 {
+                return Err(LinalgError::NotPositiveDefinite);
+            }
+            cg.inv_diag.push(1.0 / d);
+        }
+        Ok(())
+    }
+
+    fn analyse_direct(&mut self, k: &SymmetricCsc, key: PatternKey) -> Result<(), LinalgError> {
+        self.direct = None;
+        k.validate()?;
+        let a = faer_view(k);
+        let params = CholeskySymbolicParams {
+            // Always supernodal: the intranodal Bunch–Kaufman fallback only
+            // pivots in the supernodal code path (the simplicial LDLᵀ has no
+            // pivoting), and 3-dof elasticity patterns favour supernodes.
+            supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SUPERNODAL,
+            ..Default::default()
+        };
+        let symbolic =
+            factorize_symbolic_cholesky(a.symbolic(), Side::Lower, SymmetricOrdering::Amd, params)
+                .map_err(|e| LinalgError::Faer(format!("symbolic analysis: {e:?}")))?;
+        self.analyses += 1;
+        let n = k.n;
+        let mut l_values = Vec::new();
+        l_values
+            .try_reserve_exact(symbolic.len_val())
+            .map_err(|_| LinalgError::Faer("out of memory for the factor".into()))?;
+        l_values.resize(symbolic.len_val(), 0.0);
+        let mem = MemBuffer::try_new(StackReq::EMPTY)
+            .map_err(|_| LinalgError::Faer("out of memory for scratch".into()))?;
+        self.direct = Some(Direct {
+            key,
+            symbolic,
+            l_values,
+            subdiag: vec![0.0; n],
+            perm_fwd: vec![0; n],
+            perm_inv: vec![0; n],
+            mem,
+            factor: None,
+        });
+        Ok(())
+    }
+
+    fn factorize_direct(&mut self, k: &SymmetricCsc, key: PatternKey) -> Result<(), LinalgError> {
+        if self.direct.as_ref().is_none_or(|d| d.key != key) {
+            self.analyse_direct(k, key)?;
+        }
+        let want_llt = self.chosen_method(k.n) == SolverKind::Cholesky;
+        let d = self.direct.as_mut().ok_or(LinalgError::NotFactorized)?;
+        d.factor = None;
+        let par = par();
+        // Scratch sized for LLᵀ, LBLᵀ and a one-column solve at this
+        // parallelism; grown if needed.
+        let req = d
+            .symbolic
+            .factorize_numeric_llt_scratch::<f64>(par, Spec::<LltParams, f64>::default())
+            .or(d
+                .symbolic
+                .factorize_numeric_intranode_lblt_scratch::<f64>(par, Spec::<LbltParams, f64>::default()))
+            .or(d.symbolic.solve_in_place_scratch::<f64>(1, par));
+        if req.unaligned_bytes_required() > d.mem.len() {
+            d.mem = MemBuffer::try_new(req)
+                .map_err(|_| LinalgError::Faer("out of memory for scratch".into()))?;
+        }
+        let a = faer_view(k);
+        if want_llt {
+            let ok = d
+                .symbolic
+                .factorize_numeric_llt::<f64>(
+                    &mut d.l_values,
+                    a,
+                    Side::Lower,
+                    Default::default(),
+                    par,
+                    MemStack::new(&mut d.mem),
+                    Default::default(),
+                )
+                .is_ok();
+            if ok && d.l_values.iter().all(|v| v.is_finite()) {
+                d.factor = Some(DirectFactor::Llt);
+                return Ok(());
+            }
+        }
+        d.symbolic.factorize_numeric_intranode_lblt::<f64>(
+            &mut d.l_values,
+            &mut d.subdiag,
+            &mut d.perm_fwd,
+            &mut d.perm_inv,
+            a,
+            Side::Lower,
+            par,
+            MemStack::new(&mut d.mem),
+            Default::default(),
+        );
+        check_lblt_pivots(&d.symbolic, &d.l_values, &d.subdiag)?;
+        d.factor = Some(DirectFactor::Lblt);
+        Ok(())
+    }
+
+    /// Solves `K x = b` with the last factorised matrix; `x` is overwritten
+    /// (for CG the initial guess is `x = 0`).
+    ///
+    /// `k` must be the matrix passed to the last successful
+    /// [`SparseSolver::factorize`] (or at least have the same pattern): CG
+    /// uses it for its products; direct solvers use it for the residual and
+    /// up to 3 steps of iterative refinement when the relative residual
+    /// exceeds `1e-12`.
+    ///
+    /// `b = 0` gives `x = 0` immediately. The returned `x` is always finite:
+    /// on any error it holds a finite vector (CG: the last iterate, which the
+    /// caller may use after [`LinalgError::NotConverged`]; otherwise zero).
+    pub fn solve(
+        &mut self,
+        k: &SymmetricCsc,
+        b: &[f64],
+        x: &mut [f64],
+    ) -> Result<SolveStats, LinalgError> {
+        let t0 = Instant::now();
+        let active = self.active.ok_or(LinalgError::NotFactorized)?;
+        let key = self.factorized_key.ok_or(LinalgError::NotFactorized)?;
+        if k.n != key.1 || k.row_idx.len() != key.2 || k.values.len() != key.2 {
+            return Err(LinalgError::InvalidPattern(format!(
+                "solve: matrix (n = {}, nnz = {}) differs from the factorised one (n = {}, nnz = {})",
+                k.n,
+                k.row_idx.len(),
+                key.1,
+                key.2
+            )));
+        }
+        if b.len() != k.n || x.len() != k.n {
+            return Err(LinalgError::InvalidPattern(format!(
+                "solve: b has length {} and x has length {}, expected {}",
+                b.len(),
+                x.len(),
+                k.n
+            )));
+        }
+        let method = self.factorized_method().unwrap_or(M_CG);
+        if !b.iter().all(|v| v.is_finite()) {
+            x.fill(0.0);
+            return Err(LinalgError::NonFinite);
+        }
+        if b.iter().all(|&v| v == 0.0) {
+            x.fill(0.0);
+            return Ok(SolveStats {
+                method,
+                iterations: 0,
+                relative_residual: 0.0,
+                factor_ms: self.factor_ms,
+                solve_ms: ms_since(t0),
+            });
+        }
+        let (iterations, relative_residual) = match active {
+            Active::Cg => self.solve_cg(k, b, x)?,
+            Active::Direct => self.solve_direct(k, b, x)?,
+        };
+        Ok(SolveStats {
+            method,
+            iterations,
+            relative_residual,
+            factor_ms: self.factor_ms,
+            solve_ms: ms_since(t0),
+        })
+    }
+
+    fn solve_cg(
+        &mut self,
+        k: &SymmetricCsc,
+        b: &[f64],
+        x: &mut [f64],
+    ) -> Result<(usize, f64), LinalgError> {
+        let n = k.n;
+        let max_iter = self
+            .max_iter
+            .unwrap_or_else(|| (5 * n).clamp(1, Self::DEFAULT_CG_MAX_ITER_CAP));
+        let rel_tol = self.rel_tol;
+        let cg = self.cg.as_mut().ok_or(LinalgError::NotFactorized)?;
+        cg.op.gather(k);
+        let out = cg::pcg(&cg.op, &cg.inv_diag, b, x, rel_tol, max_iter, &mut cg.work);
+        if !x.iter().all(|v| v.is_finite()) {
+            x.fill(0.0);
+            return Err(LinalgError::NonFinite);
+        }
+        out.result?;
+        Ok((out.iterations, out.relative_residual))
+    }
+
+    fn solve_direct(
+        &mut self,
+        k: &SymmetricCsc,
+        b: &[f64],
+        x: &mut [f64],
+    ) -> Result<(usize, f64), LinalgError> {
+        let n = k.n;
+        let d = self.direct.as_mut().ok_or(LinalgError::NotFactorized)?;
+        let par = par();
+        x.copy_from_slice(b);
+        d.apply_inverse(x, par);
+        if !x.iter().all(|v| v.is_finite()) {
+            x.fill(0.0);
+            return Err(LinalgError::NonFinite);
+        }
+        let bnorm = cg::norm(b);
+        let mut r = vec![0.0; n];
+        let residual = |x: &[f64], r: &mut [f64]| {
+            k.mul_vec(x, r);
+            for (ri, bi) in r.iter_mut().zip(b) {
+                *ri = bi - *ri;
+            }
+            cg::norm(r) / bnorm
+        };
+        let mut rel = residual(x, &mut r);
+        let mut steps = 0;
+        let mut trial = vec![0.0; n];
+        while rel > REFINE_TOL && steps < MAX_REFINE && rel.is_finite() {
+            steps += 1;
+            // r ← K⁻¹ r; trial = x + r.
+            d.apply_inverse(&mut r, par);
+            for ((t, xi), di) in trial.iter_mut().zip(x.iter()).zip(&r) {
+                *t = xi + di;
+            }
+            let rel_new = residual(&trial, &mut r);
+            if !(rel_new < rel) {
+                break;
+            }
+            x.copy_from_slice(&trial);
+            rel = rel_new;
+        }
+        if !rel.is_finite() {
+            x.fill(0.0);
+            return Err(LinalgError::NonFinite);
+        }
+        Ok((steps, rel))
+    }
+}
+
+impl Direct {
+    /// rhs ← K⁻¹ rhs with the current factor.
+    fn apply_inverse(&mut self, rhs: &mut [f64], par: Par) {
+        let n = rhs.len();
+        let rhs = MatMut::from_column_major_slice_mut(rhs, n, 1);
+        let stack = MemStack::new(&mut self.mem);
+        match self.factor {
+            Some(DirectFactor::Llt) => LltRef::new(&self.symbolic, &self.l_values)
+                .solve_in_place_with_conj(Conj::No, rhs, par, stack),
+            Some(DirectFactor::Lblt) => {
+                let perm = PermRef::new_checked(&self.perm_fwd, &self.perm_inv, n);
+                IntranodeLbltRef::new(&self.symbolic, &self.l_values, &self.subdiag, perm)
+                    .solve_in_place_with_conj(Conj::No, rhs, par, stack)
+            }
+            None => {}
+        }
+    }
+}
+
+/// Checks the block-diagonal factor `B` of an intranodal `LBLᵀ`: every 1×1
+/// pivot and every 2×2 pivot block must be finite and nonsingular, and all
+/// factor values finite. Returns [`LinalgError::Singular`] otherwise.
+fn check_lblt_pivots(
+    symbolic: &SymbolicCholesky<usize>,
+    l_values: &[f64],
+    subdiag: &[f64],
+) -> Result<(), LinalgError> {
+    if !l_values.iter().all(|v| v.is_finite()) || !subdiag.iter().all(|v| v.is_finite()) {
+        return Err(LinalgError::Singular);
+    }
+    let SymbolicCholeskyRaw::Supernodal(sn) = symbolic.raw() else {
+        // Not produced by `analyse_direct` (always supernodal).
+        return Ok(());
+    };
+    let begin = sn.supernode_begin();
+    let end = sn.supernode_end();
+    let val_ptr = sn.col_ptr_for_val();
+    for s in 0..sn.n_supernodes() {
+        let ncols = end[s] - begin[s];
+        let nrows = sn.supernode(s).pattern().len() + ncols;
+        let base = val_ptr[s];
+        let diag = |j: usize| l_values[base + j * nrows + j];
+        let sub = &subdiag[begin[s]..end[s]];
+        let mut j = 0;
+        while j < ncols {
+            if sub[j] == 0.0 {
+                if diag(j) == 0.0 {
+                    return Err(LinalgError::Singular);
+                }
+                j += 1;
+            } else {
+                let det = diag(j) * diag(j + 1) - sub[j] * sub[j];
+                if det == 0.0 || !det.is_finite() {
+                    return Err(LinalgError::Singular);
+                }
+                j += 2;
+            }
+        }
+    }
+    Ok(())
+}

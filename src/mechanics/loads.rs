@@ -1,0 +1,108 @@
+//! Dead loads: surface tractions integrated on the surface triangles and moved to the grid
+//! through H (thesis eq. 4.14–4.17), and gravity weighted by the inside volume.
+
+use nalgebra::{Point3, Vector3};
+
+use crate::geometry::Aabb;
+use crate::grid::{Embedding, EmbeddingError, WeightedCellGrid};
+use crate::mechanics::hex8::{gauss_points, shape_values};
+use crate::mesh::TriSurface;
+
+/// A point sampling a piece of surface: its position and the area it stands for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurfaceSample {
+    /// Position (surface units).
+    pub point: Point3<f64>,
+    /// Area represented (surface units²).
+    pub area: f64,
+}
+
+/// Samples the part of `surface` inside `region`: each triangle is split into `m²` similar
+/// sub-triangles with edges at most `spacing`, and the centroid of every sub-triangle inside
+/// the box is kept with the sub-triangle's area (a midpoint rule, exact for constant
+/// tractions on the covered area).
+pub fn sample_surface_in_box(surface: &TriSurface, region: &Aabb, spacing: f64) -> Vec<SurfaceSample> {
+    let mut out = Vec::new();
+    for t in 0..surface.triangles.len() {
+        let [a, b, c] = surface.corners(t);
+        let lo = a.inf(&b).inf(&c);
+        let hi = a.sup(&b).sup(&c);
+        if (0..3).any(|d| hi[d] < region.min[d] || lo[d] > region.max[d]) {
+            continue;
+        }
+        let longest = (b - a).norm().max((c - b).norm()).max((a - c).norm());
+        let m = ((longest / spacing).ceil() as usize).clamp(1, 256);
+        let area = 0.5 * (b - a).cross(&(c - a)).norm() / (m * m) as f64;
+        let (eu, ev) = ((b - a) / m as f64, (c - a) / m as f64);
+        for i in 0..m {
+            for j in 0..(m - i) {
+                // Upward sub-triangle (i, j), and the downward one beside it.
+                let p = a + eu * (i as f64 + 1.0 / 3.0) + ev * (j as f64 + 1.0 / 3.0);
+                push_if_inside(&mut out, region, p, area);
+                if i + j + 1 < m {
+                    let q = a + eu * (i as f64 + 2.0 / 3.0) + ev * (j as f64 + 2.0 / 3.0);
+                    push_if_inside(&mut out, region, q, area);
+                }
+            }
+        }
+    }
+    out
+}
+
+fn push_if_inside(out: &mut Vec<SurfaceSample>, region: &Aabb, p: Point3<f64>, area: f64) {
+    if (0..3).all(|d| p[d] >= region.min[d] && p[d] <= region.max[d]) {
+        out.push(SurfaceSample { point: p, area });
+    }
+}
+
+/// Grid forces (N, 3 per node) of a dead traction `value` (Pa) on the surface inside
+/// `region`: `T = H Tˢ` with `Tˢ_j = value · A_j` at each surface sample (eq. 4.17).
+pub fn traction_forces(
+    grid: &WeightedCellGrid,
+    surface: &TriSurface,
+    region: &Aabb,
+    value: Vector3<f64>,
+    forces: &mut [f64],
+) -> Result<usize, EmbeddingError> {
+    let samples = sample_surface_in_box(surface, region, 0.25 * grid.grid.cell_size);
+    let points: Vec<Point3<f64>> = samples.iter().map(|s| s.point).collect();
+    let emb = Embedding::new(grid, &points)?;
+    let f: Vec<Vector3<f64>> = samples.iter().map(|s| value * s.area).collect();
+    emb.spread_forces(&f, forces);
+    Ok(samples.len())
+}
+
+/// Grid forces (N) of gravity `g` (m/s²) on material of density `rho` (kg/m³): the consistent
+/// nodal loads `f_a = Σ_I ρ g v_I N_a(ξ_I)` with `v_I` the inside volume of octant `I`, so
+/// that the total is exactly `ρ g V_inside`.
+pub fn gravity_forces(grid: &WeightedCellGrid, rho: f64, g: Vector3<f64>, forces: &mut [f64]) {
+    let v8 = grid.grid.cell_size.powi(3) / 8.0;
+    let gp = gauss_points();
+    let n_at: Vec<[f64; 8]> = gp.iter().map(shape_values).collect();
+    for cell in &grid.cells {
+        for (i, frac) in cell.octant_fractions.iter().enumerate() {
+            let m = rho * frac * v8;
+            for (a, &node) in cell.nodes.iter().enumerate() {
+                for d in 0..3 {
+                    forces[3 * node + d] += m * g[d] * n_at[i][a];
+                }
+            }
+        }
+    }
+}
+
+/// Grid forces (N) of a body force density `b(X)` (N/m³, X in m): `f_a = Σ_q b(X_q) N_a(ξ_q) w_q`
+/// over the grid's own integration points (so the load is integrated exactly as the stiffness).
+pub fn body_forces(grid: &WeightedCellGrid, b: impl Fn(&Point3<f64>) -> Vector3<f64>, forces: &mut [f64]) {
+    for (c, cell) in grid.cells.iter().enumerate() {
+        for q in grid.quadrature.cell(c) {
+            let x = grid.grid.to_physical(cell.coords, &q.xi);
+            let bx = b(&x) * q.weight;
+            for (a, n) in shape_values(&q.xi).iter().enumerate() {
+                for d in 0..3 {
+                    forces[3 * cell.nodes[a] + d] += n * bx[d];
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,18 @@
+//! Mechanics: hexahedral elements, hyperelastic materials, assembly, loads, penalty springs and
+//! the static Newton solver (thesis ch. 2 and §4.6–4.7).
+
+pub mod assembly;
+pub mod cell_kernel;
+pub mod hex8;
+pub mod loads;
+pub mod material;
+pub mod newton;
+pub mod penalty;
+pub mod static_problem;
+
+pub use assembly::Assembler;
+pub use cell_kernel::{Need, VolumetricIntegration};
+pub use material::{LawKind, Material, MaterialError, Part};
+pub use newton::{NewtonSettings, NewtonSolver, Outcome, SolveReport};
+pub use penalty::PenaltySprings;
+pub use static_problem::StaticProblem;

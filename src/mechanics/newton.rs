@@ -1,0 +1,311 @@
+//! Static Newton–Raphson with load stepping, a line search and increment bisection
+//! (thesis eq. 2.28 and alg. 1; seed 003 §2.5).
+
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use super::assembly::CellFailure;
+use super::cell_kernel::Need;
+use super::static_problem::StaticProblem;
+use crate::linalg::{LinalgError, SolverKind, SparseSolver, SymmetricCsc};
+
+/// Settings of the static solver.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct NewtonSettings {
+    /// Nominal number of equal load increments.
+    pub load_steps: usize,
+    /// Newton iterations allowed per increment.
+    pub max_iterations: usize,
+    /// Converged when ‖R‖ ≤ this × max(‖R₀‖, ‖s f_ext‖) (R₀: residual at the increment's start).
+    pub residual_tolerance: f64,
+    /// Converged when a full Newton step has ‖δu‖ ≤ this × ‖u‖.
+    pub displacement_tolerance: f64,
+    /// How many times in a row a failed increment may be halved before giving up.
+    pub max_bisections: usize,
+    /// Backtracking line search on the potential energy.
+    pub line_search: bool,
+    /// Linear solver.
+    pub linear_solver: SolverKind,
+}
+
+impl Default for NewtonSettings {
+    fn default() -> Self {
+        Self {
+            load_steps: 10,
+            max_iterations: 30,
+            residual_tolerance: 1e-8,
+            displacement_tolerance: 1e-8,
+            max_bisections: 6,
+            line_search: true,
+            linear_solver: SolverKind::Auto,
+        }
+    }
+}
+
+/// How a solve ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Outcome {
+    /// Full load reached and equilibrium found.
+    Converged,
+    /// An increment hit the iteration cap even after the allowed bisections.
+    IterationCap,
+    /// The residual grew without bound, became non-finite, or the linear solve failed.
+    Diverged,
+    /// A quadrature point inverted (J ≤ 0) and no smaller increment avoided it.
+    Inverted,
+}
+
+impl Outcome {
+    /// Name used in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Outcome::Converged => "converged",
+            Outcome::IterationCap => "iteration-cap",
+            Outcome::Diverged => "diverged",
+            Outcome::Inverted => "inverted",
+        }
+    }
+}
+
+/// Result of a static solve. `u` is always a valid state: the converged solution, or the last
+/// converged increment when the solve failed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SolveReport {
+    /// How it ended.
+    pub outcome: Outcome,
+    /// Why it failed, when it did.
+    pub message: Option<String>,
+    /// Nodal displacements (m), 3 per node: the last good state.
+    pub u: Vec<f64>,
+    /// Load factor of `u` (1 when converged).
+    pub load_reached: f64,
+    /// Newton iterations over all increments (including failed ones).
+    pub newton_iterations: usize,
+    /// Converged increments.
+    pub load_steps: usize,
+    /// Increment halvings performed.
+    pub bisections: usize,
+    /// Final relative residual of the last converged increment.
+    pub relative_residual: f64,
+    /// Wall time, ms.
+    pub wall_ms: f64,
+}
+
+/// Why one increment failed.
+#[derive(Debug, Clone, PartialEq)]
+struct StepFailure {
+    outcome: Outcome,
+    message: String,
+}
+
+impl From<CellFailure> for StepFailure {
+    fn from(f: CellFailure) -> Self {
+        StepFailure { outcome: Outcome::Inverted, message: format!("cell {}: {}", f.cell, f.error) }
+    }
+}
+
+impl From<LinalgError> for StepFailure {
+    fn from(e: LinalgError) -> Self {
+        StepFailure { outcome: Outcome::Diverged, message: format!("linear solve failed: {e}") }
+    }
+}
+
+/// Newton–Raphson solver for a [`StaticProblem`], keeping its linear solver (and so the
+/// symbolic factorisation) and work buffers across solves.
+pub struct NewtonSolver {
+    /// Settings.
+    pub settings: NewtonSettings,
+    linear: SparseSolver,
+    tangent: Option<SymmetricCsc>,
+}
+
+impl NewtonSolver {
+    /// A solver with `settings`.
+    pub fn new(settings: NewtonSettings) -> Self {
+        Self { linear: SparseSolver::new(settings.linear_solver), settings, tangent: None }
+    }
+
+    /// Solves from the state `u0` (m; load factor 0 is assumed to hold there) up to full load.
+    pub fn solve(&mut self, problem: &mut StaticProblem, u0: &[f64]) -> SolveReport {
+        let start = Instant::now();
+        let s = self.settings;
+        let nominal = 1.0 / s.load_steps.max(1) as f64;
+        let mut u = u0.to_vec();
+        let mut load = 0.0;
+        let mut step = nominal;
+        let mut consecutive = 0;
+        let mut report = SolveReport {
+            outcome: Outcome::Converged,
+            message: None,
+            u: Vec::new(),
+            load_reached: 0.0,
+            newton_iterations: 0,
+            load_steps: 0,
+            bisections: 0,
+            relative_residual: 0.0,
+            wall_ms: 0.0,
+        };
+        while load < 1.0 - 1e-12 {
+            let target = (load + step).min(1.0);
+            let mut trial = u.clone();
+            match self.increment(problem, &mut trial, target, &mut report.newton_iterations) {
+                Ok(rel) => {
+                    u = trial;
+                    load = target;
+                    report.load_steps += 1;
+                    report.relative_residual = rel;
+                    consecutive = 0;
+                    step = (step * 2.0).min(nominal);
+                }
+                Err(fail) => {
+                    if consecutive >= s.max_bisections {
+                        report.outcome = fail.outcome;
+                        report.message = Some(format!(
+                            "increment to load factor {target:.4} failed after {consecutive} bisections: {}",
+                            fail.message
+                        ));
+                        break;
+                    }
+                    consecutive += 1;
+                    report.bisections += 1;
+                    step *= 0.5;
+                }
+            }
+        }
+        report.u = u;
+        report.load_reached = load;
+        report.wall_ms = start.elapsed().as_secs_f64() * 1e3;
+        report
+    }
+
+    /// Newton iterations at load factor `load` starting from `u`; on success `u` holds the
+    /// equilibrium and the final relative residual is returned.
+    fn increment(
+        &mut self,
+        problem: &mut StaticProblem,
+        u: &mut [f64],
+        load: f64,
+        iterations: &mut usize,
+    ) -> Result<f64, StepFailure> {
+        let s = self.settings;
+        let n = problem.dofs();
+        let mut k = self.tangent.take().unwrap_or_else(|| problem.new_tangent());
+        let mut r = vec![0.0; n];
+        let mut du = vec![0.0; n];
+        let mut trial = vec![0.0; n];
+        let ext_norm = load * norm(&problem.external);
+        let result = (|| {
+            let mut reference = 0.0;
+            for it in 0..s.max_iterations {
+                let e = problem.evaluate(u, load, Need::Tangent, Some(&mut r), Some(&mut k))?;
+                let rn = norm(&r);
+                if !rn.is_finite() || !e.potential.is_finite() {
+                    return Err(StepFailure { outcome: Outcome::Diverged, message: "non-finite residual".into() });
+                }
+                if it == 0 {
+                    reference = rn.max(ext_norm).max(f64::MIN_POSITIVE);
+                }
+                let rel = rn / reference;
+                if rel <= s.residual_tolerance {
+                    return Ok(rel);
+                }
+                if rel > 1e8 {
+                    return Err(StepFailure {
+                        outcome: Outcome::Diverged,
+                        message: format!("residual grew to {rel:.3e} times its initial value"),
+                    });
+                }
+                *iterations += 1;
+                self.linear.factorize(&k)?;
+                for v in r.iter_mut() {
+                    *v = -*v;
+                }
+                self.linear.solve(&k, &r, &mut du)?;
+                for v in r.iter_mut() {
+                    *v = -*v;
+                }
+                let alpha = if s.line_search {
+                    self.line_search(problem, u, &du, &r, e.potential, rn, load, &mut trial)?
+                } else {
+                    1.0
+                };
+                for (ui, di) in u.iter_mut().zip(&du) {
+                    *ui += alpha * di;
+                }
+                let dn = alpha * norm(&du);
+                if alpha == 1.0 && dn <= s.displacement_tolerance * norm(u) {
+                    // Converged in displacement; report the residual of the new state.
+                    problem.evaluate(u, load, Need::Force, Some(&mut r), None)?;
+                    return Ok(norm(&r) / reference);
+                }
+            }
+            Err(StepFailure {
+                outcome: Outcome::IterationCap,
+                message: format!("no convergence in {} Newton iterations", s.max_iterations),
+            })
+        })();
+        self.tangent = Some(k);
+        result
+    }
+
+    /// Backtracking on the potential energy (Armijo), falling back to the residual norm when
+    /// the step is not a descent direction (indefinite tangent). Returns the step length.
+    #[allow(clippy::too_many_arguments)]
+    fn line_search(
+        &self,
+        problem: &mut StaticProblem,
+        u: &[f64],
+        du: &[f64],
+        r: &[f64],
+        potential: f64,
+        r_norm: f64,
+        load: f64,
+        trial: &mut [f64],
+    ) -> Result<f64, StepFailure> {
+        let slope: f64 = r.iter().zip(du).map(|(a, b)| a * b).sum();
+        let descent = slope < 0.0;
+        let mut alpha = 1.0;
+        let mut last_failure: Option<StepFailure> = None;
+        let mut scratch = vec![0.0; if descent { 0 } else { r.len() }];
+        for _ in 0..12 {
+            for ((t, ui), di) in trial.iter_mut().zip(u).zip(du) {
+                *t = ui + alpha * di;
+            }
+            let accepted = if descent {
+                match problem.evaluate(trial, load, Need::Energy, None, None) {
+                    Ok(e) => {
+                        let tol = 1e-12 * (potential.abs() + 1e-300);
+                        e.potential.is_finite() && e.potential <= potential + 1e-4 * alpha * slope + tol
+                    }
+                    Err(f) => {
+                        last_failure = Some(f.into());
+                        false
+                    }
+                }
+            } else {
+                match problem.evaluate(trial, load, Need::Force, Some(&mut scratch), None) {
+                    Ok(_) => norm(&scratch) < r_norm,
+                    Err(f) => {
+                        last_failure = Some(f.into());
+                        false
+                    }
+                }
+            };
+            if accepted {
+                return Ok(alpha);
+            }
+            alpha *= 0.5;
+        }
+        Err(last_failure.unwrap_or(StepFailure {
+            outcome: Outcome::Diverged,
+            message: "line search found no decrease".into(),
+        }))
+    }
+}
+
+/// Euclidean norm.
+pub fn norm(v: &[f64]) -> f64 {
+    v.iter().map(|x| x * x).sum::<f64>().sqrt()
+}

@@ -1,0 +1,94 @@
+//! Surface meshes and point clouds: readers (OBJ, STL, PLY, OFF, Gmsh 2 MSH, point text files),
+//! writers (OBJ, point text) and validation. Lengths are always in the file's units; unit
+//! conversion is done by the caller with [`TriSurface::scale`].
+
+pub mod error;
+pub mod msh;
+pub mod obj;
+pub mod off;
+pub mod ply;
+pub mod points;
+pub mod primitives;
+pub mod stl;
+pub mod surface;
+pub mod validate;
+
+mod assemble;
+#[cfg(test)]
+mod fixtures;
+mod text;
+
+use std::path::Path;
+
+pub use error::MeshError;
+pub use msh::read_msh;
+pub use obj::{read_obj, write_obj};
+pub use off::read_off;
+pub use ply::{read_ply, read_ply_vertices};
+pub use points::{read_points, write_points};
+pub use stl::read_stl;
+pub use surface::TriSurface;
+pub use validate::{orient_outward, validate, SurfaceReport};
+
+/// The surface formats [`read_surface`] understands, by extension.
+pub const SURFACE_EXTENSIONS: [&str; 5] = ["obj", "stl", "ply", "off", "msh"];
+
+/// Reads a triangle surface, choosing the reader from the file extension (case-insensitive):
+/// `obj`, `stl`, `ply`, `off` or `msh` (Gmsh 2.x ASCII). Lengths are in the file's units.
+pub fn read_surface(path: &Path) -> Result<TriSurface, MeshError> {
+    match extension(path).as_deref() {
+        Some("obj") => read_obj(path),
+        Some("stl") => read_stl(path),
+        Some("ply") => read_ply(path),
+        Some("off") => read_off(path),
+        Some("msh") => read_msh(path),
+        Some(other) => Err(MeshError::unsupported(
+            path,
+            format!(
+                "unknown surface file extension '{other}' (supported: {})",
+                SURFACE_EXTENSIONS.join(", ")
+            ),
+        )),
+        None => Err(MeshError::unsupported(
+            path,
+            format!(
+                "the file name has no extension to tell its format (supported: {})",
+                SURFACE_EXTENSIONS.join(", ")
+            ),
+        )),
+    }
+}
+
+/// The lower-cased extension of `path`, if any.
+pub(crate) fn extension(path: &Path) -> Option<String> {
+    path.extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::fixtures::{assert_err, cube, TempDir};
+    use super::*;
+
+    #[test]
+    fn dispatch_is_case_insensitive() {
+        let dir = TempDir::new("dispatch");
+        let path = dir.path("Liver.OBJ");
+        write_obj(&path, &cube()).unwrap();
+        assert_eq!(read_surface(&path).unwrap(), cube());
+    }
+
+    #[test]
+    fn unknown_extension_names_file_extension_and_supported_ones() {
+        let dir = TempDir::new("dispatch-bad");
+        let path = dir.write("liver.vtk", "");
+        let msg = assert_err(
+            read_surface(&path),
+            &path,
+            &["'vtk'", "obj, stl, ply, off, msh"],
+        );
+        assert!(msg.contains("liver.vtk"));
+        let path = dir.write("liver", "");
+        assert_err(read_surface(&path), &path, &["no extension", "obj, stl"]);
+    }
+}

@@ -1,0 +1,67 @@
+//! Closed triangle surfaces: the pre-operative liver model and internal structure meshes.
+
+use nalgebra::{Point3, Vector3};
+
+/// A triangle surface in scene units: vertex positions and counter-clockwise (outward-normal)
+/// triangles indexing into them.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct TriSurface {
+    /// Vertex positions, in scene units.
+    pub vertices: Vec<Point3<f64>>,
+    /// Triangles as vertex indices, oriented so that the right-hand normal points outwards.
+    pub triangles: Vec<[usize; 3]>,
+}
+
+impl TriSurface {
+    /// Creates a surface from vertices and triangles (indices are not checked here; readers and
+    /// [`crate::mesh::validate`] check them).
+    pub fn new(vertices: Vec<Point3<f64>>, triangles: Vec<[usize; 3]>) -> Self {
+        Self {
+            vertices,
+            triangles,
+        }
+    }
+
+    /// The three corner positions of triangle `t`.
+    pub fn corners(&self, t: usize) -> [Point3<f64>; 3] {
+        let [a, b, c] = self.triangles[t];
+        [self.vertices[a], self.vertices[b], self.vertices[c]]
+    }
+
+    /// Area-weighted normal of triangle `t` (its length is twice the area), in units².
+    pub fn scaled_normal(&self, t: usize) -> Vector3<f64> {
+        let [a, b, c] = self.corners(t);
+        (b - a).cross(&(c - a))
+    }
+
+    /// Axis-aligned bounding box `(min, max)` of the vertices; `None` for an empty surface.
+    pub fn bounding_box(&self) -> Option<(Point3<f64>, Point3<f64>)> {
+        let first = *self.vertices.first()?;
+        Some(
+            self.vertices
+                .iter()
+                .fold((first, first), |(lo, hi), p| (lo.inf(p), hi.sup(p))),
+        )
+    }
+
+    /// Multiplies every coordinate by `factor` (unit conversion).
+    pub fn scale(&mut self, factor: f64) {
+        for v in &mut self.vertices {
+            v.coords *= factor;
+        }
+    }
+
+    /// Enclosed volume by the divergence theorem, in units³ (positive when normals point out).
+    ///
+    /// The triple products are summed before the single division by 6, so a mesh with integer
+    /// coordinates (e.g. the unit cube) gets its exact volume.
+    pub fn signed_volume(&self) -> f64 {
+        (0..self.triangles.len())
+            .map(|t| {
+                let [a, b, c] = self.corners(t);
+                a.coords.dot(&b.coords.cross(&c.coords))
+            })
+            .sum::<f64>()
+            / 6.0
+    }
+}

@@ -1,0 +1,543 @@
+//! The scene file's data model: plain serde types mirroring the contract's keys.
+//!
+//! Every struct denies unknown keys, so a misspelt key is an error that names it. Defaults are
+//! applied by serde when a key is absent; value constraints are checked afterwards by
+//! [`crate::scene::load_scene`] (see `validate.rs`), not here.
+//!
+//! Units: every *length* (box corners, inline points, probe points, `cell_size`, the camera, and
+//! the coordinates inside the files the scene names) is in *scene units* (see [`Units`]).
+//! Material constants, tractions, gravity and spring stiffnesses are always SI.
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+
+/// A point or vector `[x, y, z]`.
+pub type Vec3 = [f64; 3];
+
+/// The unit of every length in the scene and in the files it names (`units = "m" | "cm" | "mm"`).
+///
+/// Lengths are *not* rescaled when a scene is loaded; results are written in the same unit.
+/// Use [`Units::to_metres`] (or [`crate::scene::LoadedScene::length_scale`]) to convert to SI
+/// when combining lengths with the SI material constants and loads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
+pub enum Units {
+    /// Metres (`"m"`, the default).
+    #[default]
+    #[serde(rename = "m")]
+    Metres,
+    /// Centimetres (`"cm"`).
+    #[serde(rename = "cm")]
+    Centimetres,
+    /// Millimetres (`"mm"`).
+    #[serde(rename = "mm")]
+    Millimetres,
+}
+
+impl Units {
+    /// Metres per scene unit: 1 for `"m"`, 0.01 for `"cm"`, 0.001 for `"mm"`.
+    ///
+    /// A length `l` read from the scene is `l * to_metres()` metres.
+    pub fn to_metres(self) -> f64 {
+        match self {
+            Units::Metres => 1.0,
+            Units::Centimetres => 0.01,
+            Units::Millimetres => 0.001,
+        }
+    }
+
+    /// The spelling used in the scene file (`"m"`, `"cm"` or `"mm"`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Units::Metres => "m",
+            Units::Centimetres => "cm",
+            Units::Millimetres => "mm",
+        }
+    }
+}
+
+/// An axis-aligned box `[[xmin, ymin, zmin], [xmax, ymax, zmax]]`, in scene units.
+///
+/// In a file it is written as the two corners; `min <= max` on every axis is checked when the
+/// scene is loaded. Bounds are inclusive (see [`BoxRegion::contains`]).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(from = "[Vec3; 2]", into = "[Vec3; 2]")]
+pub struct BoxRegion {
+    /// Lower corner (scene units).
+    pub min: Vec3,
+    /// Upper corner (scene units).
+    pub max: Vec3,
+}
+
+impl BoxRegion {
+    /// True when `p` (scene units) lies inside the box or on its boundary.
+    pub fn contains(&self, p: Vec3) -> bool {
+        (0..3).all(|k| self.min[k] <= p[k] && p[k] <= self.max[k])
+    }
+}
+
+impl From<[Vec3; 2]> for BoxRegion {
+    fn from(c: [Vec3; 2]) -> Self {
+        BoxRegion {
+            min: c[0],
+            max: c[1],
+        }
+    }
+}
+
+impl From<BoxRegion> for [Vec3; 2] {
+    fn from(b: BoxRegion) -> Self {
+        [b.min, b.max]
+    }
+}
+
+/// A set of points given either as a point file or inline.
+///
+/// `points = "fixed.xyz"` (a path, relative to the scene file until loaded, absolute after
+/// [`crate::scene::load_scene`]) or `points = [[x, y, z], ...]` (scene units).
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(
+    untagged,
+    expecting = "invalid points: expected a point file path (a string) or an inline list of points [[x, y, z], ...]"
+)]
+pub enum PointSource {
+    /// Inline points, in scene units.
+    Inline(Vec<Vec3>),
+    /// A point file (text `.xyz` `.txt` `.csv`, or `.ply`) whose coordinates are in scene units.
+    File(PathBuf),
+}
+
+/// The whole scene file.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scene {
+    /// Unit of every length in the scene and its files (default `"m"`).
+    #[serde(default)]
+    pub units: Units,
+    /// The pre-operative model: surface and internal structures (required).
+    pub model: ModelSpec,
+    /// The immersed-boundary grid (required: `cell_size` has no default).
+    pub grid: GridSpec,
+    /// The hyperelastic material (required: `young_modulus` and `poisson_ratio`).
+    pub material: MaterialSpec,
+    /// Dirichlet conditions (default: nothing fixed).
+    #[serde(default)]
+    pub boundary: BoundarySpec,
+    /// External loads (default: none).
+    #[serde(default)]
+    pub load: LoadSpec,
+    /// Nonlinear solver settings (default: all defaults).
+    #[serde(default)]
+    pub solver: SolverSpec,
+    /// `[[probe]]`: points whose displacement `livereg simulate` reports (default: none).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub probe: Vec<ProbeSpec>,
+    /// Registration settings (`[registration]`, optional; `None` when the table is absent).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub registration: Option<RegistrationSpec>,
+}
+
+/// `[model]`: the pre-operative model.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelSpec {
+    /// Closed triangle surface (`.obj .stl .ply .off`, or the triangles of a Gmsh 2.2 `.msh`),
+    /// coordinates in scene units. Required.
+    pub surface: PathBuf,
+    /// `[[model.structures]]`: internal structures carried along by the deformation.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub structures: Vec<StructureSpec>,
+}
+
+/// One `[[model.structures]]` entry: a named set of internal points or a small mesh.
+///
+/// Exactly one of `points` and `mesh` must be given (checked on load).
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct StructureSpec {
+    /// Unique, non-empty name; the key of this structure in `register`'s `results.jsonl`.
+    pub name: String,
+    /// A point file (scene units); the output keeps the order of its points.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub points: Option<PathBuf>,
+    /// A surface mesh (same formats as `model.surface`, scene units) whose vertices are carried.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<PathBuf>,
+}
+
+/// How cut cells (cells crossed by the surface) are integrated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum IntegrationKind {
+    /// `"weighted-cell"` (default): the 8 Gauss points of the hexahedron, each weight scaled by
+    /// the inside volume fraction of its first-level sub-cell (thesis 4.12–4.13).
+    #[default]
+    WeightedCell,
+    /// `"finite-cell"`: recursive octree subdivision, Gauss points on the leaves (4.6–4.8).
+    FiniteCell,
+    /// `"full-cell"`: cut cells counted as full hexahedra.
+    FullCell,
+}
+
+/// `[grid]`: the regular grid of hexahedral cells laid over the surface.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct GridSpec {
+    /// Edge of a cubic cell, in scene units. Required; finite and > 0.
+    pub cell_size: f64,
+    /// Octree levels used on cut cells to compute inside volume fractions (finite-cell:
+    /// integration leaves). Default 3; at most 6, since a cut cell has up to 8^L sub-cells.
+    #[serde(default = "defaults::subdivisions")]
+    pub subdivisions: u32,
+    /// Integration of cut cells (default `"weighted-cell"`).
+    #[serde(default)]
+    pub integration: IntegrationKind,
+    /// Fictitious-domain floor (dimensionless, in `[0, 0.5)`, default 1e-4): a cut cell's
+    /// (sub-cell's) integration weight fraction is never taken below this, so cells with almost
+    /// no inside volume keep a little stiffness and `K` stays non-singular.
+    #[serde(default = "defaults::min_fraction")]
+    pub min_fraction: f64,
+    /// Shift of the grid origin, in *cell units*, each component in `[0, 1)` (default
+    /// `[0, 0, 0]`). Used to move the surface relative to the grid, e.g. to test badly cut cells.
+    #[serde(default)]
+    pub origin_offset: Vec3,
+}
+
+impl GridSpec {
+    /// A grid with the given cell size (scene units), other keys at their defaults.
+    pub fn with_cell_size(cell_size: f64) -> Self {
+        GridSpec {
+            cell_size,
+            subdivisions: defaults::subdivisions(),
+            integration: IntegrationKind::WeightedCell,
+            min_fraction: defaults::min_fraction(),
+            origin_offset: [0.0; 3],
+        }
+    }
+}
+
+/// Constitutive law.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LawName {
+    /// `"neo-hookean"` (default), compressible, thesis (2.9). Undefined for J ≤ 0.
+    #[default]
+    NeoHookean,
+    /// `"svk"`: St Venant–Kirchhoff, thesis (2.8).
+    Svk,
+    /// `"corotated"`: corotated linear elasticity.
+    Corotated,
+    /// `"linear"`: small-strain linear elasticity.
+    Linear,
+}
+
+/// How the volumetric (λ) terms of the stiffness are integrated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum VolumetricIntegration {
+    /// `"reduced"` (default): selective reduced integration of the λ-terms (one point per
+    /// cell), against volumetric locking at ν → 0.5.
+    #[default]
+    Reduced,
+    /// `"full"`: the λ-terms on the same Gauss points as the rest (locks at ν → 0.5).
+    Full,
+}
+
+/// `[material]`: homogeneous hyperelastic material. Constants are SI whatever `units` says.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialSpec {
+    /// Constitutive law (default `"neo-hookean"`).
+    #[serde(default)]
+    pub law: LawName,
+    /// Young's modulus E, in Pa. Required; > 0.
+    pub young_modulus: f64,
+    /// Poisson's ratio ν (dimensionless). Required; −1 < ν < 0.5 (use ≤ 0.499 for "nearly
+    /// incompressible").
+    pub poisson_ratio: f64,
+    /// Mass density in kg/m³, used with gravity (default 1000); ≥ 0.
+    #[serde(default = "defaults::density")]
+    pub density: f64,
+    /// Integration of the volumetric terms (default `"reduced"`).
+    #[serde(default)]
+    pub volumetric: VolumetricIntegration,
+}
+
+impl MaterialSpec {
+    /// A material with the given law, Young's modulus (Pa) and Poisson's ratio, other keys at
+    /// their defaults.
+    pub fn new(law: LawName, young_modulus: f64, poisson_ratio: f64) -> Self {
+        MaterialSpec {
+            law,
+            young_modulus,
+            poisson_ratio,
+            density: defaults::density(),
+            volumetric: VolumetricIntegration::Reduced,
+        }
+    }
+
+    /// Lamé's first parameter λ = Eν/((1+ν)(1−2ν)), in Pa.
+    pub fn lame_lambda(&self) -> f64 {
+        let (e, nu) = (self.young_modulus, self.poisson_ratio);
+        e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+    }
+
+    /// Shear modulus μ = E/(2(1+ν)), in Pa.
+    pub fn lame_mu(&self) -> f64 {
+        self.young_modulus / (2.0 * (1.0 + self.poisson_ratio))
+    }
+}
+
+/// `[boundary]`: Dirichlet conditions.
+#[derive(Debug, Clone, PartialEq, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoundarySpec {
+    /// `[[boundary.fixed]]`: parts held at their rest position (by penalty springs).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub fixed: Vec<FixedSpec>,
+}
+
+/// One `[[boundary.fixed]]` region: exactly one of `box` and `points` (checked on load).
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct FixedSpec {
+    /// `box = [[x,y,z],[x,y,z]]`: the part of the surface inside this box (scene units).
+    #[serde(rename = "box", default, skip_serializing_if = "Option::is_none")]
+    pub bbox: Option<BoxRegion>,
+    /// `points = "fixed.xyz"` or `points = [[x,y,z], ...]`: these points (on or inside the
+    /// surface, scene units) are held in place.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub points: Option<PointSource>,
+    /// Penalty spring stiffness per held point, in N/m (SI: newtons per metre of displacement).
+    /// `None` (default): chosen by the solver. Finite and > 0 when given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stiffness: Option<f64>,
+}
+
+/// What a [`FixedSpec`] holds, once validated.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FixedRegion<'a> {
+    /// The part of the surface inside a box.
+    Box(&'a BoxRegion),
+    /// Explicit points.
+    Points(&'a PointSource),
+}
+
+impl FixedSpec {
+    /// The region this entry holds, or `None` when it has neither or both of `box`/`points`
+    /// (which [`crate::scene::load_scene`] rejects).
+    pub fn region(&self) -> Option<FixedRegion<'_>> {
+        match (&self.bbox, &self.points) {
+            (Some(b), None) => Some(FixedRegion::Box(b)),
+            (None, Some(p)) => Some(FixedRegion::Points(p)),
+            _ => None,
+        }
+    }
+}
+
+/// `[load]`: external loads (SI).
+#[derive(Debug, Clone, PartialEq, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct LoadSpec {
+    /// Gravitational acceleration in m/s² (default `[0, 0, 0]`); acts through `material.density`.
+    #[serde(default)]
+    pub gravity: Vec3,
+    /// `[[load.traction]]`: dead loads on the surface.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub traction: Vec<TractionSpec>,
+}
+
+/// One `[[load.traction]]`: a dead load (force per unit *rest* area) on the surface in a box.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct TractionSpec {
+    /// The part of the surface loaded (scene units).
+    #[serde(rename = "box")]
+    pub bbox: BoxRegion,
+    /// Traction vector in Pa (N/m² of rest area).
+    pub value: Vec3,
+}
+
+/// Linear solver used inside Newton.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LinearSolverKind {
+    /// `"auto"` (default): the solver's choice.
+    #[default]
+    Auto,
+    /// `"cholesky"`: sparse Cholesky (K symmetric positive definite).
+    Cholesky,
+    /// `"ldlt"`: sparse LDLᵀ (symmetric, possibly indefinite).
+    Ldlt,
+    /// `"jacobi-cg"`: conjugate gradients with a Jacobi (diagonal) preconditioner.
+    JacobiCg,
+}
+
+/// `[solver]`: static Newton–Raphson with load stepping and increment bisection. All optional.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SolverSpec {
+    /// Number of equal load increments (default 10), in `1..=10000`.
+    #[serde(default = "defaults::load_steps")]
+    pub load_steps: u32,
+    /// Newton iterations allowed per increment (default 30), ≥ 1.
+    #[serde(default = "defaults::max_newton_iterations")]
+    pub max_newton_iterations: u32,
+    /// Relative residual tolerance ‖R‖/‖R₀‖ (default 1e-8), in (0, 1).
+    #[serde(default = "defaults::tolerance")]
+    pub residual_tolerance: f64,
+    /// Relative displacement tolerance ‖δu‖/‖u‖ (default 1e-8), in (0, 1).
+    #[serde(default = "defaults::tolerance")]
+    pub displacement_tolerance: f64,
+    /// How many times a failed increment may be halved (default 6), at most 30.
+    #[serde(default = "defaults::max_bisections")]
+    pub max_bisections: u32,
+    /// Backtracking line search on the Newton step (default true).
+    #[serde(default = "defaults::yes")]
+    pub line_search: bool,
+    /// Linear solver (default `"auto"`).
+    #[serde(default)]
+    pub linear_solver: LinearSolverKind,
+    /// Penalty stiffness of Dirichlet springs in N/m, for fixed regions without their own
+    /// `stiffness`. `None` (default): automatic. Finite and > 0 when given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub penalty_stiffness: Option<f64>,
+}
+
+impl Default for SolverSpec {
+    fn default() -> Self {
+        SolverSpec {
+            load_steps: defaults::load_steps(),
+            max_newton_iterations: defaults::max_newton_iterations(),
+            residual_tolerance: defaults::tolerance(),
+            displacement_tolerance: defaults::tolerance(),
+            max_bisections: defaults::max_bisections(),
+            line_search: true,
+            linear_solver: LinearSolverKind::Auto,
+            penalty_stiffness: None,
+        }
+    }
+}
+
+/// One `[[probe]]`: points whose displacement `livereg simulate` reports.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProbeSpec {
+    /// A point file or inline points (scene units).
+    pub points: PointSource,
+}
+
+/// The rigid stage of registration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
+pub enum RigidMode {
+    /// `"icp"` (default): rigid ICP before the non-rigid stage.
+    #[default]
+    #[serde(rename = "icp")]
+    Icp,
+    /// `"none"`: no rigid stage (identity); the clouds are already in the model's frame.
+    #[serde(rename = "none")]
+    Identity,
+}
+
+/// The camera pose (scene units, model frame), used to find the visible part of the surface.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Camera {
+    /// Optical centre.
+    pub position: Vec3,
+    /// A point on the optical axis; must differ from `position`.
+    pub look_at: Vec3,
+    /// Up direction (optional; not parallel to the viewing direction).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub up: Option<Vec3>,
+}
+
+/// `[registration]`: registration settings. All optional.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RegistrationSpec {
+    /// Rigid stage (default `"icp"`).
+    #[serde(default)]
+    pub rigid: RigidMode,
+    /// Camera pose; `None` when unknown.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<Camera>,
+    /// α of the imposed displacement (thesis 5.4): weight of the source→target pairs against the
+    /// target→source mean. Default 0.75, in [0, 1].
+    #[serde(default = "defaults::alpha")]
+    pub alpha: f64,
+    /// First penalty stiffness k₀ of the exponential ramp, N/m (`None`: automatic); > 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub penalty_start: Option<f64>,
+    /// Last penalty stiffness k₁ of the ramp, N/m (`None`: automatic); > 0 and ≥ k₀.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub penalty_end: Option<f64>,
+    /// Number of steps n_p of the ramp (default 5), ≥ 1.
+    #[serde(default = "defaults::penalty_steps")]
+    pub penalty_steps: u32,
+    /// ICP iterations allowed per stage (default 30), ≥ 1.
+    #[serde(default = "defaults::max_icp_iterations")]
+    pub max_icp_iterations: u32,
+}
+
+impl Default for RegistrationSpec {
+    fn default() -> Self {
+        RegistrationSpec {
+            rigid: RigidMode::Icp,
+            camera: None,
+            alpha: defaults::alpha(),
+            penalty_start: None,
+            penalty_end: None,
+            penalty_steps: defaults::penalty_steps(),
+            max_icp_iterations: defaults::max_icp_iterations(),
+        }
+    }
+}
+
+/// Documented default values, shared by serde and the `Default` impls.
+pub mod defaults {
+    /// `grid.subdivisions`.
+    pub fn subdivisions() -> u32 {
+        3
+    }
+    /// `grid.min_fraction`.
+    pub fn min_fraction() -> f64 {
+        1e-4
+    }
+    /// `material.density`, kg/m³.
+    pub fn density() -> f64 {
+        1000.0
+    }
+    /// `solver.load_steps`.
+    pub fn load_steps() -> u32 {
+        10
+    }
+    /// `solver.max_newton_iterations`.
+    pub fn max_newton_iterations() -> u32 {
+        30
+    }
+    /// `solver.residual_tolerance` and `solver.displacement_tolerance`.
+    pub fn tolerance() -> f64 {
+        1e-8
+    }
+    /// `solver.max_bisections`.
+    pub fn max_bisections() -> u32 {
+        6
+    }
+    /// `solver.line_search`.
+    pub fn yes() -> bool {
+        true
+    }
+    /// `registration.alpha`.
+    pub fn alpha() -> f64 {
+        0.75
+    }
+    /// `registration.penalty_steps`.
+    pub fn penalty_steps() -> u32 {
+        5
+    }
+    /// `registration.max_icp_iterations`.
+    pub fn max_icp_iterations() -> u32 {
+        30
+    }
+}

@@ -1,0 +1,288 @@
+//! A scene turned into a mechanical model in SI units: surface, grid, material, loads, fixed
+//! regions and embedded probes and structures.
+
+use std::path::PathBuf;
+
+use nalgebra::{Point3, Vector3};
+
+use crate::geometry::Aabb;
+use crate::grid::{Embedding, EmbeddingError, GridError, GridOptions, IntegrationMode, WeightedCellGrid};
+use crate::mechanics::loads::{gravity_forces, traction_forces};
+use crate::mechanics::{
+    LawKind, Material, NewtonSettings, PenaltySprings, StaticProblem, VolumetricIntegration,
+};
+use crate::mesh::{read_points, read_surface, validate, MeshError, SurfaceReport, TriSurface};
+use crate::scene::{
+    FixedRegion, IntegrationKind, LawName, LinearSolverKind, LoadedScene, PointSource, Scene,
+};
+use crate::linalg::SolverKind;
+
+/// Default penalty factor κ of fixed regions: a held surface sample of area A gets a spring of
+/// `κ E A / h` (N/m), a held point `κ E h`; relative to the cell stiffness `~E h` this holds
+/// the region to about 1/κ of the local deformation.
+pub const DEFAULT_FIXED_PENALTY_FACTOR: f64 = 1e3;
+
+/// Errors turning a scene into a model; every message names the file or key at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    /// A mesh or point file could not be read.
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    /// The grid could not be built.
+    #[error("{file}: grid: {source}")]
+    Grid {
+        /// The surface file.
+        file: PathBuf,
+        /// Why.
+        source: GridError,
+    },
+    /// A point (probe, fixed point, structure) could not be embedded.
+    #[error("{what}: {source}")]
+    Embedding {
+        /// Which key or file the points came from.
+        what: String,
+        /// Why.
+        source: EmbeddingError,
+    },
+    /// Any other invalid scene content.
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// A named set of embedded points carried by the deformation (vessel bifurcations, tumour
+/// vertices).
+#[derive(Debug, Clone)]
+pub struct EmbeddedStructure {
+    /// Name from the scene.
+    pub name: String,
+    /// The points, embedded in the grid (rest positions in metres).
+    pub embedding: Embedding,
+    /// The mesh's triangles, when the structure is a mesh.
+    pub triangles: Option<Vec<[usize; 3]>>,
+}
+
+/// Everything needed to simulate or register a scene, in SI units (lengths in metres).
+pub struct SceneModel {
+    /// Metres per scene unit (to convert results back).
+    pub length_scale: f64,
+    /// The pre-operative surface, metres.
+    pub surface: TriSurface,
+    /// Validation report of the surface as read.
+    pub surface_report: SurfaceReport,
+    /// Surface vertices embedded in the grid.
+    pub surface_embedding: Embedding,
+    /// The mechanical problem (grid, material, dead loads, fixed regions).
+    pub problem: StaticProblem,
+    /// Newton settings from `[solver]`.
+    pub newton: NewtonSettings,
+    /// Probe points, embedded.
+    pub probes: Embedding,
+    /// Internal structures, embedded.
+    pub structures: Vec<EmbeddedStructure>,
+    /// The scene file.
+    pub scene_path: PathBuf,
+}
+
+/// Options of the grid from `[grid]`.
+pub fn grid_options(scene: &Scene, scale: f64) -> GridOptions {
+    GridOptions {
+        cell_size: scene.grid.cell_size * scale,
+        subdivisions: scene.grid.subdivisions,
+        mode: match scene.grid.integration {
+            IntegrationKind::WeightedCell => IntegrationMode::WeightedCell,
+            IntegrationKind::FiniteCell => IntegrationMode::FiniteCell,
+            IntegrationKind::FullCell => IntegrationMode::FullCell,
+        },
+        min_fraction: scene.grid.min_fraction,
+        origin_offset: scene.grid.origin_offset,
+    }
+}
+
+/// Material from `[material]`.
+pub fn material(scene: &Scene) -> Result<(Material, VolumetricIntegration), ModelError> {
+    let law = match scene.material.law {
+        LawName::NeoHookean => LawKind::NeoHookean,
+        LawName::Svk => LawKind::Svk,
+        LawName::Corotated => LawKind::Corotated,
+        LawName::Linear => LawKind::Linear,
+    };
+    let m = Material::from_young_poisson(law, scene.material.young_modulus, scene.material.poisson_ratio)
+        .map_err(|e| ModelError::Invalid(format!("material: {e}")))?;
+    let vol = match scene.material.volumetric {
+        crate::scene::VolumetricIntegration::Reduced => VolumetricIntegration::Reduced,
+        crate::scene::VolumetricIntegration::Full => VolumetricIntegration::Full,
+    };
+    Ok((m, vol))
+}
+
+/// Newton settings from `[solver]`.
+pub fn newton_settings(scene: &Scene) -> NewtonSettings {
+    let s = &scene.solver;
+    NewtonSettings {
+        load_steps: s.load_steps as usize,
+        max_iterations: s.max_newton_iterations as usize,
+        residual_tolerance: s.residual_tolerance,
+        displacement_tolerance: s.displacement_tolerance,
+        max_bisections: s.max_bisections as usize,
+        line_search: s.line_search,
+        linear_solver: match s.linear_solver {
+            LinearSolverKind::Auto => SolverKind::Auto,
+            LinearSolverKind::Cholesky => SolverKind::Cholesky,
+            LinearSolverKind::Ldlt => SolverKind::Ldlt,
+            LinearSolverKind::JacobiCg => SolverKind::JacobiCg,
+        },
+    }
+}
+
+fn to_point(p: [f64; 3], scale: f64) -> Point3<f64> {
+    Point3::new(p[0] * scale, p[1] * scale, p[2] * scale)
+}
+
+fn region_box(min: [f64; 3], max: [f64; 3], scale: f64) -> Aabb {
+    Aabb { min: to_point(min, scale), max: to_point(max, scale) }
+}
+
+/// Points of a point source, in metres.
+fn source_points(source: &PointSource, scene: &LoadedScene, scale: f64) -> Result<Vec<Point3<f64>>, ModelError> {
+    match source {
+        PointSource::Inline(v) => Ok(v.iter().map(|p| to_point(*p, scale)).collect()),
+        PointSource::File(path) => {
+            let mut pts = read_points(&scene.resolve(path))?;
+            for p in &mut pts {
+                p.coords *= scale;
+            }
+            Ok(pts)
+        }
+    }
+}
+
+impl SceneModel {
+    /// Reads the scene's files and builds the model.
+    pub fn build(loaded: &LoadedScene) -> Result<Self, ModelError> {
+        let scene = &loaded.scene;
+        let scale = loaded.length_scale();
+        let surface_path = loaded.resolve(&scene.model.surface);
+        let mut surface = read_surface(&surface_path)?;
+        let surface_report = validate(&surface);
+        surface.scale(scale);
+        if surface.signed_volume() < 0.0 {
+            crate::mesh::orient_outward(&mut surface);
+        }
+        let options = grid_options(scene, scale);
+        let grid = WeightedCellGrid::build(&surface, &options)
+            .map_err(|source| ModelError::Grid { file: surface_path.clone(), source })?;
+        let h = grid.grid.cell_size;
+        let (material, volumetric) = material(scene)?;
+        let young = scene.material.young_modulus;
+        let embed = |what: String, pts: &[Point3<f64>], grid: &WeightedCellGrid| {
+            Embedding::new(grid, pts).map_err(|source| ModelError::Embedding { what, source })
+        };
+        let surface_embedding = embed(format!("{}: surface vertices", surface_path.display()), &surface.vertices, &grid)?;
+
+        let mut external = vec![0.0; 3 * grid.node_count()];
+        for (i, t) in scene.load.traction.iter().enumerate() {
+            let b = region_box(t.bbox.min, t.bbox.max, scale);
+            let n = traction_forces(&grid, &surface, &b, Vector3::from(t.value), &mut external)
+                .map_err(|source| ModelError::Embedding { what: format!("load.traction[{i}]"), source })?;
+            if n == 0 {
+                return Err(ModelError::Invalid(format!(
+                    "{}: load.traction[{i}]: the box holds no part of the surface",
+                    loaded.path.display()
+                )));
+            }
+        }
+        let g = Vector3::from(scene.load.gravity);
+        if g.norm() > 0.0 {
+            gravity_forces(&grid, scene.material.density, g, &mut external);
+        }
+
+        let mut springs = Vec::new();
+        for (i, f) in scene.boundary.fixed.iter().enumerate() {
+            let key = format!("boundary.fixed[{i}]");
+            let set = match f.region() {
+                Some(FixedRegion::Box(b)) => {
+                    // Spring density κE/h per unit area, or the given stiffness per sample.
+                    let region = region_box(b.min, b.max, scale);
+                    let density = DEFAULT_FIXED_PENALTY_FACTOR * young / h;
+                    let set = PenaltySprings::fixed_surface_region(&grid, &surface, &region, density)
+                        .map_err(|source| ModelError::Embedding { what: key.clone(), source })?;
+                    set.map(|mut s| {
+                        if let Some(k) = f.stiffness {
+                            s.stiffness.iter_mut().for_each(|v| *v = k);
+                        }
+                        s
+                    })
+                }
+                Some(FixedRegion::Points(src)) => {
+                    let pts = source_points(src, loaded, scale)?;
+                    let k = f.stiffness.unwrap_or(DEFAULT_FIXED_PENALTY_FACTOR * young * h);
+                    let emb = embed(key.clone(), &pts, &grid)?;
+                    (!pts.is_empty()).then(|| PenaltySprings::fixed(emb, vec![k; pts.len()]))
+                }
+                None => {
+                    return Err(ModelError::Invalid(format!(
+                        "{}: {key}: give exactly one of box or points",
+                        loaded.path.display()
+                    )))
+                }
+            };
+            match set {
+                Some(s) => springs.push(s),
+                None => {
+                    return Err(ModelError::Invalid(format!(
+                        "{}: {key}: the region holds no point of the surface",
+                        loaded.path.display()
+                    )))
+                }
+            }
+        }
+
+        let mut probe_points = Vec::new();
+        for p in &scene.probe {
+            probe_points.extend(source_points(&p.points, loaded, scale)?);
+        }
+        let probes = embed("probe".into(), &probe_points, &grid)?;
+
+        let mut structures = Vec::new();
+        for s in &scene.model.structures {
+            let (points, triangles) = match (&s.points, &s.mesh) {
+                (Some(p), None) => (source_points(&PointSource::File(p.clone()), loaded, scale)?, None),
+                (None, Some(m)) => {
+                    let mut mesh = read_surface(&loaded.resolve(m))?;
+                    mesh.scale(scale);
+                    (mesh.vertices, Some(mesh.triangles))
+                }
+                _ => {
+                    return Err(ModelError::Invalid(format!(
+                        "{}: model.structures '{}': give exactly one of points or mesh",
+                        loaded.path.display(),
+                        s.name
+                    )))
+                }
+            };
+            let embedding = embed(format!("model.structures '{}'", s.name), &points, &grid)?;
+            structures.push(EmbeddedStructure { name: s.name.clone(), embedding, triangles });
+        }
+
+        let mut problem = StaticProblem::new(grid, material, volumetric);
+        problem.external = external;
+        problem.springs = springs;
+        Ok(Self {
+            length_scale: scale,
+            surface,
+            surface_report,
+            surface_embedding,
+            problem,
+            newton: newton_settings(scene),
+            probes,
+            structures,
+            scene_path: loaded.path.clone(),
+        })
+    }
+
+    /// The deformed surface (scene units) for grid displacements `u` (m).
+    pub fn deformed_surface(&self, u: &[f64]) -> TriSurface {
+        let pos = self.surface_embedding.positions(u);
+        TriSurface::new(pos.iter().map(|p| p / self.length_scale).collect(), self.surface.triangles.clone())
+    }
+}
