@@ -1,0 +1,93 @@
+//! One Newton iteration on liver-sized grids (tangent + residual assembly, factorisation,
+//! solve), split into its parts; and the tangent assembly cost of weighted-cell versus
+//! finite-cell integration at 0 and 4 subdivision levels.
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use livereg::grid::{GridOptions, IntegrationMode, WeightedCellGrid};
+use livereg::linalg::{SolverKind, SparseSolver};
+use livereg::mechanics::{LawKind, Material, Need, StaticProblem, VolumetricIntegration};
+use livereg::mesh::primitives::icosphere;
+use livereg::mesh::TriSurface;
+use nalgebra::Point3;
+
+/// A liver-sized ellipsoid, 20 × 15 × 10 cm.
+fn liver_like() -> TriSurface {
+    let mut s = icosphere(Point3::origin(), 1.0, 5);
+    for v in &mut s.vertices {
+        v.x *= 0.10;
+        v.y *= 0.075;
+        v.z *= 0.05;
+    }
+    s
+}
+
+fn problem(cell: f64, levels: u32, mode: IntegrationMode) -> StaticProblem {
+    let opts = GridOptions { cell_size: cell, subdivisions: levels, mode, ..GridOptions::default() };
+    let grid = WeightedCellGrid::build(&liver_like(), &opts).unwrap();
+    let m = Material::from_young_poisson(LawKind::NeoHookean, 4500.0, 0.49).unwrap();
+    StaticProblem::new(grid, m, VolumetricIntegration::Reduced)
+}
+
+fn bench_newton_iteration(c: &mut Criterion) {
+    let mut group = c.benchmark_group("newton_iteration");
+    group.sample_size(10);
+    // ~1,000 and ~10,000 nodes.
+    for cell in [0.0155, 0.0071] {
+        let mut p = problem(cell, 4, IntegrationMode::WeightedCell);
+        let nodes = p.grid.node_count();
+        let n = p.dofs();
+        let u: Vec<f64> = (0..n).map(|i| 1e-4 * ((i as f64) * 0.37).sin()).collect();
+        let mut r = vec![0.0; n];
+        let mut k = p.new_tangent();
+        let mut solver = SparseSolver::new(SolverKind::Auto);
+        let mut du = vec![0.0; n];
+        group.bench_function(BenchmarkId::new("assembly", nodes), |b| {
+            b.iter(|| p.evaluate(&u, 1.0, Need::Tangent, Some(&mut r), Some(&mut k)).unwrap())
+        });
+        group.bench_function(BenchmarkId::new("factorize", nodes), |b| b.iter(|| solver.factorize(&k).unwrap()));
+        group.bench_function(BenchmarkId::new("solve", nodes), |b| b.iter(|| solver.solve(&k, &r, &mut du).unwrap()));
+        group.bench_function(BenchmarkId::new("full_iteration", nodes), |b| {
+            b.iter(|| {
+                p.evaluate(&u, 1.0, Need::Tangent, Some(&mut r), Some(&mut k)).unwrap();
+                solver.factorize(&k).unwrap();
+                solver.solve(&k, &r, &mut du).unwrap();
+            })
+        });
+    }
+    group.finish();
+}
+
+fn bench_assembly_by_mode(c: &mut Criterion) {
+    let mut group = c.benchmark_group("tangent_assembly");
+    group.sample_size(10);
+    for (mode, levels) in [
+        (IntegrationMode::WeightedCell, 0),
+        (IntegrationMode::WeightedCell, 4),
+        (IntegrationMode::FiniteCell, 4),
+    ] {
+        let mut p = problem(0.0155, levels, mode);
+        let n = p.dofs();
+        let u = vec![0.0; n];
+        let mut r = vec![0.0; n];
+        let mut k = p.new_tangent();
+        let label = format!("{}-L{levels}-{}qp", mode.name(), p.grid.quadrature.total_points());
+        group.bench_function(label, |b| b.iter(|| p.evaluate(&u, 1.0, Need::Tangent, Some(&mut r), Some(&mut k)).unwrap()));
+    }
+    group.finish();
+}
+
+fn bench_grid_build(c: &mut Criterion) {
+    let mut group = c.benchmark_group("grid_build");
+    group.sample_size(10);
+    // A 20,480-triangle surface, 4 levels.
+    let s = liver_like();
+    assert_eq!(s.triangles.len(), 20_480);
+    for cell in [0.0155, 0.0071] {
+        let opts = GridOptions { cell_size: cell, subdivisions: 4, ..GridOptions::default() };
+        group.bench_function(format!("20k-triangles-L4-h{cell}"), |b| b.iter(|| WeightedCellGrid::build(&s, &opts).unwrap()));
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_newton_iteration, bench_assembly_by_mode, bench_grid_build);
+criterion_main!(benches);
