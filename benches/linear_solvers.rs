@@ -20,7 +20,10 @@ fn bench_linear_solvers(c: &mut Criterion) {
         let b = random_vector(k.n, 42);
         let mut group = c.benchmark_group(format!("linear_solvers/{label}-{}dofs", k.n));
         group.sample_size(10);
-        for (name, kind) in [("cholesky", SolverKind::Cholesky), ("jacobi-cg", SolverKind::JacobiCg)] {
+        for (name, kind) in [
+            ("cholesky", SolverKind::Cholesky),
+            ("jacobi-cg", SolverKind::JacobiCg),
+        ] {
             let mut solver = SparseSolver::new(kind);
             let mut x = vec![0.0; k.n];
             solver.factorize(&k).expect("factorize");
@@ -33,14 +36,17 @@ fn bench_linear_solvers(c: &mut Criterion) {
             });
         }
         let mut x = vec![0.0; k.n];
-        group.bench_function(BenchmarkId::new("cholesky-with-analysis", "factorize+solve"), |bench| {
-            bench.iter(|| {
-                let mut solver = SparseSolver::new(SolverKind::Cholesky);
-                solver.factorize(black_box(&k)).expect("factorize");
-                let stats = solver.solve(&k, black_box(&b), &mut x).expect("solve");
-                black_box(stats.relative_residual)
-            })
-        });
+        group.bench_function(
+            BenchmarkId::new("cholesky-with-analysis", "factorize+solve"),
+            |bench| {
+                bench.iter(|| {
+                    let mut solver = SparseSolver::new(SolverKind::Cholesky);
+                    solver.factorize(black_box(&k)).expect("factorize");
+                    let stats = solver.solve(&k, black_box(&b), &mut x).expect("solve");
+                    black_box(stats.relative_residual)
+                })
+            },
+        );
         group.finish();
     }
 }

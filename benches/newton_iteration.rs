@@ -3,9 +3,10 @@
 //! finite-cell integration at 0 and 4 subdivision levels.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use livereg::geometry::Aabb;
 use livereg::grid::{GridOptions, IntegrationMode, WeightedCellGrid};
 use livereg::linalg::{SolverKind, SparseSolver};
-use livereg::mechanics::{LawKind, Material, Need, StaticProblem, VolumetricIntegration};
+use livereg::mechanics::{LawKind, Material, Need, PenaltySprings, StaticProblem, VolumetricIntegration};
 use livereg::mesh::primitives::icosphere;
 use livereg::mesh::TriSurface;
 use nalgebra::Point3;
@@ -21,11 +22,18 @@ fn liver_like() -> TriSurface {
     s
 }
 
+/// Neo-Hookean liver (E = 4.5 kPa, ν = 0.49) held on its lower back (a ligament-like region),
+/// so that the tangent is positive definite as in a real solve.
 fn problem(cell: f64, levels: u32, mode: IntegrationMode) -> StaticProblem {
+    let surface = liver_like();
     let opts = GridOptions { cell_size: cell, subdivisions: levels, mode, ..GridOptions::default() };
-    let grid = WeightedCellGrid::build(&liver_like(), &opts).unwrap();
+    let grid = WeightedCellGrid::build(&surface, &opts).unwrap();
     let m = Material::from_young_poisson(LawKind::NeoHookean, 4500.0, 0.49).unwrap();
-    StaticProblem::new(grid, m, VolumetricIntegration::Reduced)
+    let region = Aabb { min: Point3::new(-1.0, -1.0, -1.0), max: Point3::new(-0.05, 1.0, -0.02) };
+    let held = PenaltySprings::fixed_surface_region(&grid, &surface, &region, 1e3 * 4500.0 / cell).unwrap().unwrap();
+    let mut p = StaticProblem::new(grid, m, VolumetricIntegration::Reduced);
+    p.springs = vec![held];
+    p
 }
 
 fn bench_newton_iteration(c: &mut Criterion) {

@@ -7,6 +7,7 @@
 //! - [`linalg`]: sparse symmetric matrices and linear solvers;
 //! - [`mechanics`]: materials, the hexahedral cell, assembly, loads, penalties, Newton;
 //! - [`scene`]: the scene file; [`simulation`]: a scene turned into a solved model;
+//! - [`scenarios`]: reference problems from the source texts (tests, benchmarks);
 //! - [`cli`]: the command line.
 //!
 //! Lower layers never import higher ones. Inside the mechanics everything is SI (m, N, Pa, J).
@@ -18,5 +19,6 @@ pub mod grid;
 pub mod linalg;
 pub mod mechanics;
 pub mod mesh;
+pub mod scenarios;
 pub mod scene;
 pub mod simulation;

@@ -1,92 +1,60 @@
 //! The thesis's cylinder experiments (§4.6): bending of a 60 cm neo-Hookean cylinder under a
-//! dead end-face traction, and stretching of a 5 cm one to three times its length.
+//! dead end-face traction (weighted-cell against finite-cell, and both against a much finer
+//! reference solve committed in `fixtures/reference/cylinder_bending.json`), and stretching of a
+//! 5 cm one to three times its length at every subdivision level.
 
-mod common;
+use livereg::grid::IntegrationMode;
+use livereg::mechanics::Outcome;
+use livereg::scenarios::{CylinderBending, CylinderStretching};
+use nalgebra::Vector3;
 
-use common::*;
-use livereg::grid::{Embedding, IntegrationMode};
-use livereg::mechanics::loads::traction_forces;
-use livereg::mechanics::{LawKind, NewtonSettings, NewtonSolver, Outcome, SolveReport, VolumetricIntegration};
-use livereg::mesh::primitives::cylinder_surface;
-use nalgebra::{Point3, Vector3};
-
-const RADIUS: f64 = 0.05;
-const YOUNG: f64 = 5000.0;
-
-/// Points along the cylinder's axis and on its skin where displacements are compared.
-fn bending_samples(length: f64) -> Vec<Point3<f64>> {
-    let mut v = Vec::new();
-    for i in 1..=12 {
-        let z = length * i as f64 / 12.0 - 1e-3;
-        v.push(Point3::new(0.0, 0.0, z));
-        v.push(Point3::new(0.0, 0.8 * RADIUS, z));
-        v.push(Point3::new(0.8 * RADIUS, 0.0, z));
-    }
-    v
-}
-
-/// Cylinder bending: base held, 30 Pa downward (−y) dead traction on the top face.
-/// Returns the solve report and the displacements of [`bending_samples`].
-pub fn bending(h: f64, levels: u32, mode: IntegrationMode) -> (SolveReport, Vec<Vector3<f64>>) {
-    let length = 0.6;
-    let s = cylinder_surface(RADIUS, 0.0, length, 48, 36);
-    let mut p = problem(&s, &options(h, levels, mode), material(LawKind::NeoHookean, YOUNG, 0.3), VolumetricIntegration::Reduced);
-    p.springs = vec![hold(&p, &s, aabb([-1.0, -1.0, -1e-4], [1.0, 1.0, 1e-4]), 1e3, YOUNG)];
-    let mut f = vec![0.0; p.dofs()];
-    let n = traction_forces(&p.grid, &s, &aabb([-1.0, -1.0, length - 1e-4], [1.0, 1.0, length + 1e-4]), Vector3::new(0.0, -30.0, 0.0), &mut f).unwrap();
-    assert!(n > 0);
-    p.external = f;
-    let settings = NewtonSettings { load_steps: 10, max_iterations: 25, residual_tolerance: 1e-8, ..NewtonSettings::default() };
-    let u0 = vec![0.0; p.dofs()];
-    let report = NewtonSolver::new(settings).solve(&mut p, &u0);
-    let d = Embedding::new(&p.grid, &bending_samples(length)).unwrap().interpolate(&report.u);
-    (report, d)
-}
-
-/// Relative L2 difference of two displacement sample sets.
-fn rel_diff(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
-    let num: f64 = a.iter().zip(b).map(|(x, y)| (x - y).norm_squared()).sum();
-    let den: f64 = b.iter().map(|y| y.norm_squared()).sum();
-    (num / den).sqrt()
+fn reference() -> Vec<Vector3<f64>> {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/reference/cylinder_bending.json");
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(path).expect("reference file")).unwrap();
+    assert_eq!(v["outcome"], "converged");
+    v["displacements"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|d| Vector3::new(d[0].as_f64().unwrap(), d[1].as_f64().unwrap(), d[2].as_f64().unwrap()))
+        .collect()
 }
 
 #[test]
-#[ignore = "exploration: prints timings"]
-fn bending_explore() {
-    for (h, l) in [(0.025, 2), (0.0167, 2), (0.0125, 2)] {
-        for mode in [IntegrationMode::WeightedCell, IntegrationMode::FiniteCell] {
-            let t = std::time::Instant::now();
-            let (r, d) = bending(h, l, mode);
-            let tip = d[d.len() - 3];
-            println!("h={h} L={l} {mode:?}: {:?} iters {} steps {} bis {} tip {tip:?} {:.1}s", r.outcome, r.newton_iterations, r.load_steps, r.bisections, t.elapsed().as_secs_f64());
-        }
+fn bending_weighted_cell_matches_finite_cell_and_both_converge_to_the_reference() {
+    let reference = reference();
+    let mut errors = Vec::new();
+    for cells_across in [4.0, 6.0] {
+        let h = 2.0 * livereg::scenarios::cylinder::RADIUS / cells_across;
+        let wc = CylinderBending { cell_size: h, levels: 2, mode: IntegrationMode::WeightedCell }.solve();
+        let fc = CylinderBending { cell_size: h, levels: 2, mode: IntegrationMode::FiniteCell }.solve();
+        assert_eq!(wc.report.outcome, Outcome::Converged, "{:?}", wc.report.message);
+        assert_eq!(fc.report.outcome, Outcome::Converged, "{:?}", fc.report.message);
+        let wc_fc = wc.relative_difference(&fc.displacements);
+        let (e_wc, e_fc) = (wc.relative_difference(&reference), fc.relative_difference(&reference));
+        println!(
+            "h = {h:.4} m: tip {:?}; |WC−FC|/|FC| = {wc_fc:.4}; error vs reference: WC {e_wc:.4}, FC {e_fc:.4}",
+            wc.displacements[wc.displacements.len() - 3]
+        );
+        assert!(wc_fc < 0.05, "weighted-cell differs from finite-cell by {wc_fc}");
+        errors.push((e_wc, e_fc));
     }
+    // Refinement brings both closer to the reference.
+    assert!(errors[1].0 < errors[0].0 && errors[1].1 < errors[0].1, "{errors:?}");
 }
 
 #[test]
 fn stretching_to_three_times_the_length_solves_at_every_level() {
-    let length = 0.05;
-    let s = cylinder_surface(RADIUS, 0.0, length, 48, 8);
+    let length = CylinderStretching::LENGTH;
+    let mut cells = None;
     for levels in 0..=4 {
-        let mut p = problem(&s, &options(0.0125, levels, IntegrationMode::WeightedCell), material(LawKind::NeoHookean, YOUNG, 0.3), VolumetricIntegration::Reduced);
-        let cells = p.grid.stats().cells;
-        // Both end faces pulled along their normals by one length each: total 3×.
-        let mut bottom = hold(&p, &s, aabb([-1.0, -1.0, -1e-4], [1.0, 1.0, 1e-4]), 1e3, YOUNG);
-        bottom.target = vec![Vector3::new(0.0, 0.0, -0.5 * length * 2.0); bottom.embedding.len()];
-        bottom.follows_load = true;
-        let mut top = hold(&p, &s, aabb([-1.0, -1.0, length - 1e-4], [1.0, 1.0, length + 1e-4]), 1e3, YOUNG);
-        top.target = vec![Vector3::new(0.0, 0.0, 0.5 * length * 2.0); top.embedding.len()];
-        top.follows_load = true;
-        p.springs = vec![bottom, top];
-        let settings = NewtonSettings { load_steps: 10, ..NewtonSettings::default() };
-        let u0 = vec![0.0; p.dofs()];
-        let r = NewtonSolver::new(settings).solve(&mut p, &u0);
-        assert_eq!(r.outcome, Outcome::Converged, "level {levels}: {:?}", r.message);
-        assert_eq!(p.grid.stats().cells, cells, "no cell removed");
-        // Top face centre moved by ~ +L, bottom by ~ −L.
-        let e = Embedding::new(&p.grid, &[Point3::new(0.0, 0.0, length - 1e-3), Point3::new(0.0, 0.0, 1e-3)]).unwrap();
-        let d = e.interpolate(&r.u);
-        println!("level {levels}: {} cells, {} iterations, {} bisections, top {:.4}, bottom {:.4}", cells, r.newton_iterations, r.bisections, d[0].z, d[1].z);
-        assert!((d[0].z - length).abs() < 0.05 * length && (d[1].z + length).abs() < 0.05 * length);
+        let r = CylinderStretching { cell_size: 0.0125, levels, mode: IntegrationMode::WeightedCell }.solve();
+        assert_eq!(r.report.outcome, Outcome::Converged, "level {levels}: {:?}", r.report.message);
+        // The same cells at every level: none removed.
+        assert_eq!(*cells.get_or_insert(r.nodes), r.nodes);
+        let (top, bottom) = (r.displacements[0].z, r.displacements[1].z);
+        println!("level {levels}: {} iterations, {} bisections, top {top:.4} m, bottom {bottom:.4} m", r.report.newton_iterations, r.report.bisections);
+        // Penalty-imposed: within 5 % of the imposed ±L.
+        assert!((top - length).abs() < 0.05 * length && (bottom + length).abs() < 0.05 * length);
     }
 }

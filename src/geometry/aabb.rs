@@ -171,7 +171,10 @@ mod tests {
         let b = unit();
         let touching = Aabb::new(Point3::new(1.0, 1.0, 1.0), Point3::new(2.0, 2.0, 2.0));
         assert!(b.intersects(&touching));
-        let apart = Aabb::new(Point3::new(1.0 + 1e-12, 0.0, 0.0), Point3::new(2.0, 2.0, 2.0));
+        let apart = Aabb::new(
+            Point3::new(1.0 + 1e-12, 0.0, 0.0),
+            Point3::new(2.0, 2.0, 2.0),
+        );
         assert!(!b.intersects(&apart));
     }
 

@@ -50,8 +50,16 @@ impl BucketGrid {
             [1, 1]
         };
         let inv_cell = [
-            if size[0] > 0.0 { dims[0] as f64 / size[0] } else { 0.0 },
-            if size[1] > 0.0 { dims[1] as f64 / size[1] } else { 0.0 },
+            if size[0] > 0.0 {
+                dims[0] as f64 / size[0]
+            } else {
+                0.0
+            },
+            if size[1] > 0.0 {
+                dims[1] as f64 / size[1]
+            } else {
+                0.0
+            },
         ];
         let mut grid = BucketGrid {
             origin,
@@ -153,7 +161,8 @@ mod tests {
         let grid = BucketGrid::build(&rects, 1.0);
         assert!(grid.dims()[0] > 1 && grid.dims()[1] > 1);
         // Random points and points exactly on rectangle corners.
-        let mut queries: Vec<(f64, f64)> = (0..2000).map(|_| (r() * 3.5 - 1.2, r() * 2.3)).collect();
+        let mut queries: Vec<(f64, f64)> =
+            (0..2000).map(|_| (r() * 3.5 - 1.2, r() * 2.3)).collect();
         for q in &rects {
             queries.push((q[0], q[1]));
             queries.push((q[2], q[3]));

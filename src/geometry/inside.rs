@@ -108,14 +108,23 @@ impl InsideTest {
                 tri_ids.push(k);
             }
         }
-        let boxes: Vec<Aabb> = tris.iter().map(Aabb::from_points).collect();
-        let bvh = Bvh::build(&boxes, LEAF_SIZE);
-        let fast = FastWinding::new(&bvh, &tris);
-        let caps = HoleCaps::new(&tris);
-        let lines = ZLineIndex::new(
-            tris.iter()
-                .map(|t| (*t, 1))
-                .chain(caps.triangles.iter().copied()),
+        // The BVH/winding data and the line index are independent: build them concurrently.
+        let ((bvh, fast), (caps, lines)) = rayon::join(
+            || {
+                let boxes: Vec<Aabb> = tris.iter().map(Aabb::from_points).collect();
+                let bvh = Bvh::build(&boxes, LEAF_SIZE);
+                let fast = FastWinding::new(&bvh, &tris);
+                (bvh, fast)
+            },
+            || {
+                let caps = HoleCaps::new(&tris);
+                let lines = ZLineIndex::new(
+                    tris.iter()
+                        .map(|t| (*t, 1))
+                        .chain(caps.triangles.iter().copied()),
+                );
+                (caps, lines)
+            },
         );
         Ok(InsideTest {
             tris,
@@ -140,7 +149,10 @@ impl InsideTest {
     /// # Panics
     /// If `beta` is not finite and > 1.
     pub fn with_accuracy(mut self, beta: f64, order: ExpansionOrder) -> Self {
-        assert!(beta.is_finite() && beta > 1.0, "beta must be > 1, got {beta}");
+        assert!(
+            beta.is_finite() && beta > 1.0,
+            "beta must be > 1, got {beta}"
+        );
         self.beta = beta;
         self.order = order;
         self

@@ -92,6 +92,17 @@ impl ZLineIndex {
         self.tris.is_empty()
     }
 
+    /// Human-readable statistics of the bucket grid (dimensions, entries per cell).
+    pub fn stats(&self) -> String {
+        let [nx, ny] = self.grid.dims();
+        format!(
+            "{} triangles, grid {nx}×{ny}, {} entries ({:.2} per cell)",
+            self.tris.len(),
+            self.grid.entries(),
+            self.grid.entries() as f64 / (nx * ny) as f64
+        )
+    }
+
     /// Calls `f(z, weight)` for every crossing of the line through `(x, y)` parallel to z, in
     /// no particular order: `z` is the crossing height (interpolated in the triangle's plane,
     /// clamped to its z range) and `weight` is +m when the line, going towards +z, enters the

@@ -173,7 +173,11 @@ mod tests {
             let p = [a[0] + t * d[0] + jitter, a[1] + t * d[1]];
             let exact = {
                 let (ax, ay, bx, by, px, py) = (
-                    a[0] as i128, a[1] as i128, b[0] as i128, b[1] as i128, p[0] as i128,
+                    a[0] as i128,
+                    a[1] as i128,
+                    b[0] as i128,
+                    b[1] as i128,
+                    p[0] as i128,
                     p[1] as i128,
                 );
                 ((ax - px) * (by - py) - (ay - py) * (bx - px)).signum() as i8

@@ -177,7 +177,10 @@ mod tests {
             }
         }
         assert!(decided > 19_900, "decided {decided}");
-        assert!(hits > 2_000 && misses > 2_000, "hits {hits} misses {misses}");
+        assert!(
+            hits > 2_000 && misses > 2_000,
+            "hits {hits} misses {misses}"
+        );
     }
 
     #[test]
@@ -259,7 +262,11 @@ mod tests {
         // only an edge cross axis separates it.
         let d = 1e-9;
         assert!(!triangle_overlaps_box(
-            &[p(0.5, -0.5 - d, 0.5), p(2.0, 1.0 - d, 0.5), p(2.0, 1.0 - d, 0.5)],
+            &[
+                p(0.5, -0.5 - d, 0.5),
+                p(2.0, 1.0 - d, 0.5),
+                p(2.0, 1.0 - d, 0.5)
+            ],
             &b
         ));
         // The same segment moved onto the edge touches it.
@@ -269,7 +276,11 @@ mod tests {
         ));
         // A proper (vertical) triangle through that line, beside the edge.
         assert!(!triangle_overlaps_box(
-            &[p(0.5, -0.5 - d, 0.5), p(2.0, 1.0 - d, 0.5), p(1.25, 0.25 - d, 3.0)],
+            &[
+                p(0.5, -0.5 - d, 0.5),
+                p(2.0, 1.0 - d, 0.5),
+                p(1.25, 0.25 - d, 3.0)
+            ],
             &b
         ));
         // Empty box.

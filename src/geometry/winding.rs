@@ -1,5 +1,9 @@
 //! Generalised winding numbers: exact solid angles and the BVH-accelerated far-field
 //! approximation of Barill et al. 2018 ("Fast winding numbers for soups and clouds").
+//!
+//! The winding number of a triangle set at `q` is `w(q) = Σ_t Ω_t(q) / 4π`, where `Ω_t` is the
+//! signed solid angle of triangle `t` seen from `q` (dimensionless; 1 inside a closed
+//! outward-oriented surface, 0 outside).
 
 use std::f64::consts::PI;
 
@@ -52,6 +56,54 @@ struct NodeExpansion {
     second_s: Vector3<f64>,
 }
 
+/// Additive moments of a set of triangles about a fixed reference point `o`
+/// (`c` = centroid − o, `A` = area vector, `C` = covariance of the triangle about its centroid).
+#[derive(Clone, Copy, Debug, Default)]
+struct RawMoments {
+    /// Σ A.
+    normal: Vector3<f64>,
+    /// Σ |A|.
+    area: f64,
+    /// Σ |A| c.
+    weighted_centroid: Vector3<f64>,
+    /// Σ A cᵀ.
+    first: Matrix3<f64>,
+    /// Σ A_i (c cᵀ + C), i = 0, 1, 2.
+    second: [Matrix3<f64>; 3],
+}
+
+impl RawMoments {
+    fn add_triangle(&mut self, t: &[Point3<f64>; 3], o: &Point3<f64>) {
+        let a_vec = (t[1] - t[0]).cross(&(t[2] - t[0])) * 0.5;
+        let a = a_vec.norm();
+        let centroid = Point3::from((t[0].coords + t[1].coords + t[2].coords) / 3.0);
+        let c = centroid - o;
+        // ∫_t (x − o)(x − o)ᵀ dA / a = c cᵀ + (1/12) Σ_v (v − centroid)(v − centroid)ᵀ.
+        let mut s = c * c.transpose();
+        for v in t {
+            let e = v - centroid;
+            s += e * e.transpose() / 12.0;
+        }
+        self.normal += a_vec;
+        self.area += a;
+        self.weighted_centroid += c * a;
+        self.first += a_vec * c.transpose();
+        for (i, m) in self.second.iter_mut().enumerate() {
+            *m += s * a_vec[i];
+        }
+    }
+
+    fn plus(&self, other: &RawMoments) -> RawMoments {
+        RawMoments {
+            normal: self.normal + other.normal,
+            area: self.area + other.area,
+            weighted_centroid: self.weighted_centroid + other.weighted_centroid,
+            first: self.first + other.first,
+            second: std::array::from_fn(|i| self.second[i] + other.second[i]),
+        }
+    }
+}
+
 /// Order of the far-field expansion used by [`FastWinding`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ExpansionOrder {
@@ -65,10 +117,13 @@ pub enum ExpansionOrder {
 
 /// BVH-accelerated generalised winding number of a triangle set.
 ///
-/// Each BVH node stores the dipole moment (sum of area vectors) at its area-weighted centroid
-/// and the radius of its vertices around that centre. A node whose centre is farther than
-/// `β · radius` from the query contributes its far-field expansion; otherwise its children are
-/// visited, and triangles in visited leaves contribute exact solid angles.
+/// Each BVH node stores, about its area-weighted centroid `p̃`, the dipole moment (sum of area
+/// vectors), the first and second moments of the area vectors (for the Taylor terms of
+/// Barill et al.), and the radius `r` of its vertices around `p̃`. A node with
+/// `|p̃ − q| > β r` contributes its far-field expansion of the chosen [`ExpansionOrder`];
+/// otherwise its children are visited, and triangles in visited leaves contribute exact solid
+/// angles. The dipole alone is accurate to only ≈ 0.05 at β = 2 (its truncation error decays
+/// like 1/β), which is why [`ExpansionOrder::SecondOrder`] is the recommended order.
 #[derive(Clone, Debug)]
 pub struct FastWinding {
     nodes: Vec<NodeExpansion>,
@@ -80,60 +135,56 @@ impl FastWinding {
     /// Precomputes the node expansions (moments up to second order) for triangles `tris`
     /// indexed by the primitives of `bvh` (primitive `i` of the BVH is `tris[i]`).
     pub fn new(bvh: &Bvh, tris: &[[Point3<f64>; 3]]) -> Self {
-        let sorted: Vec<[Point3<f64>; 3]> =
-            bvh.order().iter().map(|&i| tris[i as usize]).collect();
-        // Prefix data per sorted triangle.
-        let area_vec: Vec<Vector3<f64>> = sorted
+        let sorted: Vec<[Point3<f64>; 3]> = bvh.order().iter().map(|&i| tris[i as usize]).collect();
+        // Raw moments are accumulated bottom-up about a fixed reference point (the centre of
+        // the whole set, which limits cancellation) and shifted to each node's centre.
+        let origin = bvh.bounds().center();
+        let leaf_sums = |range: std::ops::Range<usize>| {
+            let mut m = RawMoments::default();
+            for t in &sorted[range] {
+                m.add_triangle(t, &origin);
+            }
+            m
+        };
+        let bnodes = bvh.nodes();
+        let mut raw: Vec<RawMoments> = vec![RawMoments::default(); bnodes.len()];
+        for k in (0..bnodes.len()).rev() {
+            let node = &bnodes[k];
+            raw[k] = if node.is_leaf() {
+                leaf_sums(node.start as usize..(node.start + node.count) as usize)
+            } else {
+                raw[k + 1].plus(&raw[node.right as usize])
+            };
+        }
+        let nodes = bnodes
             .iter()
-            .map(|t| (t[1] - t[0]).cross(&(t[2] - t[0])) * 0.5)
-            .collect();
-        let centroid: Vec<Point3<f64>> = sorted
-            .iter()
-            .map(|t| Point3::from((t[0].coords + t[1].coords + t[2].coords) / 3.0))
-            .collect();
-        let nodes = bvh
-            .nodes()
-            .iter()
-            .map(|node| {
-                let range = node.start as usize..(node.start + node.count) as usize;
-                let mut normal = Vector3::zeros();
-                let mut weighted = Vector3::zeros();
-                let mut total = 0.0;
-                for j in range.clone() {
-                    let a = area_vec[j].norm();
-                    normal += area_vec[j];
-                    weighted += centroid[j].coords * a;
-                    total += a;
-                }
-                let center = if total > 0.0 {
-                    Point3::from(weighted / total)
+            .zip(&raw)
+            .map(|(node, m)| {
+                // Centre relative to `origin`: area-weighted centroid.
+                let c = if m.area > 0.0 {
+                    m.weighted_centroid / m.area
                 } else {
-                    node.bounds.center()
+                    node.bounds.center() - origin
                 };
-                let mut radius: f64 = 0.0;
-                let mut moment = Matrix3::zeros();
-                let mut second = [Matrix3::zeros(); 3];
-                for j in range {
-                    let dc = centroid[j] - center;
-                    for v in &sorted[j] {
-                        radius = radius.max((v - center).norm());
-                    }
-                    moment += area_vec[j] * dc.transpose();
-                    // ∫_t δ δᵀ dA / a_t = δc δcᵀ + (1/12) Σ_v (v − c)(v − c)ᵀ.
-                    let mut s = dc * dc.transpose();
-                    for v in &sorted[j] {
-                        let e = v - centroid[j];
-                        s += e * e.transpose() / 12.0;
-                    }
-                    for (i, t) in second.iter_mut().enumerate() {
-                        *t += s * area_vec[j][i];
-                    }
-                }
+                let center = origin + c;
+                let range = node.start as usize..(node.start + node.count) as usize;
+                let radius = sorted[range]
+                    .iter()
+                    .flatten()
+                    .map(|v| (v - center).norm_squared())
+                    .fold(0.0, f64::max)
+                    .sqrt();
+                let moment = m.first - m.normal * c.transpose();
+                let second: [Matrix3<f64>; 3] = std::array::from_fn(|i| {
+                    let r = m.first.row(i).transpose();
+                    m.second[i] - r * c.transpose() - c * r.transpose()
+                        + c * c.transpose() * m.normal[i]
+                });
                 let second_u = Vector3::from_fn(|k, _| (0..3).map(|i| second[i][(i, k)]).sum());
                 let second_s = Vector3::from_fn(|i, _| second[i].trace());
                 NodeExpansion {
                     center,
-                    normal,
+                    normal: m.normal,
                     radius,
                     moment,
                     second,

@@ -162,7 +162,11 @@ impl FullOperator {
 pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
     let f = |(x, y): (&[f64], &[f64])| x.iter().zip(y).map(|(p, q)| p * q).sum::<f64>();
     if a.len() >= PAR_MIN_N {
-        let parts: Vec<f64> = a.par_chunks(BLOCK).zip(b.par_chunks(BLOCK)).map(f).collect();
+        let parts: Vec<f64> = a
+            .par_chunks(BLOCK)
+            .zip(b.par_chunks(BLOCK))
+            .map(f)
+            .collect();
         parts.iter().sum()
     } else {
         a.chunks(BLOCK).zip(b.chunks(BLOCK)).map(f).sum()
@@ -191,6 +195,30 @@ pub(crate) struct CgOutcome {
     pub(crate) result: Result<(), LinalgError>,
 }
 
+/// One block of [`update_xrz`].
+fn xrz_block(
+    alpha: f64,
+    x: &mut [f64],
+    r: &mut [f64],
+    z: &mut [f64],
+    p: &[f64],
+    q: &[f64],
+    d: &[f64],
+) -> (f64, f64) {
+    let mut rr = 0.0;
+    let mut rz = 0.0;
+    for i in 0..x.len() {
+        x[i] += alpha * p[i];
+        let ri = r[i] - alpha * q[i];
+        r[i] = ri;
+        let zi = ri * d[i];
+        z[i] = zi;
+        rr += ri * ri;
+        rz += ri * zi;
+    }
+    (rr, rz)
+}
+
 /// x ← x + αp, r ← r − αq, z ← D⁻¹ r; returns (rᵀr, rᵀz).
 fn update_xrz(
     alpha: f64,
@@ -201,38 +229,32 @@ fn update_xrz(
     q: &[f64],
     inv_diag: &[f64],
 ) -> (f64, f64) {
-    let f = |((((x, r), z), p), (q, d)): (
-        (((&mut [f64], &mut [f64]), &mut [f64]), &[f64]),
-        (&[f64], &[f64]),
-    )| {
-        let mut rr = 0.0;
-        let mut rz = 0.0;
-        for i in 0..x.len() {
-            x[i] += alpha * p[i];
-            let ri = r[i] - alpha * q[i];
-            r[i] = ri;
-            let zi = ri * d[i];
-            z[i] = zi;
-            rr += ri * ri;
-            rz += ri * zi;
-        }
-        (rr, rz)
+    let n = x.len();
+    let block = |b: usize, x: &mut [f64], r: &mut [f64], z: &mut [f64]| {
+        let range = b * BLOCK..(b * BLOCK + x.len()).min(n);
+        xrz_block(
+            alpha,
+            x,
+            r,
+            z,
+            &p[range.clone()],
+            &q[range.clone()],
+            &inv_diag[range],
+        )
     };
-    let parts: Vec<(f64, f64)> = if x.len() >= PAR_MIN_N {
+    let parts: Vec<(f64, f64)> = if n >= PAR_MIN_N {
         x.par_chunks_mut(BLOCK)
             .zip(r.par_chunks_mut(BLOCK))
             .zip(z.par_chunks_mut(BLOCK))
-            .zip(p.par_chunks(BLOCK))
-            .zip(q.par_chunks(BLOCK).zip(inv_diag.par_chunks(BLOCK)))
-            .map(f)
+            .enumerate()
+            .map(|(b, ((x, r), z))| block(b, x, r, z))
             .collect()
     } else {
         x.chunks_mut(BLOCK)
             .zip(r.chunks_mut(BLOCK))
             .zip(z.chunks_mut(BLOCK))
-            .zip(p.chunks(BLOCK))
-            .zip(q.chunks(BLOCK).zip(inv_diag.chunks(BLOCK)))
-            .map(f)
+            .enumerate()
+            .map(|(b, ((x, r), z))| block(b, x, r, z))
             .collect()
     };
     parts

@@ -175,8 +175,8 @@ impl SymmetricCsc {
     /// small matrices (tests, debugging).
     pub fn to_dense(&self) -> Vec<Vec<f64>> {
         let mut d = vec![vec![0.0; self.n]; self.n];
-        for j in 0..self.n {
-            for p in self.col_ptr[j]..self.col_ptr[j + 1] {
+        for (j, w) in self.col_ptr.windows(2).enumerate() {
+            for p in w[0]..w[1] {
                 let i = self.row_idx[p];
                 d[i][j] = self.values[p];
                 d[j][i] = self.values[p];
@@ -223,9 +223,7 @@ fn validate_pattern(n: usize, col_ptr: &[usize], row_idx: &[usize]) -> Result<()
     for j in 0..n {
         let (start, end) = (col_ptr[j], col_ptr[j + 1]);
         if end < start {
-            return err(format!(
-                "col_ptr decreases at column {j} ({start} > {end})"
-            ));
+            return err(format!("col_ptr decreases at column {j} ({start} > {end})"));
         }
         if end > row_idx.len() {
             return err(format!("col_ptr[{}] = {end} exceeds row_idx length", j + 1));

@@ -20,6 +20,8 @@
 //! (the conjugate gradient is even bitwise reproducible: its reductions use a
 //! fixed, thread-count independent blocking).
 
+#![warn(missing_docs)]
+
 mod cg;
 mod csc;
 mod solver;

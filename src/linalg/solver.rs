@@ -60,9 +60,12 @@ pub struct SolveStats {
     /// `"cholesky-fallback-ldlt-bunch-kaufman"` (Cholesky requested but the
     /// matrix was not positive definite) or `"jacobi-cg"`.
     pub method: &'static str,
-    /// Conjugate-gradient iterations (direct methods: number of iterative
-    /// refinement steps performed, usually 0).
+    /// Conjugate-gradient iterations (0 for direct methods).
     pub iterations: usize,
+    /// Iterative-refinement steps applied after a direct solve (0 for CG, and
+    /// for direct solves that were accurate at once, i.e. relative residual
+    /// ≤ 1e-12).
+    pub refinement_steps: usize,
     /// Achieved relative residual `‖b − Kx‖₂ / ‖b‖₂` (0 when `b = 0`),
     /// computed with the true residual.
     pub relative_residual: f64,
@@ -377,9 +380,10 @@ impl SparseSolver {
         let req = d
             .symbolic
             .factorize_numeric_llt_scratch::<f64>(par, Spec::<LltParams, f64>::default())
-            .or(d
-                .symbolic
-                .factorize_numeric_intranode_lblt_scratch::<f64>(par, Spec::<LbltParams, f64>::default()))
+            .or(d.symbolic.factorize_numeric_intranode_lblt_scratch::<f64>(
+                par,
+                Spec::<LbltParams, f64>::default(),
+            ))
             .or(d.symbolic.solve_in_place_scratch::<f64>(1, par));
         if req.unaligned_bytes_required() > d.mem.len() {
             d.mem = MemBuffer::try_new(req)
@@ -468,18 +472,26 @@ impl SparseSolver {
             return Ok(SolveStats {
                 method,
                 iterations: 0,
+                refinement_steps: 0,
                 relative_residual: 0.0,
                 factor_ms: self.factor_ms,
                 solve_ms: ms_since(t0),
             });
         }
-        let (iterations, relative_residual) = match active {
-            Active::Cg => self.solve_cg(k, b, x)?,
-            Active::Direct => self.solve_direct(k, b, x)?,
+        let (iterations, refinement_steps, relative_residual) = match active {
+            Active::Cg => {
+                let (it, rel) = self.solve_cg(k, b, x)?;
+                (it, 0, rel)
+            }
+            Active::Direct => {
+                let (steps, rel) = self.solve_direct(k, b, x)?;
+                (0, steps, rel)
+            }
         };
         Ok(SolveStats {
             method,
             iterations,
+            refinement_steps,
             relative_residual,
             factor_ms: self.factor_ms,
             solve_ms: ms_since(t0),
@@ -543,7 +555,7 @@ impl SparseSolver {
                 *t = xi + di;
             }
             let rel_new = residual(&trial, &mut r);
-            if !(rel_new < rel) {
+            if rel_new.is_nan() || rel_new >= rel {
                 break;
             }
             x.copy_from_slice(&trial);

@@ -169,12 +169,17 @@ pub fn cut_cell_grid_matrix(
         for cy in 0..m - 1 {
             for cx in 0..m - 1 {
                 for a in 0..8 {
-                    let node = (cx + (a & 1)) + m * ((cy + ((a >> 1) & 1)) + m * (cz + ((a >> 2) & 1)));
+                    let node =
+                        (cx + (a & 1)) + m * ((cy + ((a >> 1) & 1)) + m * (cz + ((a >> 2) & 1)));
                     for c in 0..3 {
                         gdofs[3 * a + c] = 3 * node + c;
                     }
                 }
-                let w = if cz == m - 2 || cx == 0 { inside_fraction } else { 1.0 };
+                let w = if cz == m - 2 || cx == 0 {
+                    inside_fraction
+                } else {
+                    1.0
+                };
                 for i in 0..24 {
                     for j in 0..24 {
                         if gdofs[i] >= gdofs[j] {
@@ -237,7 +242,12 @@ pub fn scale_symmetric(k: &mut SymmetricCsc, scale: &[f64]) {
 pub fn relative_residual(k: &SymmetricCsc, x: &[f64], b: &[f64]) -> f64 {
     let mut y = vec![0.0; k.n];
     k.mul_vec(x, &mut y);
-    let rn: f64 = y.iter().zip(b).map(|(yi, bi)| (bi - yi) * (bi - yi)).sum::<f64>().sqrt();
+    let rn: f64 = y
+        .iter()
+        .zip(b)
+        .map(|(yi, bi)| (bi - yi) * (bi - yi))
+        .sum::<f64>()
+        .sqrt();
     let bn: f64 = b.iter().map(|v| v * v).sum::<f64>().sqrt();
     if bn == 0.0 {
         rn

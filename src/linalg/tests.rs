@@ -1,9 +1,9 @@
 //! Unit tests of the sparse linear algebra module.
+#![allow(clippy::needless_range_loop)]
 
 use super::testing::{
     cut_cell_grid_matrix, elasticity_grid_matrix, elasticity_grid_matrix_with, grid_pattern,
-    hex8_stiffness,
-    random_vector, relative_residual, scale_symmetric, Fixation,
+    hex8_stiffness, random_vector, relative_residual, scale_symmetric, Fixation,
 };
 use super::*;
 use nalgebra::{DMatrix, DVector};
@@ -30,12 +30,21 @@ fn dense_solve(k: &SymmetricCsc, b: &[f64]) -> Vec<f64> {
 }
 
 fn rel_diff(a: &[f64], b: &[f64]) -> f64 {
-    let num: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>().sqrt();
+    let num: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| (x - y) * (x - y))
+        .sum::<f64>()
+        .sqrt();
     let den: f64 = b.iter().map(|y| y * y).sum::<f64>().sqrt();
     num / den
 }
 
-fn solve_with(kind: SolverKind, k: &SymmetricCsc, b: &[f64]) -> (Result<SolveStats, LinalgError>, Vec<f64>) {
+fn solve_with(
+    kind: SolverKind,
+    k: &SymmetricCsc,
+    b: &[f64],
+) -> (Result<SolveStats, LinalgError>, Vec<f64>) {
     let mut s = SparseSolver::new(kind);
     let mut x = vec![f64::NAN; k.n];
     let r = s.factorize(k).and_then(|_| s.solve(k, b, &mut x));
@@ -57,7 +66,11 @@ fn hex8_stiffness_is_symmetric_psd_with_rigid_modes() {
     let coords = |a: usize| [(a & 1) as f64, ((a >> 1) & 1) as f64, ((a >> 2) & 1) as f64];
     let mut modes = Vec::new();
     for c in 0..3 {
-        modes.push((0..24).map(|d| if d % 3 == c { 1.0 } else { 0.0 }).collect::<Vec<_>>());
+        modes.push(
+            (0..24)
+                .map(|d| if d % 3 == c { 1.0 } else { 0.0 })
+                .collect::<Vec<_>>(),
+        );
     }
     for (p, q) in [(0, 1), (1, 2), (2, 0)] {
         let mut u = vec![0.0; 24];
@@ -125,7 +138,17 @@ fn position_finds_both_triangles_and_rejects_missing() {
 
 #[test]
 fn from_triplets_sums_duplicates_and_mirrors() {
-    let k = SymmetricCsc::from_triplets(3, &[(0, 0, 2.0), (0, 1, -1.0), (1, 0, -0.5), (2, 2, 1.0), (0, 0, 1.0)]).unwrap();
+    let k = SymmetricCsc::from_triplets(
+        3,
+        &[
+            (0, 0, 2.0),
+            (0, 1, -1.0),
+            (1, 0, -0.5),
+            (2, 2, 1.0),
+            (0, 0, 1.0),
+        ],
+    )
+    .unwrap();
     assert_eq!(k.col_ptr, vec![0, 2, 3, 4]);
     assert_eq!(k.row_idx, vec![0, 1, 1, 2]);
     assert_eq!(k.values, vec![3.0, -1.5, 0.0, 1.0]);
@@ -167,13 +190,25 @@ fn invalid_msg(r: Result<SymmetricCsc, LinalgError>) -> String {
 #[test]
 fn invalid_patterns_are_rejected_with_message() {
     // Unsorted rows in column 0.
-    let m = invalid_msg(SymmetricCsc::from_pattern(3, vec![0, 3, 4, 5], vec![0, 2, 1, 1, 2]));
+    let m = invalid_msg(SymmetricCsc::from_pattern(
+        3,
+        vec![0, 3, 4, 5],
+        vec![0, 2, 1, 1, 2],
+    ));
     assert!(m.contains("not strictly increasing"), "{m}");
     // Duplicate row.
-    let m = invalid_msg(SymmetricCsc::from_pattern(2, vec![0, 3, 4], vec![0, 1, 1, 1]));
+    let m = invalid_msg(SymmetricCsc::from_pattern(
+        2,
+        vec![0, 3, 4],
+        vec![0, 1, 1, 1],
+    ));
     assert!(m.contains("not strictly increasing"), "{m}");
     // Missing diagonal in column 1.
-    let m = invalid_msg(SymmetricCsc::from_pattern(3, vec![0, 1, 2, 3], vec![0, 2, 2]));
+    let m = invalid_msg(SymmetricCsc::from_pattern(
+        3,
+        vec![0, 1, 2, 3],
+        vec![0, 2, 2],
+    ));
     assert!(m.contains("diagonal"), "{m}");
     // Empty column.
     let m = invalid_msg(SymmetricCsc::from_pattern(2, vec![0, 1, 1], vec![0]));
@@ -198,7 +233,10 @@ fn invalid_patterns_are_rejected_with_message() {
     };
     for kind in ALL_KINDS {
         let mut s = SparseSolver::new(kind);
-        assert!(matches!(s.factorize(&bad), Err(LinalgError::InvalidPattern(_))), "{kind:?}");
+        assert!(
+            matches!(s.factorize(&bad), Err(LinalgError::InvalidPattern(_))),
+            "{kind:?}"
+        );
     }
 }
 
@@ -217,7 +255,11 @@ fn every_kind_solves_and_matches_dense_reference() {
         assert!((stats.relative_residual - res).abs() < 1e-9 + 1e-3 * res);
         let err = rel_diff(&x, &reference);
         // The penalty makes K ill-conditioned (κ ~ 1e10): allow for it in CG.
-        let tol = if kind == SolverKind::JacobiCg { 1e-4 } else { 1e-8 };
+        let tol = if kind == SolverKind::JacobiCg {
+            1e-4
+        } else {
+            1e-8
+        };
         assert!(err < tol, "{kind:?}: forward error vs dense {err}");
         match kind {
             SolverKind::JacobiCg => {
@@ -226,6 +268,9 @@ fn every_kind_solves_and_matches_dense_reference() {
             }
             SolverKind::Ldlt => assert_eq!(stats.method, "ldlt-bunch-kaufman"),
             _ => assert_eq!(stats.method, "cholesky"),
+        }
+        if kind != SolverKind::JacobiCg {
+            assert_eq!(stats.iterations, 0, "{kind:?}: no CG iterations for direct");
         }
     }
 }
@@ -239,7 +284,11 @@ fn every_kind_solves_clamped_block_accurately() {
         let (r, x) = solve_with(kind, &k, &b);
         r.unwrap_or_else(|e| panic!("{kind:?}: {e}"));
         assert!(relative_residual(&k, &x, &b) < 1e-9, "{kind:?}");
-        assert!(rel_diff(&x, &reference) < 1e-7, "{kind:?}: {}", rel_diff(&x, &reference));
+        assert!(
+            rel_diff(&x, &reference) < 1e-7,
+            "{kind:?}: {}",
+            rel_diff(&x, &reference)
+        );
     }
 }
 
@@ -248,9 +297,18 @@ fn auto_resolves_by_size_and_serde_names() {
     let s = SparseSolver::new(SolverKind::Auto);
     assert_eq!(s.chosen_method(100), SolverKind::Cholesky);
     assert_eq!(s.chosen_method(AUTO_DIRECT_MAX_DOFS), SolverKind::Cholesky);
-    assert_eq!(s.chosen_method(AUTO_DIRECT_MAX_DOFS + 1), SolverKind::JacobiCg);
-    assert_eq!(SparseSolver::new(SolverKind::Ldlt).chosen_method(10), SolverKind::Ldlt);
-    assert_eq!(SparseSolver::new(SolverKind::JacobiCg).chosen_method(10), SolverKind::JacobiCg);
+    assert_eq!(
+        s.chosen_method(AUTO_DIRECT_MAX_DOFS + 1),
+        SolverKind::JacobiCg
+    );
+    assert_eq!(
+        SparseSolver::new(SolverKind::Ldlt).chosen_method(10),
+        SolverKind::Ldlt
+    );
+    assert_eq!(
+        SparseSolver::new(SolverKind::JacobiCg).chosen_method(10),
+        SolverKind::JacobiCg
+    );
     for (kind, name) in [
         (SolverKind::Auto, "\"auto\""),
         (SolverKind::Cholesky, "\"cholesky\""),
@@ -282,11 +340,18 @@ fn symbolic_analysis_is_reused_for_same_pattern() {
         assert!(relative_residual(&k1, &x, &b) < 1e-9, "{kind:?}");
         let x1 = x.clone();
         s.factorize(&k2).unwrap();
-        assert_eq!(s.symbolic_analyses(), 1, "{kind:?}: analysis recomputed for same pattern");
+        assert_eq!(
+            s.symbolic_analyses(),
+            1,
+            "{kind:?}: analysis recomputed for same pattern"
+        );
         s.solve(&k2, &b, &mut x).unwrap();
         assert!(relative_residual(&k2, &x, &b) < 1e-9, "{kind:?}");
         assert!(rel_diff(&x, &dense_solve(&k2, &b)) < 1e-4, "{kind:?}");
-        assert!(rel_diff(&x, &x1) > 1e-3, "{kind:?}: second solve must use new values");
+        assert!(
+            rel_diff(&x, &x1) > 1e-3,
+            "{kind:?}: second solve must use new values"
+        );
         // Refactorising the same matrix again does not analyse either.
         s.factorize(&k1).unwrap();
         assert_eq!(s.symbolic_analyses(), 1);
@@ -323,7 +388,10 @@ fn indefinite_matrix() -> SymmetricCsc {
 fn cholesky_falls_back_on_indefinite_matrix() {
     let k = indefinite_matrix();
     let eig = dense(&k).symmetric_eigenvalues();
-    assert!(eig.iter().any(|&l| l < 0.0), "test matrix must be indefinite");
+    assert!(
+        eig.iter().any(|&l| l < 0.0),
+        "test matrix must be indefinite"
+    );
     let b = random_vector(k.n, 5);
     let reference = dense_solve(&k, &b);
     for (kind, method) in [
@@ -364,7 +432,10 @@ fn cg_detects_indefinite_matrix_with_positive_diagonal() {
     let mut x = vec![f64::NAN; k.n];
     let err = s.solve(&k, &b, &mut x).unwrap_err();
     assert!(
-        matches!(err, LinalgError::NotPositiveDefinite | LinalgError::NotConverged { .. }),
+        matches!(
+            err,
+            LinalgError::NotPositiveDefinite | LinalgError::NotConverged { .. }
+        ),
         "{err:?}"
     );
     assert!(x.iter().all(|v| v.is_finite()), "x must never contain NaN");
@@ -400,7 +471,11 @@ fn ill_conditioned_scaling_is_handled() {
         assert!(res < 1e-9, "{kind:?}: residual {res}");
         // Forward error in the unscaled variables (S x ≈ x0).
         let sx: Vec<f64> = x.iter().zip(&scale).map(|(v, s)| v * s).collect();
-        assert!(rel_diff(&sx, &x0) < 1e-6, "{kind:?}: {}", rel_diff(&sx, &x0));
+        assert!(
+            rel_diff(&sx, &x0) < 1e-6,
+            "{kind:?}: {}",
+            rel_diff(&sx, &x0)
+        );
         assert!(rel_diff(&x, &expected) < 1e-6, "{kind:?}");
         if kind == SolverKind::JacobiCg {
             assert!(stats.iterations < 2000, "Jacobi must undo the scaling");
@@ -445,8 +520,17 @@ fn cut_cells_with_tiny_volume_are_solved_backward_stably() {
     let mut x = vec![0.0; k.n];
     match s.solve(&k, &b, &mut x) {
         Ok(st) => assert!(relative_residual(&k, &x, &b) <= 1.01e-10, "{st:?}"),
-        Err(LinalgError::NotConverged { relative_residual: r, .. }) => {
-            assert!(r.is_finite() && (relative_residual(&k, &x, &b) - r).abs() <= 1e-6 * r.max(1e-10))
+        // The residual is computed with a different summation order here, and
+        // it is dominated by cancellation (ε ‖K‖ ‖x‖), hence the 5 %.
+        Err(LinalgError::NotConverged {
+            relative_residual: r,
+            ..
+        }) => {
+            let mine = relative_residual(&k, &x, &b);
+            assert!(
+                r.is_finite() && (mine - r).abs() <= 0.05 * r,
+                "{r} vs {mine}"
+            )
         }
         Err(e) => panic!("unexpected {e}"),
     }
@@ -458,7 +542,10 @@ fn results_do_not_depend_on_thread_count() {
     let k = elasticity_grid_matrix(13); // 6591 dofs: parallel dense kernels
     let b = random_vector(k.n, 4);
     let run = |threads: usize, kind: SolverKind| {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
         pool.install(|| {
             let (r, x) = solve_with(kind, &k, &b);
             r.unwrap();
@@ -475,7 +562,10 @@ fn results_do_not_depend_on_thread_count() {
     let k = elasticity_grid_matrix(15); // 10125 dofs
     let b = random_vector(k.n, 4);
     let run_cg = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
         pool.install(|| {
             let mut s = SparseSolver::new(SolverKind::JacobiCg).with_cg_settings(1e-8, 400);
             s.factorize(&k).unwrap();
@@ -486,8 +576,18 @@ fn results_do_not_depend_on_thread_count() {
     };
     let (x1, s1) = run_cg(1);
     let (x2, s2) = run_cg(2);
-    assert_eq!(x1, x2);
+    assert!(x1 == x2, "CG solutions differ between 1 and 2 threads");
     assert_eq!(s1, s2);
+}
+
+#[test]
+fn solver_can_move_between_threads() {
+    fn assert_send<T: Send>() {}
+    fn assert_sync<T: Sync>() {}
+    assert_send::<SparseSolver>();
+    assert_sync::<SparseSolver>();
+    assert_send::<SymmetricCsc>();
+    assert_sync::<SymmetricCsc>();
 }
 
 #[test]
@@ -497,7 +597,7 @@ fn zero_rhs_gives_zero_solution() {
         let (r, x) = solve_with(kind, &k, &vec![0.0; k.n]);
         let stats = r.unwrap();
         assert!(x.iter().all(|&v| v == 0.0));
-        assert_eq!(stats.iterations, 0);
+        assert_eq!((stats.iterations, stats.refinement_steps), (0, 0));
         assert_eq!(stats.relative_residual, 0.0);
     }
 }
@@ -582,6 +682,9 @@ fn tiny_and_one_by_one_systems() {
     for kind in [SolverKind::Cholesky, SolverKind::Ldlt] {
         let (r, x) = solve_with(kind, &k, &[1.0, 2.0]);
         r.unwrap_or_else(|e| panic!("{kind:?}: {e}"));
-        assert!((x[0] - 2.0).abs() < 1e-14 && (x[1] - 1.0).abs() < 1e-14, "{kind:?}: {x:?}");
+        assert!(
+            (x[0] - 2.0).abs() < 1e-14 && (x[1] - 1.0).abs() < 1e-14,
+            "{kind:?}: {x:?}"
+        );
     }
 }

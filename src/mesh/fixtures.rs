@@ -177,6 +177,46 @@ pub(crate) fn assert_err<T: std::fmt::Debug>(
     msg
 }
 
+/// Feeds the parser `parse` (path, content) prefixes of the valid file content `good` and copies
+/// of it with a few bytes overwritten (deterministic pseudo-random positions and values); it must
+/// return, with a value or an error naming the file, and never panic.
+pub(crate) fn assert_robust<T>(
+    ext: &str,
+    good: &[u8],
+    parse: impl Fn(&Path, &[u8]) -> Result<T, MeshError>,
+) {
+    let path = PathBuf::from(format!("fuzz.{ext}"));
+    let check = |data: &[u8]| {
+        if let Err(e) = parse(&path, data) {
+            assert!(e.to_string().starts_with("fuzz."), "{e}");
+        }
+    };
+    for len in 0..good.len() {
+        check(&good[..len]);
+    }
+    const BYTES: &[u8] = b"\n \t-+.0123456789eE/#$\x00\xff\x80";
+    let mut state = 0x2545_f491_4f6c_dd1d_u64;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    for _ in 0..2000 {
+        let mut bad = good.to_vec();
+        for _ in 0..1 + next() % 3 {
+            let at = (next() % good.len() as u64) as usize;
+            let r = next();
+            bad[at] = if r % 2 == 0 {
+                BYTES[(r / 2 % BYTES.len() as u64) as usize]
+            } else {
+                (r >> 8) as u8
+            };
+        }
+        check(&bad);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

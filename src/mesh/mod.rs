@@ -1,6 +1,6 @@
 //! Surface meshes and point clouds: readers (OBJ, STL, PLY, OFF, Gmsh 2 MSH, point text files),
-//! writers (OBJ, point text) and validation. Lengths are always in the file's units; unit
-//! conversion is done by the caller with [`TriSurface::scale`].
+//! writers (OBJ, point text), validation and simple primitive solids. Lengths are always in the
+//! file's units; unit conversion is done by the caller with [`TriSurface::scale`].
 
 pub mod error;
 pub mod msh;
@@ -76,6 +76,36 @@ mod tests {
         let path = dir.path("Liver.OBJ");
         write_obj(&path, &cube()).unwrap();
         assert_eq!(read_surface(&path).unwrap(), cube());
+    }
+
+    #[test]
+    fn dispatch_reaches_every_reader() {
+        let dir = TempDir::new("dispatch-all");
+        let files = [
+            ("t.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"),
+            (
+                "t.Stl",
+                "solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n\
+                 vertex 0 1 0\nendloop\nendfacet\nendsolid t\n",
+            ),
+            (
+                "t.ply",
+                "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+                 property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
+                 end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+            ),
+            ("t.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"),
+            (
+                "t.msh",
+                "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n3\n1 0 0 0\n2 1 0 0\n3 0 1 0\n\
+                 $EndNodes\n$Elements\n1\n1 2 0 1 2 3\n$EndElements\n",
+            ),
+        ];
+        for (name, text) in files {
+            let s = read_surface(&dir.write(name, text)).unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(s.triangles.len(), 1, "{name}");
+            assert_eq!(s.scaled_normal(0).z, 1.0, "{name}: orientation kept");
+        }
     }
 
     #[test]

@@ -202,7 +202,8 @@ fn end_section(lines: &mut Lines<'_>, name: &str) -> Result<(), MeshError> {
 mod tests {
     use super::*;
     use crate::mesh::fixtures::{
-        assert_err, assert_same_surface, cube, reference_meshes, TempDir, CUBE_QUADS,
+        assert_err, assert_robust, assert_same_surface, cube, octahedron, reference_meshes,
+        TempDir, CUBE_QUADS,
     };
     use crate::mesh::validate::validate;
     use std::fmt::Write as _;
@@ -259,6 +260,12 @@ mod tests {
             read_msh(&dir.path("cube.msh")).unwrap().signed_volume(),
             1.0
         );
+    }
+
+    #[test]
+    fn corrupted_files_never_panic() {
+        let data = write_msh(&octahedron());
+        assert_robust("msh", data.as_bytes(), |p, d| parse(p, &decode(d)));
     }
 
     #[test]

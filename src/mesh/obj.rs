@@ -96,7 +96,9 @@ pub fn write_obj(path: &Path, surface: &TriSurface) -> Result<(), MeshError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::fixtures::{assert_err, assert_same_surface, cube, reference_meshes, TempDir};
+    use crate::mesh::fixtures::{
+        assert_err, assert_robust, assert_same_surface, cube, octahedron, reference_meshes, TempDir,
+    };
     use crate::mesh::validate::validate;
     use nalgebra::Point3;
 
@@ -169,6 +171,23 @@ f 2 3 7 6
         assert_same_surface(&mesh, &cube());
         assert_eq!(mesh.signed_volume(), 1.0);
         assert!(validate(&mesh).watertight);
+    }
+
+    #[test]
+    fn corrupted_files_never_panic() {
+        let dir = TempDir::new("obj-fuzz");
+        let good = dir.path("good.obj");
+        write_obj(&good, &octahedron()).unwrap();
+        let mut data = std::fs::read(&good).unwrap();
+        data.extend(b"vt 0 1\nf 1/1/1 -1//2 3/4\nf -6 -5 -4 -3\n");
+        assert_robust("obj", &data, |p, d| parse(p, &decode(d)));
+    }
+
+    #[test]
+    fn byte_order_mark_is_ignored() {
+        let dir = TempDir::new("obj-bom");
+        let path = dir.write("bom.obj", "\u{feff}v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+        assert_eq!(read_obj(&path).unwrap().vertices.len(), 3);
     }
 
     #[test]

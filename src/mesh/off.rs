@@ -88,7 +88,8 @@ fn parse(path: &Path, text: &str) -> Result<TriSurface, MeshError> {
 mod tests {
     use super::*;
     use crate::mesh::fixtures::{
-        assert_err, assert_same_surface, cube, reference_meshes, TempDir, CUBE_QUADS,
+        assert_err, assert_robust, assert_same_surface, cube, octahedron, reference_meshes,
+        TempDir, CUBE_QUADS,
     };
     use crate::mesh::validate::validate;
     use std::fmt::Write as _;
@@ -130,6 +131,12 @@ mod tests {
                 .signed_volume(),
             1.0
         );
+    }
+
+    #[test]
+    fn corrupted_files_never_panic() {
+        let data = write_off(&octahedron(), false);
+        assert_robust("off", data.as_bytes(), |p, d| parse(p, &decode(d)));
     }
 
     #[test]

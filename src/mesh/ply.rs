@@ -161,7 +161,9 @@ fn parse_header(path: &Path, data: &[u8]) -> Result<Header, MeshError> {
     let mut format = None;
     let mut elements: Vec<Element> = Vec::new();
     let mut pos = 0;
-    for no in 1.. {
+    let mut no = 0;
+    loop {
+        no += 1;
         if pos >= data.len() {
             return Err(MeshError::malformed(
                 path,
@@ -250,7 +252,6 @@ fn parse_header(path: &Path, data: &[u8]) -> Result<Header, MeshError> {
             Some(other) => return Err(line.err(format!("unknown header keyword {}", quote(other)))),
         }
     }
-    unreachable!("the header loop only ends by returning")
 }
 
 fn scalar_type(t: &mut Tokens<'_>) -> Result<Scalar, MeshError> {
@@ -518,7 +519,7 @@ fn read_faces(
 mod tests {
     use super::*;
     use crate::mesh::fixtures::{
-        assert_err, assert_same_surface, cube, octahedron, TempDir, CUBE_QUADS,
+        assert_err, assert_robust, assert_same_surface, cube, octahedron, TempDir, CUBE_QUADS,
     };
     use crate::mesh::validate::validate;
     use std::io::Write as _;
@@ -668,6 +669,15 @@ mod tests {
             );
             let back = read_ply(&dir.write(&format!("quads-{encoding}.ply"), data)).unwrap();
             assert_same_surface(&back, &cube());
+        }
+    }
+
+    #[test]
+    fn corrupted_files_never_panic() {
+        for encoding in ENCODINGS {
+            let data = write_surface(&octahedron(), encoding, ["double", "uchar", "int"]);
+            assert_robust("ply", &data, |p, d| parse(p, d, true));
+            assert_robust("ply", &data, |p, d| parse(p, d, false));
         }
     }
 

@@ -38,19 +38,22 @@ pub fn read_points(path: &Path) -> Result<Vec<Point3<f64>>, MeshError> {
     Ok(points)
 }
 
+/// Whether `c` separates numbers in a point text file.
+fn is_separator(c: char) -> bool {
+    c.is_whitespace() || c == ','
+}
+
 fn parse_text(path: &Path, text: &str) -> Result<Vec<Point3<f64>>, MeshError> {
     Lines::new(path, text, Some('#'))
         .map(|line| {
-            let tokens = line.tokens_split_by(|c| c.is_whitespace() || c == ',');
-            let found = tokens.count();
+            let found = line.tokens_split_by(is_separator).count();
             if found != 3 {
                 return Err(line.err(format!(
                     "expected 3 numbers (x y z), found {found}: {}",
                     quote(line.text)
                 )));
             }
-            line.tokens_split_by(|c| c.is_whitespace() || c == ',')
-                .point()
+            line.tokens_split_by(is_separator).point()
         })
         .collect()
 }
@@ -69,7 +72,7 @@ pub fn write_points(path: &Path, points: &[Point3<f64>]) -> Result<(), MeshError
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::fixtures::{assert_err, TempDir};
+    use crate::mesh::fixtures::{assert_err, assert_robust, TempDir};
 
     #[test]
     fn text_round_trip_is_exact() {
@@ -91,6 +94,12 @@ mod tests {
                     .all(|(x, y)| x.to_bits() == y.to_bits()));
             }
         }
+    }
+
+    #[test]
+    fn corrupted_files_never_panic() {
+        let data = "# points\n1.5 -2 3e-3\n4,5,6\n\n7\t8\t9\n0.1 0.2 0.3\n";
+        assert_robust("xyz", data.as_bytes(), |p, d| parse_text(p, &decode(d)));
     }
 
     #[test]

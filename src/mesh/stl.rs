@@ -8,7 +8,7 @@ use nalgebra::Point3;
 use super::assemble::{finish, is_finite};
 use super::error::MeshError;
 use super::surface::TriSurface;
-use super::text::{decode, quote, read_bytes, Lines};
+use super::text::{decode, quote, read_bytes, Lines, BOM};
 
 /// Size of the binary header (80 bytes of text plus the triangle count).
 const HEADER: usize = 84;
@@ -23,17 +23,22 @@ const RECORD: usize = 50;
 /// header, even if it starts with `solid` as many exporters write; otherwise it is ASCII if it
 /// starts with `solid` and contains no NUL byte.
 pub fn read_stl(path: &Path) -> Result<TriSurface, MeshError> {
-    let data = read_bytes(path)?;
+    parse(path, &read_bytes(path)?)
+}
+
+/// Parses the STL content `data` of `path`.
+fn parse(path: &Path, data: &[u8]) -> Result<TriSurface, MeshError> {
     let declared = data
         .get(80..HEADER)
         .map(|b| u32::from_le_bytes(b.try_into().unwrap()) as u64);
     let expected = declared.map(|n| HEADER as u64 + RECORD as u64 * n);
     if expected == Some(data.len() as u64) {
-        return parse_binary(path, &data);
+        return parse_binary(path, data);
     }
-    let starts_solid = data.trim_ascii_start().starts_with(b"solid");
+    let text = data.strip_prefix(BOM).unwrap_or(data);
+    let starts_solid = text.trim_ascii_start().starts_with(b"solid");
     if starts_solid && !data.contains(&0) {
-        return parse_ascii(path, &decode(&data));
+        return parse_ascii(path, &decode(data));
     }
     Err(MeshError::malformed(
         path,
@@ -146,7 +151,9 @@ fn parse_ascii(path: &Path, text: &str) -> Result<TriSurface, MeshError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::fixtures::{assert_err, assert_same_surface, cube, reference_meshes, TempDir};
+    use crate::mesh::fixtures::{
+        assert_err, assert_robust, assert_same_surface, cube, octahedron, reference_meshes, TempDir,
+    };
     use crate::mesh::validate::validate;
     use std::fmt::Write as _;
 
@@ -190,6 +197,10 @@ mod tests {
         for (name, mesh) in reference_meshes() {
             for (kind, data) in [
                 ("ascii", ascii(&mesh).into_bytes()),
+                (
+                    "bom-ascii",
+                    format!("\u{feff}{}", ascii(&mesh)).into_bytes(),
+                ),
                 ("binary", binary(&mesh, b"binary")),
                 (
                     "solid-binary",
@@ -206,6 +217,12 @@ mod tests {
         let back = read_stl(&dir.path("cube-solid-binary.stl")).unwrap();
         assert_eq!(back.signed_volume(), 1.0);
         assert_eq!(back.vertices.len(), 8);
+    }
+
+    #[test]
+    fn corrupted_files_never_panic() {
+        assert_robust("stl", ascii(&octahedron()).as_bytes(), parse);
+        assert_robust("stl", &binary(&octahedron(), b"solid x"), parse);
     }
 
     #[test]

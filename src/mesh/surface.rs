@@ -14,7 +14,7 @@ pub struct TriSurface {
 
 impl TriSurface {
     /// Creates a surface from vertices and triangles (indices are not checked here; readers and
-    /// [`crate::mesh::validate`] check them).
+    /// [`crate::mesh::validate()`] check them).
     pub fn new(vertices: Vec<Point3<f64>>, triangles: Vec<[usize; 3]>) -> Self {
         Self {
             vertices,

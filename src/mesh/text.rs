@@ -15,10 +15,14 @@ pub(crate) fn read_bytes(path: &Path) -> Result<Vec<u8>, MeshError> {
     fs::read(path).map_err(|e| MeshError::io(path, e))
 }
 
-/// Decodes text leniently: invalid UTF-8 becomes U+FFFD and is then reported by the token parser
-/// with its line number rather than failing the whole file up front.
+/// The UTF-8 byte order mark some editors put at the start of text files.
+pub(crate) const BOM: &[u8] = b"\xef\xbb\xbf";
+
+/// Decodes text leniently: a leading byte order mark is dropped, and invalid UTF-8 becomes U+FFFD,
+/// which the token parser then reports with its line number rather than failing the whole file up
+/// front.
 pub(crate) fn decode(bytes: &[u8]) -> Cow<'_, str> {
-    String::from_utf8_lossy(bytes)
+    String::from_utf8_lossy(bytes.strip_prefix(BOM).unwrap_or(bytes))
 }
 
 /// Quotes `s` for an error message: shortened to at most 40 characters, control characters

@@ -905,3 +905,18 @@ fn examples_in_the_scene_reference_parse() {
     let first = doc.find("```toml\n").unwrap() + 8;
     assert!(doc[first..].starts_with(CONTRACT_EXAMPLE));
 }
+
+#[test]
+fn load_scene_str_resolves_against_the_given_path() {
+    let dir = TempDir::with_model();
+    let notional = dir.0.join("never-written.toml");
+    let l = load_scene_str(MINIMAL, SceneFormat::Toml, &notional).unwrap();
+    assert_eq!(l.path, std::path::absolute(&notional).unwrap());
+    assert_eq!(l.resolve(Path::new("liver.obj")), l.scene.model.surface);
+    assert_eq!(
+        l.resolve(Path::new("/abs/x.obj")),
+        PathBuf::from("/abs/x.obj")
+    );
+    let e = load_scene_str("[model", SceneFormat::Toml, &notional).unwrap_err();
+    assert!(e.to_string().contains("never-written.toml:1:"), "{e}");
+}

@@ -44,6 +44,10 @@ pub(super) const PAIR_SUM_FLOOR: f64 = 1e-6;
 /// singular for `pk2`/`material_tangent`.
 const SINGULAR_REL_TOL: f64 = 1e-12;
 
+/// Maximum number of Newton polar iterations before falling back to the SVD
+/// (scaled Newton needs ≤ 10 even for condition numbers ~1e16).
+const NEWTON_MAX_ITERS: usize = 30;
+
 /// Maximum number of cyclic Jacobi sweeps (convergence is quadratic; 3×3
 /// matrices need ≤ 5 in practice).
 const MAX_SWEEPS: usize = 16;
@@ -136,6 +140,65 @@ fn any_orthogonal(u: &Vector3<f64>) -> Vector3<f64> {
     (e - u * u[m]).normalize()
 }
 
+/// Cofactor matrix `cof(X) = det(X) X⁻ᵀ` and `det X`.
+#[inline(always)]
+fn cofactor_det(x: &Mat3) -> (Mat3, f64) {
+    let (x00, x01, x02) = (x[(0, 0)], x[(0, 1)], x[(0, 2)]);
+    let (x10, x11, x12) = (x[(1, 0)], x[(1, 1)], x[(1, 2)]);
+    let (x20, x21, x22) = (x[(2, 0)], x[(2, 1)], x[(2, 2)]);
+    let c00 = x11 * x22 - x12 * x21;
+    let c01 = x12 * x20 - x10 * x22;
+    let c02 = x10 * x21 - x11 * x20;
+    let det = x00 * c00 + x01 * c01 + x02 * c02;
+    let cof = Mat3::new(
+        c00,
+        c01,
+        c02,
+        x02 * x21 - x01 * x22,
+        x00 * x22 - x02 * x20,
+        x01 * x20 - x00 * x21,
+        x01 * x12 - x02 * x11,
+        x02 * x10 - x00 * x12,
+        x00 * x11 - x01 * x10,
+    );
+    (cof, det)
+}
+
+/// Orthogonal polar factor of `F` by the scaled Newton iteration
+/// `X ← ½(γX + γ⁻¹X⁻ᵀ)`, `γ = (‖X⁻¹‖/‖X‖)^½` (Higham), for `det F > 0` only
+/// (then the polar factor is the proper rotation `R`). Iterates until the
+/// update is ≤ 3e-9, after which the quadratic convergence puts the iterate
+/// at rounding level. `None` if `det F ≤ 0` or no convergence (the caller
+/// falls back to the signed SVD).
+#[inline(always)]
+fn polar_newton(f: &Mat3) -> Option<Mat3> {
+    let mut x = *f;
+    let mut scaled = true;
+    for _ in 0..NEWTON_MAX_ITERS {
+        let (cof, det) = cofactor_det(&x);
+        if !(det > 0.0) {
+            return None;
+        }
+        let inv_det = 1.0 / det;
+        let xn = if scaled {
+            let g = (cof.norm_squared() * inv_det * inv_det / x.norm_squared())
+                .sqrt()
+                .sqrt();
+            (x * g + cof * (inv_det / g)) * 0.5
+        } else {
+            (x + cof * inv_det) * 0.5
+        };
+        let step2 = (xn - x).norm_squared();
+        x = xn;
+        if step2 <= 1e-17 {
+            return Some(x);
+        }
+        // near convergence the optimal γ → 1: stop scaling (Higham)
+        scaled = step2 > 1e-4;
+    }
+    None
+}
+
 /// Signed SVD of `F` via Jacobi on `FᵀF` and a Gram–Schmidt QR of `F V`.
 #[inline(always)]
 fn signed_svd(f: &Mat3) -> SignedSvd {
@@ -167,14 +230,69 @@ fn signed_svd(f: &Mat3) -> SignedSvd {
     }
 }
 
+/// Proper rotation `R` of the polar decomposition (fast path: Newton for
+/// `det F > 0`; otherwise the signed SVD).
 #[inline(always)]
-fn energy_of(p: Lame, sigma: &Vector3<f64>) -> f64 {
-    let d = sigma - Vector3::repeat(1.0);
-    let t = d.sum();
-    p.mu * d.norm_squared() + 0.5 * p.lambda * t * t
+fn rotation(f: &Mat3) -> Mat3 {
+    match polar_newton(f) {
+        Some(r) => r,
+        None => signed_svd(f).r,
+    }
 }
 
-/// `F⁻¹ = V diag(1/σ) Uᵀ = V diag(1/σ) Vᵀ Rᵀ`, or `Inverted` if `F` is singular.
+/// `R` and `G⁻¹ = (tr S I − S)⁻¹`, `S = RᵀF`, with every eigenvalue of `G`
+/// (pair sum of signed singular values) floored at [`PAIR_SUM_FLOOR`].
+///
+/// Fast path: Newton `R` and a cofactor inverse of `G`, taken when
+/// `4 det G / (tr G)² ≥ PAIR_SUM_FLOOR`, which guarantees
+/// `λ_min(G) ≥ PAIR_SUM_FLOOR` (no flooring needed). Otherwise the signed SVD
+/// gives `G⁻¹ = V diag(1/max(σ_b + σ_c, floor)) Vᵀ`.
+#[inline(always)]
+fn rotation_and_g_inv(f: &Mat3) -> (Mat3, Mat3) {
+    if let Some(r) = polar_newton(f) {
+        let s = r.tr_mul(f);
+        let tr = s.trace();
+        // G = tr S I − sym(S)
+        let mut g = (s + s.transpose()) * -0.5;
+        g[(0, 0)] += tr;
+        g[(1, 1)] += tr;
+        g[(2, 2)] += tr;
+        let (cof, det) = cofactor_det(&g);
+        let tr_g = 2.0 * tr;
+        if 4.0 * det >= PAIR_SUM_FLOOR * tr_g * tr_g {
+            // G symmetric → cof(G) symmetric, G⁻¹ = cof(G)/det G
+            return (r, cof * (1.0 / det));
+        }
+    }
+    let SignedSvd { r, v, sigma } = signed_svd(f);
+    let d = Vector3::new(
+        1.0 / (sigma[1] + sigma[2]).max(PAIR_SUM_FLOOR),
+        1.0 / (sigma[0] + sigma[2]).max(PAIR_SUM_FLOOR),
+        1.0 / (sigma[0] + sigma[1]).max(PAIR_SUM_FLOOR),
+    );
+    (r, in_basis(&v, &d))
+}
+
+/// Energy (J/m³) and `P` (Pa) from `R`.
+#[inline(always)]
+fn energy_and_pk1(p: Lame, f: &Mat3, r: &Mat3) -> (f64, Mat3, f64) {
+    let t = r.dot(f) - 3.0; // tr(RᵀF) − 3
+    let d = f - r;
+    let energy = p.mu * d.norm_squared() + 0.5 * p.lambda * t * t;
+    (energy, d * (2.0 * p.mu) + r * (p.lambda * t), t)
+}
+
+/// Cross product of plain arrays.
+#[inline(always)]
+fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// `1/σ` (for `F⁻¹ = V diag(1/σ) Vᵀ Rᵀ`), or `Inverted` if `F` is singular.
 fn checked_inverse_parts(f: &Mat3, svd: &SignedSvd) -> Result<Vector3<f64>, MaterialError> {
     let s = &svd.sigma;
     if !(s[2].abs() > SINGULAR_REL_TOL * s[0]) {
@@ -193,52 +311,48 @@ fn in_basis(v: &Mat3, d: &Vector3<f64>) -> Mat3 {
 
 impl Law for Corotated {
     fn energy(p: Lame, f: &Mat3) -> Result<f64, MaterialError> {
-        Ok(energy_of(p, &signed_svd(f).sigma))
+        Ok(energy_and_pk1(p, f, &rotation(f)).0)
     }
 
     fn pk1(p: Lame, f: &Mat3) -> Result<Mat3, MaterialError> {
-        let svd = signed_svd(f);
-        let t = svd.sigma.sum() - 3.0;
-        Ok((f - svd.r) * (2.0 * p.mu) + svd.r * (p.lambda * t))
+        Ok(energy_and_pk1(p, f, &rotation(f)).1)
     }
 
     #[inline]
     fn response(p: Lame, f: &Mat3) -> Result<PointResponse, MaterialError> {
-        let SignedSvd { r, v, sigma } = signed_svd(f);
-        let t = sigma.sum() - 3.0;
-        let energy = energy_of(p, &sigma);
-        let pk1 = (f - r) * (2.0 * p.mu) + r * (p.lambda * t);
+        let (r, g_inv) = rotation_and_g_inv(f);
+        let (energy, pk1, t) = energy_and_pk1(p, f, &r);
         let c = p.lambda * t - 2.0 * p.mu;
-        // G⁻¹ in the V basis: 1/(σ_b + σ_c), floored (see module docs);
-        // fold c in: coefficient of each rank-one term.
-        let w = Vector3::new(
-            c / (sigma[1] + sigma[2]).max(PAIR_SUM_FLOOR),
-            c / (sigma[0] + sigma[2]).max(PAIR_SUM_FLOOR),
-            c / (sigma[0] + sigma[1]).max(PAIR_SUM_FLOOR),
-        );
-        // N[(3i+J), a] = (m_iJ · v_a) = (r_i × v_a)_J
-        let mut n = [[0.0f64; 3]; 9];
+        // A[(3i+J),(3k+L)] = 2μ δ_ik δ_JL + λ R_iJ R_kL + c m_iJ · G⁻¹ m_kL with
+        // m_iJ = e_J × r_i (r_i the i-th row of R). Writing M_i = [r_i]ₓ (rows
+        // m_iJ), block (i, k) of the last term is c M_i G⁻¹ M_kᵀ, whose row J
+        // is r_k × (row J of P_i), P_i = c [r_i]ₓ G⁻¹ = [r_i × cg_0 | r_i × cg_1 | r_i × cg_2]
+        // (cg_a the columns of c G⁻¹).
+        let ra: [[f64; 3]; 3] = r.transpose().into(); // ra[i] = r_i
+        let cg: [[f64; 3]; 3] = (g_inv * c).into(); // cg[a] = column a
+        let mut pt = [[[0.0f64; 3]; 3]; 3]; // pt[i][a] = column a of P_i
         for i in 0..3 {
-            let ri = Vector3::new(r[(i, 0)], r[(i, 1)], r[(i, 2)]);
             for a in 0..3 {
-                let x = ri.cross(&v.column(a).into_owned());
-                n[3 * i][a] = x[0];
-                n[3 * i + 1][a] = x[1];
-                n[3 * i + 2][a] = x[2];
+                pt[i][a] = cross(&ra[i], &cg[a]);
             }
         }
         let (mu2, la) = (2.0 * p.mu, p.lambda);
-        let tangent = Tangent9::from_fn(|row, col| {
-            let (nr, nc) = (&n[row], &n[col]);
-            let mut val = la * r[(row / 3, row % 3)] * r[(col / 3, col % 3)]
-                + w[0] * nr[0] * nc[0]
-                + w[1] * nr[1] * nc[1]
-                + w[2] * nr[2] * nc[2];
-            if row == col {
-                val += mu2;
+        // column-major storage: cols[3k+L][3i+J]
+        let mut cols = [[0.0f64; 9]; 9];
+        for i in 0..3 {
+            for j in 0..3 {
+                let prow = [pt[i][0][j], pt[i][1][j], pt[i][2][j]];
+                let lr = la * ra[i][j];
+                for k in 0..3 {
+                    let x = cross(&ra[k], &prow);
+                    for l in 0..3 {
+                        cols[3 * k + l][3 * i + j] = x[l] + lr * ra[k][l];
+                    }
+                }
+                cols[3 * i + j][3 * i + j] += mu2;
             }
-            val
-        });
+        }
+        let tangent = Tangent9::from_data(nalgebra::ArrayStorage(cols));
         Ok(PointResponse {
             energy,
             pk1,

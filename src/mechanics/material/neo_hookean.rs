@@ -80,17 +80,26 @@ impl Law for NeoHookean {
         let pk1 = f * p.mu + h * (p.lambda * ln_j - p.mu);
         let (mu, la) = (p.mu, p.lambda);
         let g = mu - la * ln_j;
-        // A[(3i+J),(3k+L)] = μ δ_ik δ_JL + (μ − λ ln J) H_iL H_kJ + λ H_iJ H_kL
-        let tangent = Tangent9::from_fn(|r, c| {
-            let (i, jj) = (r / 3, r % 3);
-            let (k, ll) = (c / 3, c % 3);
-            let v = g * h[(i, ll)] * h[(k, jj)] + la * h[(i, jj)] * h[(k, ll)];
-            if r == c {
-                v + mu
-            } else {
-                v
+        // Block (i, k) of A, indices (J, L):
+        // (μ − λ ln J) H_kJ H_iL + λ H_iJ H_kL + μ δ_ik δ_JL.
+        let rows = [
+            h.row(0).transpose(),
+            h.row(1).transpose(),
+            h.row(2).transpose(),
+        ];
+        let mut tangent = Tangent9::zeros();
+        for i in 0..3 {
+            for k in 0..3 {
+                let mut blk = rows[k] * (rows[i] * g).transpose()
+                    + rows[i] * (rows[k] * la).transpose();
+                if i == k {
+                    blk[(0, 0)] += mu;
+                    blk[(1, 1)] += mu;
+                    blk[(2, 2)] += mu;
+                }
+                tangent.fixed_view_mut::<3, 3>(3 * i, 3 * k).copy_from(&blk);
             }
-        });
+        }
         Ok(PointResponse {
             energy,
             pk1,

@@ -44,21 +44,36 @@ impl Law for Svk {
     fn response(p: Lame, f: &Mat3) -> Result<PointResponse, MaterialError> {
         let (s, energy) = pk2_and_energy(p, &green(f));
         let pk1 = f * s;
-        let b = f * f.transpose();
         let (mu, la) = (p.mu, p.lambda);
-        // A[(3i+J),(3k+L)] = δ_ik S_JL + λ F_iJ F_kL + μ (B_ik δ_JL + F_iL F_kJ)
-        let tangent = Tangent9::from_fn(|r, c| {
-            let (i, jj) = (r / 3, r % 3);
-            let (k, ll) = (c / 3, c % 3);
-            let mut v = la * f[(i, jj)] * f[(k, ll)] + mu * f[(i, ll)] * f[(k, jj)];
-            if jj == ll {
-                v += mu * b[(i, k)];
+        let fa: [[f64; 3]; 3] = f.transpose().into(); // fa[i][J] = F_iJ
+        let sa: [[f64; 3]; 3] = s.into(); // symmetric
+        let mut b = [[0.0f64; 3]; 3]; // B = F Fᵀ
+        for i in 0..3 {
+            for k in 0..3 {
+                b[i][k] = fa[i][0] * fa[k][0] + fa[i][1] * fa[k][1] + fa[i][2] * fa[k][2];
             }
-            if i == k {
-                v += s[(jj, ll)];
+        }
+        // A[(3i+J),(3k+L)] = δ_ik S_JL + λ F_iJ F_kL + μ (B_ik δ_JL + F_iL F_kJ);
+        // `cols[c][r]` is column-major storage of A.
+        let mut cols = [[0.0f64; 9]; 9];
+        for k in 0..3 {
+            for l in 0..3 {
+                let col = &mut cols[3 * k + l];
+                for i in 0..3 {
+                    for j in 0..3 {
+                        let mut v = la * fa[i][j] * fa[k][l] + mu * fa[i][l] * fa[k][j];
+                        if j == l {
+                            v += mu * b[i][k];
+                        }
+                        if i == k {
+                            v += sa[j][l];
+                        }
+                        col[3 * i + j] = v;
+                    }
+                }
             }
-            v
-        });
+        }
+        let tangent = Tangent9::from_data(nalgebra::ArrayStorage(cols));
         Ok(PointResponse {
             energy,
             pk1,

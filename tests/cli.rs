@@ -1,0 +1,112 @@
+//! The `livereg` binary: the bundled scenes run, and every malformed scene, mesh or value gives
+//! a non-zero exit and a one-line message naming the file and the problem (never a panic).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn livereg(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_livereg")).args(args).output().expect("binary runs");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// A fresh directory under the system temp dir.
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("livereg-cli-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+const CUBE_OBJ: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n\
+f 1 3 2\nf 1 4 3\nf 5 6 7\nf 5 7 8\nf 1 2 6\nf 1 6 5\nf 2 3 7\nf 2 7 6\nf 3 4 8\nf 3 8 7\nf 4 1 5\nf 4 5 8\n";
+
+const GOOD_SCENE: &str = r#"
+units = "cm"
+[model]
+surface = "cube.obj"
+[grid]
+cell_size = 0.25
+subdivisions = 2
+[material]
+law = "neo-hookean"
+young_modulus = 3000.0
+poisson_ratio = 0.45
+[[boundary.fixed]]
+box = [[-1.0, -1.0, -0.01], [2.0, 2.0, 0.01]]
+[[load.traction]]
+box = [[-1.0, -1.0, 0.99], [2.0, 2.0, 1.01]]
+value = [50.0, 0.0, 0.0]
+[[probe]]
+points = [[0.5, 0.5, 1.0]]
+"#;
+
+fn write_case(dir: &Path, scene: &str, mesh: &str) -> PathBuf {
+    std::fs::write(dir.join("cube.obj"), mesh).unwrap();
+    let p = dir.join("scene.toml");
+    std::fs::write(&p, scene).unwrap();
+    p
+}
+
+#[test]
+fn a_good_scene_prints_the_contract_json() {
+    let d = scratch("good");
+    let scene = write_case(&d, GOOD_SCENE, CUBE_OBJ);
+    let out_dir = d.join("out");
+    let (code, stdout, stderr) = livereg(&["simulate", scene.to_str().unwrap(), "--out", out_dir.to_str().unwrap()]);
+    assert_eq!(code, 0, "{stderr}");
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
+    assert_eq!(v["converged"], true);
+    for key in ["newton_iterations", "load_steps", "wall_ms", "max_displacement"] {
+        assert!(v[key].is_number(), "{key}");
+    }
+    assert_eq!(v["grid"]["cells"], 64);
+    // 50 Pa shear on a 1 cm cube of E = 3 kPa: the top moves along +x, in centimetres.
+    let dx = v["probes"][0]["displacement"][0].as_f64().unwrap();
+    assert!(dx > 0.005 && dx < 0.1, "displacement {dx} cm");
+    assert!(out_dir.join("deformed.obj").exists());
+}
+
+/// Each case: (what, scene text, mesh text, words the message must contain).
+#[test]
+fn malformed_input_fails_cleanly_with_a_message_naming_file_and_problem() {
+    let cases: Vec<(&str, String, &str, Vec<&str>)> = vec![
+        ("unknown key", GOOD_SCENE.replace("subdivisions = 2", "subdivisions = 2\ncellsize = 3"), CUBE_OBJ, vec!["scene.toml", "cellsize"]),
+        ("negative cell size", GOOD_SCENE.replace("cell_size = 0.25", "cell_size = -0.25"), CUBE_OBJ, vec!["scene.toml", "cell_size"]),
+        ("string for number", GOOD_SCENE.replace("young_modulus = 3000.0", "young_modulus = \"soft\""), CUBE_OBJ, vec!["scene.toml", "young_modulus"]),
+        ("incompressible", GOOD_SCENE.replace("poisson_ratio = 0.45", "poisson_ratio = 0.5"), CUBE_OBJ, vec!["scene.toml", "poisson_ratio"]),
+        ("unknown law", GOOD_SCENE.replace("neo-hookean", "mooney"), CUBE_OBJ, vec!["scene.toml", "mooney"]),
+        ("missing mesh", GOOD_SCENE.replace("cube.obj", "absent.obj"), CUBE_OBJ, vec!["absent.obj"]),
+        ("toml syntax", GOOD_SCENE.replace("[grid]", "[grid"), CUBE_OBJ, vec!["scene.toml"]),
+        ("bad face index", GOOD_SCENE.to_string(), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", vec!["cube.obj", "9"]),
+        ("nan vertex", GOOD_SCENE.to_string(), "v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", vec!["cube.obj"]),
+        ("garbage mesh", GOOD_SCENE.to_string(), "\u{0}\u{1}garbage", vec!["cube.obj"]),
+        ("empty mesh", GOOD_SCENE.to_string(), "# nothing\n", vec!["cube.obj"]),
+        ("fixed box misses the surface", GOOD_SCENE.replace("[[-1.0, -1.0, -0.01], [2.0, 2.0, 0.01]]", "[[5.0, 5.0, 5.0], [6.0, 6.0, 6.0]]"), CUBE_OBJ, vec!["scene.toml", "boundary.fixed[0]"]),
+        ("probe outside", GOOD_SCENE.replace("[[0.5, 0.5, 1.0]]", "[[0.5, 0.5, 9.0]]"), CUBE_OBJ, vec!["probe"]),
+        ("cells too small", GOOD_SCENE.replace("cell_size = 0.25", "cell_size = 0.0001"), CUBE_OBJ, vec!["cell size"]),
+    ];
+    for (i, (what, scene, mesh, words)) in cases.into_iter().enumerate() {
+        let d = scratch(&format!("bad{i}"));
+        let path = write_case(&d, &scene, mesh);
+        let (code, _stdout, stderr) = livereg(&["simulate", path.to_str().unwrap()]);
+        assert_ne!(code, 0, "{what}: should fail");
+        assert!(!stderr.contains("panicked"), "{what}: panicked: {stderr}");
+        assert_eq!(stderr.trim().lines().count(), 1, "{what}: one line expected: {stderr}");
+        for w in words {
+            assert!(stderr.contains(w), "{what}: message lacks '{w}': {stderr}");
+        }
+    }
+}
+
+#[test]
+fn missing_scene_and_unknown_command_fail() {
+    let (code, _, stderr) = livereg(&["simulate", "/nonexistent/scene.toml"]);
+    assert_ne!(code, 0);
+    assert!(stderr.contains("/nonexistent/scene.toml"), "{stderr}");
+    let (code, _, _) = livereg(&["frobnicate"]);
+    assert_ne!(code, 0);
+}
