@@ -34,7 +34,7 @@ const LEAF_SIZE: usize = 4;
 const AMBIGUITY_BAND: f64 = 0.1;
 
 /// Crossings kept on the stack in [`InsideTest::classify_line`] before spilling to the heap.
-const INLINE_CROSSINGS: usize = 32;
+const INLINE_CROSSINGS: usize = 16;
 
 /// Inside/outside classification of points against a triangle surface (lengths in the
 /// surface's units).
@@ -44,7 +44,8 @@ const INLINE_CROSSINGS: usize = 32;
 /// winding), and it degrades gracefully for surfaces with holes or flipped triangles.
 ///
 /// Built once (O(n log n)), then shared between threads (`Send + Sync`):
-/// * [`InsideTest::winding_number`]: BVH far-field (dipole) approximation, O(log n)-ish.
+/// * [`InsideTest::winding_number`]: BVH far-field (multipole) approximation, O(log n)-ish;
+///   [`InsideTest::contains`] thresholds it at ½.
 /// * [`InsideTest::classify_line`]: many points on one z-parallel line from the line's signed
 ///   crossings with the surface (exact predicates; hits on edges and vertices are resolved by
 ///   symbolic perturbation), with the winding number as fallback near holes.
@@ -60,6 +61,8 @@ pub struct InsideTest {
     tris: Vec<[Point3<f64>; 3]>,
     /// Input index of each entry of `tris`.
     tri_ids: Vec<usize>,
+    /// True when no triangle was dropped (`tri_ids[i] == i`).
+    identity_ids: bool,
     bvh: Bvh,
     fast: FastWinding,
     lines: ZLineIndex,
@@ -127,6 +130,7 @@ impl InsideTest {
             },
         );
         Ok(InsideTest {
+            identity_ids: tri_ids.len() == triangles.len(),
             tris,
             tri_ids,
             bvh,
@@ -272,12 +276,16 @@ impl InsideTest {
             out.extend(zs.iter().map(|&z| self.contains(&Point3::new(x, y, z))));
             return;
         }
-        // Insertion sort (few crossings), then prefix sums in place of the weights.
-        for i in 1..crossings.len() {
-            let mut j = i;
-            while j > 0 && crossings[j - 1].0 > crossings[j].0 {
-                crossings.swap(j - 1, j);
-                j -= 1;
+        // Insertion sort for the usual few crossings, then prefix sums in place of the weights.
+        if crossings.len() > INLINE_CROSSINGS {
+            crossings.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        } else {
+            for i in 1..crossings.len() {
+                let mut j = i;
+                while j > 0 && crossings[j - 1].0 > crossings[j].0 {
+                    crossings.swap(j - 1, j);
+                    j -= 1;
+                }
             }
         }
         let mut acc = 0;
@@ -337,6 +345,15 @@ impl InsideTest {
         out.sort_unstable();
     }
 
+    /// Indices (into the input `triangles`) of the triangles whose bounding box intersects the
+    /// closed box `b`: a conservative superset of [`InsideTest::triangles_overlapping`],
+    /// in increasing order. `out` is cleared first.
+    pub fn triangles_bbox_overlapping(&self, b: &Aabb, out: &mut Vec<usize>) {
+        out.clear();
+        self.bvh.visit_overlapping(b, |i| out.push(self.tri_ids[i]));
+        out.sort_unstable();
+    }
+
     /// Filters candidate triangles (input indices, e.g. the result of
     /// [`InsideTest::triangles_overlapping`] for a parent box) down to those overlapping `b`;
     /// order is preserved. Cheaper than a BVH query when refining a box recursively.
@@ -344,7 +361,7 @@ impl InsideTest {
     pub fn filter_overlapping(&self, candidates: &[usize], b: &Aabb, out: &mut Vec<usize>) {
         out.clear();
         for &t in candidates {
-            if let Ok(i) = self.tri_ids.binary_search(&t) {
+            if let Some(i) = self.position(t) {
                 if triangle_overlaps_box(&self.tris[i], b) {
                     out.push(t);
                 }
@@ -355,7 +372,17 @@ impl InsideTest {
     /// The corners of input triangle `t`, or `None` if it was dropped (non-finite corner) or
     /// does not exist.
     pub fn triangle(&self, t: usize) -> Option<[Point3<f64>; 3]> {
-        self.tri_ids.binary_search(&t).ok().map(|i| self.tris[i])
+        self.position(t).map(|i| self.tris[i])
+    }
+
+    /// Position in `tris` of input triangle `t`.
+    #[inline]
+    fn position(&self, t: usize) -> Option<usize> {
+        if self.identity_ids {
+            (t < self.tris.len()).then_some(t)
+        } else {
+            self.tri_ids.binary_search(&t).ok()
+        }
     }
 
     /// Number of lines so far for which [`InsideTest::classify_line`] used the winding number
@@ -394,6 +421,30 @@ mod tests {
                 n_vertices: 3
             }
         );
+    }
+
+    #[test]
+    fn non_finite_triangles_are_dropped_but_indices_kept() {
+        let (mut v, mut t) = crate::geometry::shapes::icosphere(1, 1.0);
+        v.push(Point3::new(f64::NAN, 0.0, 0.0));
+        let bad = v.len() - 1;
+        t.insert(3, [0, 1, bad]);
+        let inside = InsideTest::new(&v, &t);
+        assert_eq!(inside.num_triangles(), t.len() - 1);
+        assert!(inside.triangle(3).is_none());
+        let b = Aabb::new(Point3::new(-2.0, -2.0, -2.0), Point3::new(2.0, 2.0, 2.0));
+        let mut all = Vec::new();
+        inside.triangles_overlapping(&b, &mut all);
+        let want: Vec<usize> = (0..t.len()).filter(|&k| k != 3).collect();
+        assert_eq!(all, want);
+        let mut filtered = Vec::new();
+        inside.filter_overlapping(&(0..t.len()).collect::<Vec<_>>(), &b, &mut filtered);
+        assert_eq!(filtered, want);
+        assert!(inside.contains(&Point3::origin()));
+        let mut out = Vec::new();
+        inside.classify_line(0.01, 0.02, &[-2.0, 0.0, 2.0], &mut out);
+        assert_eq!(out, [false, true, false]);
+        assert!(inside.is_closed());
     }
 
     #[test]

@@ -13,9 +13,9 @@ use super::aabb::Aabb;
 /// separates the projections by a strictly positive gap.
 ///
 /// The projections are taken in the original coordinates (no translation to the box centre), so
-/// the box-axis tests and every test whose axis has zero components compare the input
-/// coordinates themselves: touching configurations of axis-aligned geometry are decided
-/// exactly. Degenerate (zero-area) triangles are handled correctly (a segment or point against
+/// the box-axis tests and the tests along axes with zero components compare (products of) the
+/// input coordinates themselves: touching configurations of axis-aligned geometry are decided
+/// exactly. Elsewhere, exactly touching configurations are decided up to rounding. Degenerate (zero-area) triangles are handled correctly (a segment or point against
 /// the box). An empty box overlaps nothing.
 pub fn triangle_overlaps_box(tri: &[Point3<f64>; 3], b: &Aabb) -> bool {
     if b.is_empty() {
@@ -31,20 +31,26 @@ pub fn triangle_overlaps_box(tri: &[Point3<f64>; 3], b: &Aabb) -> bool {
         }
     }
     let edges = [v1 - v0, v2 - v1, v0 - v2];
-    // 2. Triangle normal.
+    // 2. Triangle normal: all corners project to the same value (up to rounding).
     let n = edges[0].cross(&edges[1]);
-    if separated(&n, tri, b) {
+    let p = n.dot(&v0.coords);
+    if interval_separated(&n, p, p, b) {
         return false;
     }
     // 3. Cross products of box axes with triangle edges: e_i × edge = axis with a zero component.
-    for e in &edges {
+    //    The two corners of the edge project to the same value, so only the edge's first corner
+    //    and the opposite corner are projected (Akenine-Möller's shortcut).
+    for (j, e) in edges.iter().enumerate() {
+        let on = &tri[j].coords;
+        let off = &tri[(j + 2) % 3].coords;
         let axes = [
             Vector3::new(0.0, -e.z, e.y),
             Vector3::new(e.z, 0.0, -e.x),
             Vector3::new(-e.y, e.x, 0.0),
         ];
         for a in &axes {
-            if separated(a, tri, b) {
+            let (p_on, p_off) = (a.dot(on), a.dot(off));
+            if interval_separated(a, p_on.min(p_off), p_on.max(p_off), b) {
                 return false;
             }
         }
@@ -52,14 +58,10 @@ pub fn triangle_overlaps_box(tri: &[Point3<f64>; 3], b: &Aabb) -> bool {
     true
 }
 
-/// True when `axis` strictly separates the triangle from the box.
+/// True when the interval `[tmin, tmax]` (a triangle's projection onto `axis`) is strictly
+/// disjoint from the projection of the box onto `axis`.
 #[inline]
-fn separated(axis: &Vector3<f64>, tri: &[Point3<f64>; 3], b: &Aabb) -> bool {
-    let p0 = axis.dot(&tri[0].coords);
-    let p1 = axis.dot(&tri[1].coords);
-    let p2 = axis.dot(&tri[2].coords);
-    let tmin = p0.min(p1).min(p2);
-    let tmax = p0.max(p1).max(p2);
+fn interval_separated(axis: &Vector3<f64>, tmin: f64, tmax: f64, b: &Aabb) -> bool {
     let mut bmin = 0.0;
     let mut bmax = 0.0;
     for i in 0..3 {

@@ -519,3 +519,97 @@ fn build_quadrature(
     debug_assert!(gauss.iter().all(|g| g.abs().max() == GAUSS_2));
     q
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::primitives::{box_surface, icosphere};
+
+    fn sphere() -> TriSurface {
+        icosphere(Point3::new(0.0011, -0.0007, 0.0003), 0.05, 5)
+    }
+
+    #[test]
+    fn inside_volume_of_a_sphere_converges_with_levels() {
+        let s = sphere();
+        let exact = s.signed_volume();
+        let mut last = f64::INFINITY;
+        for levels in 1..=4 {
+            let g = WeightedCellGrid::build(&s, &GridOptions { cell_size: 0.02, subdivisions: levels, ..Default::default() }).unwrap();
+            let err = (g.stats().volume - exact).abs() / exact;
+            assert!(err < last * 1.05 || err < 2e-3, "level {levels}: error {err} after {last}");
+            last = err;
+        }
+        assert!(last < 5e-3, "level 4 volume error {last}");
+    }
+
+    #[test]
+    fn weighted_and_finite_cell_integrate_the_same_inside_volume() {
+        let s = sphere();
+        let base = GridOptions { cell_size: 0.02, subdivisions: 3, min_fraction: 0.0, ..Default::default() };
+        let wc = WeightedCellGrid::build(&s, &base).unwrap();
+        let fc = WeightedCellGrid::build(&s, &GridOptions { mode: IntegrationMode::FiniteCell, ..base }).unwrap();
+        assert_eq!(wc.cells.len(), fc.cells.len());
+        for c in 0..wc.cells.len() {
+            let (a, b) = (wc.quadrature.cell_volume(c), fc.quadrature.cell_volume(c));
+            assert!((a - b).abs() < 1e-15, "cell {c}: {a} vs {b}");
+            assert!((a - wc.cells[c].fraction * 0.02f64.powi(3)).abs() < 1e-15);
+        }
+        assert!(fc.quadrature.total_points() > 4 * wc.quadrature.total_points());
+    }
+
+    #[test]
+    fn octant_fractions_follow_a_plane_cut() {
+        // A box whose top face z = 0.0125 cuts the cells of the second layer through the
+        // middle of their lower octants' upper half: octants below hold 1/2, those above 0.
+        let s = box_surface(Point3::new(0.0, 0.0, 0.0), Point3::new(0.04, 0.04, 0.0125), 4);
+        let g = WeightedCellGrid::build(&s, &GridOptions { cell_size: 0.01, subdivisions: 3, ..Default::default() }).unwrap();
+        let cut: Vec<&ActiveCell> = g.cells.iter().filter(|c| c.cut).collect();
+        assert_eq!(cut.len(), 16);
+        for c in cut {
+            assert!((c.fraction - 0.25).abs() < 1e-12);
+            for (i, f) in c.octant_fractions.iter().enumerate() {
+                let expected = if CORNERS[i][2] < 0.0 { 0.5 } else { 0.0 };
+                assert!((f - expected).abs() < 1e-12, "octant {i}: {f}");
+            }
+        }
+    }
+
+    #[test]
+    fn every_cut_cell_keeps_a_floor_of_stiffness_weight() {
+        let s = sphere();
+        let g = WeightedCellGrid::build(&s, &GridOptions { cell_size: 0.02, subdivisions: 4, min_fraction: 1e-4, origin_offset: [0.31, 0.77, 0.05], ..Default::default() }).unwrap();
+        let v8 = 0.02f64.powi(3) / 8.0;
+        assert!(g.stats().tiny_cells > 0, "this offset should make badly cut cells");
+        for c in 0..g.cells.len() {
+            for q in g.quadrature.cell(c) {
+                assert!(q.weight >= 1e-4 * v8 * (1.0 - 1e-12));
+            }
+        }
+    }
+
+    #[test]
+    fn bad_options_and_surfaces_are_errors() {
+        let s = sphere();
+        let bad = |o: GridOptions| WeightedCellGrid::build(&s, &o).unwrap_err();
+        assert!(matches!(bad(GridOptions { cell_size: -1.0, ..Default::default() }), GridError::InvalidOption { name: "cell_size", .. }));
+        assert!(matches!(bad(GridOptions { cell_size: f64::NAN, ..Default::default() }), GridError::InvalidOption { .. }));
+        assert!(matches!(bad(GridOptions { subdivisions: 9, ..Default::default() }), GridError::InvalidOption { name: "subdivisions", .. }));
+        assert!(matches!(bad(GridOptions { cell_size: 1e-5, ..Default::default() }), GridError::TooManyCells { .. }));
+        assert_eq!(WeightedCellGrid::build(&TriSurface::default(), &GridOptions::default()).unwrap_err(), GridError::EmptySurface);
+        let mut nan = sphere();
+        nan.vertices[3].x = f64::NAN;
+        assert_eq!(WeightedCellGrid::build(&nan, &GridOptions::default()).unwrap_err(), GridError::NonFiniteVertex(3));
+    }
+
+    #[test]
+    fn an_open_surface_still_gives_a_sensible_inside() {
+        let mut s = sphere();
+        let closed = WeightedCellGrid::build(&s, &GridOptions { cell_size: 0.02, subdivisions: 2, ..Default::default() }).unwrap();
+        // Punch a hole: drop the triangles of a small cap.
+        s.triangles.retain(|t| s.vertices[t[0]].z < 0.045);
+        let open = WeightedCellGrid::build(&s, &GridOptions { cell_size: 0.02, subdivisions: 2, ..Default::default() }).unwrap();
+        let (a, b) = (closed.stats().volume, open.stats().volume);
+        assert!((a - b).abs() / a < 0.02, "closed {a} vs open {b}");
+    }
+}

@@ -1,27 +1,36 @@
 //! Corotated linear elasticity (McAdams/Sifakis form), invertible.
 //!
 //! `F = R S` with `R` a proper rotation (`det R = +1`, also when `det F < 0`)
-//! and `S = RᵀF` symmetric, obtained from the signed SVD
+//! and `S = RᵀF` symmetric; in terms of the signed SVD
 //! `F = U diag(σ) Vᵀ` (`U`, `V` proper rotations, `σ₁ ≥ σ₂ ≥ |σ₃|`, the sign of
-//! `det F` carried by the smallest singular value `σ₃`), `R = U Vᵀ`,
+//! `det F` carried by the smallest singular value `σ₃`), `R = U Vᵀ` and
 //! `S = V diag(σ) Vᵀ`.
 //!
 //! * `W = μ ‖F − R‖² + λ/2 (tr S − 3)²` (J/m³)
-//!   (= `μ Σ(σᵢ − 1)² + λ/2 (Σσᵢ − 3)²`),
+//!   (= `μ Σ(σᵢ − 1)² + λ/2 (Σσᵢ − 3)²`); shear part `μ ‖F − R‖²`,
+//!   volumetric part `λ/2 (tr S − 3)²`,
 //! * `P = 2μ(F − R) + λ (tr S − 3) R` (Pa),
 //! * exact tangent (Pa): `dP = 2μ dF + λ tr(RᵀdF) R + c dR`,
 //!   `c = λ(tr S − 3) − 2μ`, `dR = R[ω]ₓ`, `(tr S I − S) ω = axial(RᵀdF − dFᵀR)`.
-//!   With `m_iJ = e_J × r_i` (`r_i` the i-th row of `R`, `axial` of the skew
-//!   part of `Rᵀ e_i e_Jᵀ`) this is the symmetric matrix
+//!   With `m_iJ = e_J × r_i` (`r_i` the i-th row of `R`; `m_iJ` is the axial
+//!   vector of `RᵀE_iJ − E_iJᵀR` for the unit matrix `E_iJ`) this is the
+//!   symmetric matrix
 //!   `A[(iJ),(kL)] = 2μ δ_ik δ_JL + λ R_iJ R_kL + c m_iJ · G⁻¹ m_kL`,
 //!   `G = tr S I − S = V diag(σ₂+σ₃, σ₁+σ₃, σ₁+σ₂) Vᵀ`.
 //!
-//! **Degenerate F.** `R` is not differentiable where two signed singular
-//! values sum to zero (`F` of rank ≤ 1, or `F` inverted with `σ₃ = −σ₂`); there
-//! `G` is singular. The pair sums are floored at [`PAIR_SUM_FLOOR`], so the
-//! tangent is exact wherever every pair sum is ≥ 1e-6 and stays finite (large,
-//! regularised) closer to the singular set: no error, no NaN. Energy and `P`
-//! are continuous everywhere and are never regularised.
+//! **Computation.** For `det F > 0` (the normal case) `R` comes from a scaled
+//! Newton polar iteration (≈5 iterations, no eigen-solve) and `G⁻¹` from its
+//! cofactor matrix. For `det F ≤ 0`, or when `G` is close to singular, `R`
+//! and `G` come from a signed SVD (cyclic Jacobi on `FᵀF` + Gram–Schmidt QR of
+//! `F V`). Both paths agree to rounding where both apply (tested).
+//!
+//! **Degenerate F.** `R` is not differentiable (and not unique) where two
+//! signed singular values sum to zero (`F` of rank ≤ 1, or `F` inverted with
+//! `σ₃ = −σ₂`); there `G` is singular and `P` may jump (the energy stays
+//! continuous). The eigenvalues of `G` are floored at [`PAIR_SUM_FLOOR`]
+//! (1e-6), so the tangent is exact wherever every pair sum is ≥ 1e-6 and stays
+//! finite (large, regularised) closer to the singular set: no error, no NaN.
+//! Energy and `P` are never regularised.
 //!
 //! `pk2` (`S = F⁻¹P = V diag(2μ(1 − 1/σᵢ) + λ(tr S − 3)/σᵢ) Vᵀ`) and
 //! `material_tangent` need `F⁻¹`: they return [`MaterialError::Inverted`]
@@ -38,7 +47,7 @@ pub(super) struct Corotated;
 
 /// Lower bound on the pair sums `σ_a + σ_b` (dimensionless) used when inverting
 /// `tr S I − S` in the tangent (see module docs).
-pub(super) const PAIR_SUM_FLOOR: f64 = 1e-6;
+const PAIR_SUM_FLOOR: f64 = 1e-6;
 
 /// Relative size of the smallest singular value below which `F` counts as
 /// singular for `pk2`/`material_tangent`.
@@ -176,7 +185,7 @@ fn polar_newton(f: &Mat3) -> Option<Mat3> {
     let mut scaled = true;
     for _ in 0..NEWTON_MAX_ITERS {
         let (cof, det) = cofactor_det(&x);
-        if !(det > 0.0) {
+        if det.is_nan() || det <= 0.0 {
             return None;
         }
         let inv_det = 1.0 / det;
@@ -208,11 +217,7 @@ fn signed_svd(f: &Mat3) -> SignedSvd {
     let b1: Vector3<f64> = b.column(1).into_owned();
     let b2: Vector3<f64> = b.column(2).into_owned();
     let s0 = b0.norm();
-    let u0 = if s0 > 1e-300 {
-        b0 / s0
-    } else {
-        Vector3::x()
-    };
+    let u0 = if s0 > 1e-300 { b0 / s0 } else { Vector3::x() };
     let w = b1 - u0 * u0.dot(&b1);
     let wn = w.norm();
     let u1 = if wn > 1e-300 {
@@ -264,6 +269,13 @@ fn rotation_and_g_inv(f: &Mat3) -> (Mat3, Mat3) {
             return (r, cof * (1.0 / det));
         }
     }
+    rotation_and_g_inv_svd(f)
+}
+
+/// Slow path of [`rotation_and_g_inv`]: everything from the signed SVD,
+/// `G⁻¹ = V diag(1/max(σ_b + σ_c, PAIR_SUM_FLOOR)) Vᵀ`.
+#[inline(never)]
+fn rotation_and_g_inv_svd(f: &Mat3) -> (Mat3, Mat3) {
     let SignedSvd { r, v, sigma } = signed_svd(f);
     let d = Vector3::new(
         1.0 / (sigma[1] + sigma[2]).max(PAIR_SUM_FLOOR),
@@ -295,7 +307,7 @@ fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
 /// `1/σ` (for `F⁻¹ = V diag(1/σ) Vᵀ Rᵀ`), or `Inverted` if `F` is singular.
 fn checked_inverse_parts(f: &Mat3, svd: &SignedSvd) -> Result<Vector3<f64>, MaterialError> {
     let s = &svd.sigma;
-    if !(s[2].abs() > SINGULAR_REL_TOL * s[0]) {
+    if s[2].is_nan() || s[2].abs() <= SINGULAR_REL_TOL * s[0] {
         return Err(MaterialError::Inverted {
             det: f.determinant(),
         });
@@ -324,10 +336,11 @@ impl Law for Corotated {
         let (energy, pk1, t) = energy_and_pk1(p, f, &r);
         let c = p.lambda * t - 2.0 * p.mu;
         // A[(3i+J),(3k+L)] = 2μ δ_ik δ_JL + λ R_iJ R_kL + c m_iJ · G⁻¹ m_kL with
-        // m_iJ = e_J × r_i (r_i the i-th row of R). Writing M_i = [r_i]ₓ (rows
-        // m_iJ), block (i, k) of the last term is c M_i G⁻¹ M_kᵀ, whose row J
-        // is r_k × (row J of P_i), P_i = c [r_i]ₓ G⁻¹ = [r_i × cg_0 | r_i × cg_1 | r_i × cg_2]
-        // (cg_a the columns of c G⁻¹).
+        // m_iJ = e_J × r_i (r_i the i-th row of R). Writing M_i = [r_i]ₓ (its
+        // rows are the m_iJ), block (i, k) of the last term is c M_i G⁻¹ M_kᵀ,
+        // whose row J is r_k × (row J of P_i), where
+        // P_i = c [r_i]ₓ G⁻¹ = [r_i × cg_0 | r_i × cg_1 | r_i × cg_2]
+        // and cg_a are the columns of c G⁻¹.
         let ra: [[f64; 3]; 3] = r.transpose().into(); // ra[i] = r_i
         let cg: [[f64; 3]; 3] = (g_inv * c).into(); // cg[a] = column a
         let mut pt = [[[0.0f64; 3]; 3]; 3]; // pt[i][a] = column a of P_i
@@ -386,8 +399,7 @@ mod tests {
     use super::*;
 
     fn rot(axis: Vector3<f64>, angle: f64) -> Mat3 {
-        *nalgebra::Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(axis), angle)
-            .matrix()
+        *nalgebra::Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(axis), angle).matrix()
     }
 
     /// The signed SVD reproduces F, R is a proper rotation, S = RᵀF is
@@ -418,8 +430,8 @@ mod tests {
             assert!((s - s.transpose()).amax() < 1e-13);
             let mut sorted: Vec<f64> = d.iter().map(|x| x.abs()).collect();
             sorted.sort_by(|a, b| b.partial_cmp(a).unwrap());
-            for k in 0..3 {
-                assert!((svd.sigma[k].abs() - sorted[k]).abs() < 1e-12);
+            for (computed, expected) in svd.sigma.iter().zip(&sorted) {
+                assert!((computed.abs() - expected).abs() < 1e-12);
             }
             assert!(svd.sigma[0] >= svd.sigma[1] && svd.sigma[1] >= svd.sigma[2].abs() - 1e-14);
             let det = d[0] * d[1] * d[2];
@@ -427,6 +439,36 @@ mod tests {
                 assert_eq!(svd.sigma[2] < 0.0, det < 0.0);
             }
         }
+    }
+
+    /// The fast path (Newton polar + cofactor inverse of G) and the SVD path
+    /// agree wherever both apply (det F > 0), including ill-conditioned F.
+    #[test]
+    fn corotated_newton_path_matches_svd_path() {
+        let q1 = rot(Vector3::new(1.0, -2.0, 0.5), 0.9);
+        let q2 = rot(Vector3::new(0.2, 1.0, 3.0), -2.0);
+        for d in [
+            Vector3::new(1.0, 1.0, 1.0),
+            Vector3::new(1.8, 0.8, 0.72),
+            Vector3::new(0.5, 1.2, 1.1),
+            Vector3::new(3.0, 0.2, 0.05),
+            Vector3::new(1.0, 1e-3, 1e-4),
+            Vector3::new(1.0, 1.0 + 1e-9, 1.0 - 1e-9),
+        ] {
+            let f = q1 * Mat3::from_diagonal(&d) * q2;
+            let r_newton = polar_newton(&f).expect("det F > 0 converges");
+            let (r_fast, g_fast) = rotation_and_g_inv(&f);
+            let (r_svd, g_svd) = rotation_and_g_inv_svd(&f);
+            // the SVD path works on FᵀF, so its error grows faster than
+            // Newton's with the condition number of F
+            let tol = 1e-15 * (d.max() / d.min()).max(10.0).powf(1.5);
+            assert!((r_newton - r_svd).amax() <= tol, "{d:?}");
+            assert!((r_fast - r_svd).amax() <= tol, "{d:?}");
+            assert!((g_fast - g_svd).amax() <= 1e-12 * g_svd.amax(), "{d:?}");
+        }
+        // inverted F: Newton declines, the SVD path is used
+        let f = q1 * Mat3::from_diagonal(&Vector3::new(1.2, 0.9, -0.4)) * q2;
+        assert!(polar_newton(&f).is_none());
     }
 
     /// Degenerate F (collapsed, rank 1, half-inverted σ₃ = −σ₂) gives a
@@ -468,10 +510,9 @@ mod tests {
         assert!((f * s - p).amax() <= 1e-12 * p.amax());
     }
 
-    /// Closed form: F = diag(s, 1, 1), s > 0 → R = I,
-    /// P11 = 2μ(s−1) + λ(s−1), P22 = λ(s−1);
-    /// inverted F = diag(1, 1, −s) → σ = (1, 1, −s), R = diag(1, 1, −1)… 
-    /// only up to the choice among equal singular values, so use distinct ones.
+    /// Closed forms: F = diag(1.4, 1, 1) → R = I, P11 = (2μ + λ)·0.4,
+    /// P22 = λ·0.4; inverted F = diag(2, 1.5, −0.5) → signed σ = (2, 1.5, −0.5),
+    /// R = I (proper), W = μ Σ(σᵢ − 1)² + λ/2 (Σσᵢ − 3)² = μ·3.5.
     #[test]
     fn corotated_closed_form_and_inversion() {
         let m = Material {
@@ -483,9 +524,6 @@ mod tests {
         let p = m.pk1(&f, Part::Full).unwrap();
         assert!((p[(0, 0)] - (4.0 * 0.4 + 3.0 * 0.4)).abs() < 1e-13);
         assert!((p[(1, 1)] - 3.0 * 0.4).abs() < 1e-13);
-        // F = diag(2, 1.5, −0.5): smallest singular value flipped,
-        // R = diag(1, 1, −1), S = diag(2, 1.5, 0.5)… with sign fix σ₃ = −0.5:
-        // R = diag(1,1,1)·?  The signed SVD gives σ = (2, 1.5, −0.5), R = I.
         let f = Mat3::from_diagonal(&Vector3::new(2.0, 1.5, -0.5));
         let svd = signed_svd(&f);
         assert!((svd.r - Mat3::identity()).amax() < 1e-14);

@@ -25,7 +25,7 @@ fn kinematics(f: &Mat3) -> Result<(f64, Mat3), MaterialError> {
     let c01 = f12 * f20 - f10 * f22;
     let c02 = f10 * f21 - f11 * f20;
     let j = f00 * c00 + f01 * c01 + f02 * c02;
-    if !(j > 0.0) {
+    if j.is_nan() || j <= 0.0 {
         return Err(MaterialError::Inverted { det: j });
     }
     let inv_j = 1.0 / j;
@@ -51,7 +51,7 @@ fn kinematics(f: &Mat3) -> Result<(f64, Mat3), MaterialError> {
 #[inline(always)]
 fn log_det(f: &Mat3) -> Result<f64, MaterialError> {
     let j = f.determinant();
-    if !(j > 0.0) {
+    if j.is_nan() || j <= 0.0 {
         return Err(MaterialError::Inverted { det: j });
     }
     Ok(j.ln())
@@ -90,8 +90,8 @@ impl Law for NeoHookean {
         let mut tangent = Tangent9::zeros();
         for i in 0..3 {
             for k in 0..3 {
-                let mut blk = rows[k] * (rows[i] * g).transpose()
-                    + rows[i] * (rows[k] * la).transpose();
+                let mut blk =
+                    rows[k] * (rows[i] * g).transpose() + rows[i] * (rows[k] * la).transpose();
                 if i == k {
                     blk[(0, 0)] += mu;
                     blk[(1, 1)] += mu;
@@ -172,7 +172,10 @@ mod tests {
             m.response(&f, Part::Full),
             Err(MaterialError::Inverted { .. })
         ));
-        let msg = m.pk1(&-Mat3::identity(), Part::Full).unwrap_err().to_string();
+        let msg = m
+            .pk1(&-Mat3::identity(), Part::Full)
+            .unwrap_err()
+            .to_string();
         assert!(msg.contains("-1e0"), "{msg}");
     }
 

@@ -68,7 +68,10 @@ fn sample_fs(rng: &mut Rng) -> Vec<(&'static str, Mat3)> {
     ));
     let (q1, q2) = (rng.rotation(), rng.rotation());
     out.push(("compression 0.5", q1 * diag(0.5, 1.2, 1.1) * q2));
-    out.push(("compression 0.5 axis", diag(0.5, 1.3, 1.3) + rng.mat3(-0.02, 0.02)));
+    out.push((
+        "compression 0.5 axis",
+        diag(0.5, 1.3, 1.3) + rng.mat3(-0.02, 0.02),
+    ));
     let mut shear = i;
     shear[(0, 1)] = 0.6;
     out.push(("shear 0.6", shear));
@@ -79,6 +82,8 @@ fn sample_fs(rng: &mut Rng) -> Vec<(&'static str, Mat3)> {
     let (q1, q2) = (rng.rotation(), rng.rotation());
     let d = rng.vec3(0.5, 1.8);
     out.push(("random far", q1 * Mat3::from_diagonal(&d) * q2));
+    let (q1, q2) = (rng.rotation(), rng.rotation());
+    out.push(("strongly anisotropic", q1 * diag(2.0, 0.4, 0.15) * q2));
     out
 }
 
@@ -88,7 +93,10 @@ fn inverted_fs(rng: &mut Rng) -> Vec<(&'static str, Mat3)> {
     let (q1, q2) = (rng.rotation(), rng.rotation());
     vec![
         ("inverted", q1 * diag(1.3, 0.9, -0.6) * q2),
-        ("inverted mild", diag(1.1, 1.0, -0.2) + rng.mat3(-0.03, 0.03)),
+        (
+            "inverted mild",
+            diag(1.1, 1.0, -0.2) + rng.mat3(-0.03, 0.03),
+        ),
     ]
 }
 
@@ -148,8 +156,8 @@ fn finite_differences_energy_stress_tangent() {
                 let w = m.energy(&f, part).unwrap();
                 let floor = stress_floor(&m);
                 let wfloor = energy_floor(&m);
-                assert!((r.energy - w).abs() <= 1e-13 * w.abs().max(wfloor), "{ctx}");
-                assert!((r.pk1 - p).amax() <= 1e-13 * p.amax().max(floor), "{ctx}");
+                assert!((r.energy - w).abs() <= 1e-12 * w.abs().max(wfloor), "{ctx}");
+                assert!((r.pk1 - p).amax() <= 1e-12 * p.amax().max(floor), "{ctx}");
 
                 let mut p_fd = Mat3::zeros();
                 let mut a_fd = Tangent9::zeros();
@@ -203,7 +211,10 @@ fn parts_sum_to_full() {
                 .max(rv.energy.abs())
                 .max(energy_floor(&m));
             let floor = stress_floor(&m);
-            assert!((rs.energy + rv.energy - rf.energy).abs() <= 1e-12 * scale, "{ctx}");
+            assert!(
+                (rs.energy + rv.energy - rf.energy).abs() <= 1e-12 * scale,
+                "{ctx}"
+            );
             assert!(close(&rs.pk1, &rv.pk1, &rf.pk1, floor), "{ctx}");
             assert!(close(&rs.tangent, &rv.tangent, &rf.tangent, floor), "{ctx}");
             let [sf, ss, sv] = PARTS.map(|p| m.pk2(&f, p).unwrap());
@@ -361,8 +372,16 @@ fn pk2_and_material_tangent_consistency() {
         let mut es: Vec<Mat3> = vec![Mat3::zeros()];
         if m.law != LawKind::Linear {
             for scale in [0.02, 0.2, 0.4] {
-                let g = rng.mat3(-scale, scale);
-                es.push((g + g.transpose()) * 0.5);
+                // random symmetric E with I + 2E safely positive definite
+                loop {
+                    let g = rng.mat3(-scale, scale);
+                    let e = (g + g.transpose()) * 0.5;
+                    let c = Mat3::identity() + e * 2.0;
+                    if nalgebra::SymmetricEigen::new(c).eigenvalues.min() > 0.2 {
+                        es.push(e);
+                        break;
+                    }
+                }
             }
             es.push(diag(-0.3, 0.5, 0.1)); // stretches ≈ 0.63, 1.41, 1.10
         }
