@@ -6,7 +6,9 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use livereg::geometry::Aabb;
 use livereg::grid::{GridOptions, IntegrationMode, WeightedCellGrid};
 use livereg::linalg::{SolverKind, SparseSolver};
-use livereg::mechanics::{LawKind, Material, Need, PenaltySprings, StaticProblem, VolumetricIntegration};
+use livereg::mechanics::{
+    LawKind, Material, Need, PenaltySprings, StaticProblem, VolumetricIntegration,
+};
 use livereg::mesh::primitives::icosphere;
 use livereg::mesh::TriSurface;
 use nalgebra::Point3;
@@ -26,11 +28,21 @@ fn liver_like() -> TriSurface {
 /// so that the tangent is positive definite as in a real solve.
 fn problem(cell: f64, levels: u32, mode: IntegrationMode) -> StaticProblem {
     let surface = liver_like();
-    let opts = GridOptions { cell_size: cell, subdivisions: levels, mode, ..GridOptions::default() };
+    let opts = GridOptions {
+        cell_size: cell,
+        subdivisions: levels,
+        mode,
+        ..GridOptions::default()
+    };
     let grid = WeightedCellGrid::build(&surface, &opts).unwrap();
     let m = Material::from_young_poisson(LawKind::NeoHookean, 4500.0, 0.49).unwrap();
-    let region = Aabb { min: Point3::new(-1.0, -1.0, -1.0), max: Point3::new(-0.05, 1.0, -0.02) };
-    let held = PenaltySprings::fixed_surface_region(&grid, &surface, &region, 1e3 * 4500.0 / cell).unwrap().unwrap();
+    let region = Aabb {
+        min: Point3::new(-1.0, -1.0, -1.0),
+        max: Point3::new(-0.05, 1.0, -0.02),
+    };
+    let held = PenaltySprings::fixed_surface_region(&grid, &surface, &region, 1e3 * 4500.0 / cell)
+        .unwrap()
+        .unwrap();
     let mut p = StaticProblem::new(grid, m, VolumetricIntegration::Reduced);
     p.springs = vec![held];
     p
@@ -50,13 +62,21 @@ fn bench_newton_iteration(c: &mut Criterion) {
         let mut solver = SparseSolver::new(SolverKind::Auto);
         let mut du = vec![0.0; n];
         group.bench_function(BenchmarkId::new("assembly", nodes), |b| {
-            b.iter(|| p.evaluate(&u, 1.0, Need::Tangent, Some(&mut r), Some(&mut k)).unwrap())
+            b.iter(|| {
+                p.evaluate(&u, 1.0, Need::Tangent, Some(&mut r), Some(&mut k))
+                    .unwrap()
+            })
         });
-        group.bench_function(BenchmarkId::new("factorize", nodes), |b| b.iter(|| solver.factorize(&k).unwrap()));
-        group.bench_function(BenchmarkId::new("solve", nodes), |b| b.iter(|| solver.solve(&k, &r, &mut du).unwrap()));
+        group.bench_function(BenchmarkId::new("factorize", nodes), |b| {
+            b.iter(|| solver.factorize(&k).unwrap())
+        });
+        group.bench_function(BenchmarkId::new("solve", nodes), |b| {
+            b.iter(|| solver.solve(&k, &r, &mut du).unwrap())
+        });
         group.bench_function(BenchmarkId::new("full_iteration", nodes), |b| {
             b.iter(|| {
-                p.evaluate(&u, 1.0, Need::Tangent, Some(&mut r), Some(&mut k)).unwrap();
+                p.evaluate(&u, 1.0, Need::Tangent, Some(&mut r), Some(&mut k))
+                    .unwrap();
                 solver.factorize(&k).unwrap();
                 solver.solve(&k, &r, &mut du).unwrap();
             })
@@ -78,8 +98,17 @@ fn bench_assembly_by_mode(c: &mut Criterion) {
         let u = vec![0.0; n];
         let mut r = vec![0.0; n];
         let mut k = p.new_tangent();
-        let label = format!("{}-L{levels}-{}qp", mode.name(), p.grid.quadrature.total_points());
-        group.bench_function(label, |b| b.iter(|| p.evaluate(&u, 1.0, Need::Tangent, Some(&mut r), Some(&mut k)).unwrap()));
+        let label = format!(
+            "{}-L{levels}-{}qp",
+            mode.name(),
+            p.grid.quadrature.total_points()
+        );
+        group.bench_function(label, |b| {
+            b.iter(|| {
+                p.evaluate(&u, 1.0, Need::Tangent, Some(&mut r), Some(&mut k))
+                    .unwrap()
+            })
+        });
     }
     group.finish();
 }
@@ -91,11 +120,22 @@ fn bench_grid_build(c: &mut Criterion) {
     let s = liver_like();
     assert_eq!(s.triangles.len(), 20_480);
     for cell in [0.0155, 0.0071] {
-        let opts = GridOptions { cell_size: cell, subdivisions: 4, ..GridOptions::default() };
-        group.bench_function(format!("20k-triangles-L4-h{cell}"), |b| b.iter(|| WeightedCellGrid::build(&s, &opts).unwrap()));
+        let opts = GridOptions {
+            cell_size: cell,
+            subdivisions: 4,
+            ..GridOptions::default()
+        };
+        group.bench_function(format!("20k-triangles-L4-h{cell}"), |b| {
+            b.iter(|| WeightedCellGrid::build(&s, &opts).unwrap())
+        });
     }
     group.finish();
 }
 
-criterion_group!(benches, bench_newton_iteration, bench_assembly_by_mode, bench_grid_build);
+criterion_group!(
+    benches,
+    bench_newton_iteration,
+    bench_assembly_by_mode,
+    bench_grid_build
+);
 criterion_main!(benches);

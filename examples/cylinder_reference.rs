@@ -12,12 +12,24 @@ use livereg::scenarios::CylinderBending;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
-    let cell_size: f64 = args.get(1).map(|s| s.parse()).transpose()?.unwrap_or(0.00625);
+    let cell_size: f64 = args
+        .get(1)
+        .map(|s| s.parse())
+        .transpose()?
+        .unwrap_or(0.00625);
     let levels: u32 = args.get(2).map(|s| s.parse()).transpose()?.unwrap_or(3);
     let start = Instant::now();
-    let r = CylinderBending { cell_size, levels, mode: IntegrationMode::FiniteCell }.solve();
+    let r = CylinderBending {
+        cell_size,
+        levels,
+        mode: IntegrationMode::FiniteCell,
+    }
+    .solve();
     let wall_s = start.elapsed().as_secs_f64();
-    eprintln!("{:?} after {} Newton iterations, {} nodes, {wall_s:.1} s", r.report.outcome, r.report.newton_iterations, r.nodes);
+    eprintln!(
+        "{:?} after {} Newton iterations, {} nodes, {wall_s:.1} s",
+        r.report.outcome, r.report.newton_iterations, r.nodes
+    );
     let json = serde_json::json!({
         "description": "Thesis §4.6 cylinder bending (neo-Hookean, E = 5000 Pa, nu = 0.3, radius 5 cm, length 60 cm, base held, 30 Pa downward end traction): displacements (m) of CylinderBending::samples() from a much finer finite-cell solve",
         "command": format!("cargo run --release --example cylinder_reference -- {cell_size} {levels}"),
@@ -33,6 +45,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     });
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/reference");
     std::fs::create_dir_all(&dir)?;
-    std::fs::write(dir.join("cylinder_bending.json"), serde_json::to_string_pretty(&json)? + "\n")?;
+    std::fs::write(
+        dir.join("cylinder_bending.json"),
+        serde_json::to_string_pretty(&json)? + "\n",
+    )?;
     Ok(())
 }

@@ -13,7 +13,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // Thesis §4.6 cylinder, in centimetres: radius 5, length 60, axis +z from z = 0.
     let dir = root.join("cylinder_bending");
     std::fs::create_dir_all(&dir)?;
-    write_obj(&dir.join("cylinder.obj"), &cylinder_surface(5.0, 0.0, 60.0, 48, 36))?;
+    write_obj(
+        &dir.join("cylinder.obj"),
+        &cylinder_surface(5.0, 0.0, 60.0, 48, 36),
+    )?;
 
     // A liver-lobe-like solid in millimetres: an ellipsoid 200 × 150 × 100 mm that thins
     // towards +x into a lobe, with a few internal target points.

@@ -5,7 +5,10 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn livereg(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_livereg")).args(args).output().expect("binary runs");
+    let out = Command::new(env!("CARGO_BIN_EXE_livereg"))
+        .args(args)
+        .output()
+        .expect("binary runs");
     (
         out.status.code().unwrap_or(-1),
         String::from_utf8_lossy(&out.stdout).into_owned(),
@@ -56,11 +59,21 @@ fn a_good_scene_prints_the_contract_json() {
     let d = scratch("good");
     let scene = write_case(&d, GOOD_SCENE, CUBE_OBJ);
     let out_dir = d.join("out");
-    let (code, stdout, stderr) = livereg(&["simulate", scene.to_str().unwrap(), "--out", out_dir.to_str().unwrap()]);
+    let (code, stdout, stderr) = livereg(&[
+        "simulate",
+        scene.to_str().unwrap(),
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
     assert_eq!(code, 0, "{stderr}");
     let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
     assert_eq!(v["converged"], true);
-    for key in ["newton_iterations", "load_steps", "wall_ms", "max_displacement"] {
+    for key in [
+        "newton_iterations",
+        "load_steps",
+        "wall_ms",
+        "max_displacement",
+    ] {
         assert!(v[key].is_number(), "{key}");
     }
     assert_eq!(v["grid"]["cells"], 64);
@@ -69,7 +82,10 @@ fn a_good_scene_prints_the_contract_json() {
     // centimetres (scene units).
     let shear = 50.0 / (3000.0 / (2.0 * 1.45)) * 1.0;
     let dx = v["probes"][0]["displacement"][0].as_f64().unwrap();
-    assert!(dx > shear && dx < 4.0 * shear, "displacement {dx} cm, pure shear {shear} cm");
+    assert!(
+        dx > shear && dx < 4.0 * shear,
+        "displacement {dx} cm, pure shear {shear} cm"
+    );
     assert!(out_dir.join("deformed.obj").exists());
 }
 
@@ -77,20 +93,93 @@ fn a_good_scene_prints_the_contract_json() {
 #[test]
 fn malformed_input_fails_cleanly_with_a_message_naming_file_and_problem() {
     let cases: Vec<(&str, String, &str, Vec<&str>)> = vec![
-        ("unknown key", GOOD_SCENE.replace("subdivisions = 2", "subdivisions = 2\ncellsize = 3"), CUBE_OBJ, vec!["scene.toml", "cellsize"]),
-        ("negative cell size", GOOD_SCENE.replace("cell_size = 0.25", "cell_size = -0.25"), CUBE_OBJ, vec!["scene.toml", "cell_size"]),
-        ("string for number", GOOD_SCENE.replace("young_modulus = 3000.0", "young_modulus = \"soft\""), CUBE_OBJ, vec!["scene.toml", "young_modulus"]),
-        ("incompressible", GOOD_SCENE.replace("poisson_ratio = 0.45", "poisson_ratio = 0.5"), CUBE_OBJ, vec!["scene.toml", "poisson_ratio"]),
-        ("unknown law", GOOD_SCENE.replace("neo-hookean", "mooney"), CUBE_OBJ, vec!["scene.toml", "mooney"]),
-        ("missing mesh", GOOD_SCENE.replace("cube.obj", "absent.obj"), CUBE_OBJ, vec!["absent.obj"]),
-        ("toml syntax", GOOD_SCENE.replace("[grid]", "[grid"), CUBE_OBJ, vec!["scene.toml"]),
-        ("bad face index", GOOD_SCENE.to_string(), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", vec!["cube.obj", "9"]),
-        ("nan vertex", GOOD_SCENE.to_string(), "v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", vec!["cube.obj"]),
-        ("garbage mesh", GOOD_SCENE.to_string(), "\u{0}\u{1}garbage", vec!["cube.obj"]),
-        ("empty mesh", GOOD_SCENE.to_string(), "# nothing\n", vec!["cube.obj"]),
-        ("fixed box misses the surface", GOOD_SCENE.replace("[[-1.0, -1.0, -0.01], [2.0, 2.0, 0.01]]", "[[5.0, 5.0, 5.0], [6.0, 6.0, 6.0]]"), CUBE_OBJ, vec!["scene.toml", "boundary.fixed[0]"]),
-        ("probe outside", GOOD_SCENE.replace("[[0.5, 0.5, 1.0]]", "[[0.5, 0.5, 9.0]]"), CUBE_OBJ, vec!["probe"]),
-        ("cells too small", GOOD_SCENE.replace("cell_size = 0.25", "cell_size = 0.0001"), CUBE_OBJ, vec!["cell size"]),
+        (
+            "unknown key",
+            GOOD_SCENE.replace("subdivisions = 2", "subdivisions = 2\ncellsize = 3"),
+            CUBE_OBJ,
+            vec!["scene.toml", "cellsize"],
+        ),
+        (
+            "negative cell size",
+            GOOD_SCENE.replace("cell_size = 0.25", "cell_size = -0.25"),
+            CUBE_OBJ,
+            vec!["scene.toml", "cell_size"],
+        ),
+        (
+            "string for number",
+            GOOD_SCENE.replace("young_modulus = 3000.0", "young_modulus = \"soft\""),
+            CUBE_OBJ,
+            vec!["scene.toml", "young_modulus"],
+        ),
+        (
+            "incompressible",
+            GOOD_SCENE.replace("poisson_ratio = 0.45", "poisson_ratio = 0.5"),
+            CUBE_OBJ,
+            vec!["scene.toml", "poisson_ratio"],
+        ),
+        (
+            "unknown law",
+            GOOD_SCENE.replace("neo-hookean", "mooney"),
+            CUBE_OBJ,
+            vec!["scene.toml", "mooney"],
+        ),
+        (
+            "missing mesh",
+            GOOD_SCENE.replace("cube.obj", "absent.obj"),
+            CUBE_OBJ,
+            vec!["absent.obj"],
+        ),
+        (
+            "toml syntax",
+            GOOD_SCENE.replace("[grid]", "[grid"),
+            CUBE_OBJ,
+            vec!["scene.toml"],
+        ),
+        (
+            "bad face index",
+            GOOD_SCENE.to_string(),
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n",
+            vec!["cube.obj", "9"],
+        ),
+        (
+            "nan vertex",
+            GOOD_SCENE.to_string(),
+            "v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+            vec!["cube.obj"],
+        ),
+        (
+            "garbage mesh",
+            GOOD_SCENE.to_string(),
+            "\u{0}\u{1}garbage",
+            vec!["cube.obj"],
+        ),
+        (
+            "empty mesh",
+            GOOD_SCENE.to_string(),
+            "# nothing\n",
+            vec!["cube.obj"],
+        ),
+        (
+            "fixed box misses the surface",
+            GOOD_SCENE.replace(
+                "[[-1.0, -1.0, -0.01], [2.0, 2.0, 0.01]]",
+                "[[5.0, 5.0, 5.0], [6.0, 6.0, 6.0]]",
+            ),
+            CUBE_OBJ,
+            vec!["scene.toml", "boundary.fixed[0]"],
+        ),
+        (
+            "probe outside",
+            GOOD_SCENE.replace("[[0.5, 0.5, 1.0]]", "[[0.5, 0.5, 9.0]]"),
+            CUBE_OBJ,
+            vec!["probe"],
+        ),
+        (
+            "cells too small",
+            GOOD_SCENE.replace("cell_size = 0.25", "cell_size = 0.0001"),
+            CUBE_OBJ,
+            vec!["cell size"],
+        ),
     ];
     for (i, (what, scene, mesh, words)) in cases.into_iter().enumerate() {
         let d = scratch(&format!("bad{i}"));
@@ -98,7 +187,11 @@ fn malformed_input_fails_cleanly_with_a_message_naming_file_and_problem() {
         let (code, _stdout, stderr) = livereg(&["simulate", path.to_str().unwrap()]);
         assert_ne!(code, 0, "{what}: should fail");
         assert!(!stderr.contains("panicked"), "{what}: panicked: {stderr}");
-        assert_eq!(stderr.trim().lines().count(), 1, "{what}: one line expected: {stderr}");
+        assert_eq!(
+            stderr.trim().lines().count(),
+            1,
+            "{what}: one line expected: {stderr}"
+        );
         for w in words {
             assert!(stderr.contains(w), "{what}: message lacks '{w}': {stderr}");
         }

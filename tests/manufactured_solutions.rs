@@ -10,7 +10,10 @@ use std::f64::consts::PI;
 use common::*;
 use livereg::grid::{Embedding, IntegrationMode};
 use livereg::mechanics::loads::body_forces;
-use livereg::mechanics::{LawKind, Material, NewtonSettings, NewtonSolver, Outcome, PenaltySprings, StaticProblem, VolumetricIntegration};
+use livereg::mechanics::{
+    LawKind, Material, NewtonSettings, NewtonSolver, Outcome, PenaltySprings, StaticProblem,
+    VolumetricIntegration,
+};
 use livereg::mesh::primitives::{box_surface, icosphere};
 use nalgebra::{Matrix3, Point3, Vector3};
 
@@ -46,8 +49,14 @@ impl Field for BoxField {
                 amp * s(m[0], x.x) * s(m[1], x.y) * c(m[2], x.z),
             ]
         };
-        let (r0, r1, r2) = (row(self.a, [1.0, 1.0, 1.0]), row(-0.6 * self.a, [2.0, 1.0, 1.0]), row(0.8 * self.a, [1.0, 1.0, 2.0]));
-        Matrix3::new(r0[0], r0[1], r0[2], r1[0], r1[1], r1[2], r2[0], r2[1], r2[2])
+        let (r0, r1, r2) = (
+            row(self.a, [1.0, 1.0, 1.0]),
+            row(-0.6 * self.a, [2.0, 1.0, 1.0]),
+            row(0.8 * self.a, [1.0, 1.0, 2.0]),
+        );
+        Matrix3::new(
+            r0[0], r0[1], r0[2], r1[0], r1[1], r1[2], r2[0], r2[1], r2[2],
+        )
     }
 }
 
@@ -90,7 +99,14 @@ fn body_force(material: &Material, field: &dyn Field, x: &Point3<f64>, scale: f6
     for j in 0..3 {
         let mut e = Vector3::zeros();
         e[j] = d;
-        let p = |y: Point3<f64>| material.pk1(&(Matrix3::identity() + field.grad(&y)), livereg::mechanics::Part::Full).unwrap();
+        let p = |y: Point3<f64>| {
+            material
+                .pk1(
+                    &(Matrix3::identity() + field.grad(&y)),
+                    livereg::mechanics::Part::Full,
+                )
+                .unwrap()
+        };
         let dp = (p(x + e) - p(x - e)) / (2.0 * d);
         div += dp.column(j);
     }
@@ -99,12 +115,22 @@ fn body_force(material: &Material, field: &dyn Field, x: &Point3<f64>, scale: f6
 
 /// Solves the problem with body force from `field` and returns the relative RMS error of the
 /// displacement over `samples` (points inside the body, independent of the grid).
-fn solve_and_measure(mut p: StaticProblem, field: &dyn Field, samples: &[Point3<f64>], scale: f64, steps: usize) -> f64 {
+fn solve_and_measure(
+    mut p: StaticProblem,
+    field: &dyn Field,
+    samples: &[Point3<f64>],
+    scale: f64,
+    steps: usize,
+) -> f64 {
     let material = p.material;
     let mut f = vec![0.0; p.dofs()];
     body_forces(&p.grid, |x| body_force(&material, field, x, scale), &mut f);
     p.external = f;
-    let settings = NewtonSettings { load_steps: steps, residual_tolerance: 1e-10, ..NewtonSettings::default() };
+    let settings = NewtonSettings {
+        load_steps: steps,
+        residual_tolerance: 1e-10,
+        ..NewtonSettings::default()
+    };
     let u0 = vec![0.0; p.dofs()];
     let report = NewtonSolver::new(settings).solve(&mut p, &u0);
     assert_eq!(report.outcome, Outcome::Converged, "{:?}", report.message);
@@ -146,7 +172,12 @@ fn box_errors(law: LawKind, amplitude: f64, steps: usize) -> Vec<f64> {
         .iter()
         .map(|&n| {
             let h = l / n as f64;
-            let mut p = problem(&surface, &options(h, 1, IntegrationMode::WeightedCell), material(law, young, 0.3), VolumetricIntegration::Reduced);
+            let mut p = problem(
+                &surface,
+                &options(h, 1, IntegrationMode::WeightedCell),
+                material(law, young, 0.3),
+                VolumetricIntegration::Reduced,
+            );
             // Hold every boundary node at u* = 0 with a stiff spring (1e6 E h).
             let dims = p.grid.grid.dims;
             let boundary: Vec<Point3<f64>> = (0..p.grid.node_count())
@@ -157,7 +188,10 @@ fn box_errors(law: LawKind, amplitude: f64, steps: usize) -> Vec<f64> {
                 .map(|a| p.grid.node_position(a))
                 .collect();
             let k = vec![1e6 * young * h; boundary.len()];
-            p.springs = vec![PenaltySprings::fixed(Embedding::new(&p.grid, &boundary).unwrap(), k)];
+            p.springs = vec![PenaltySprings::fixed(
+                Embedding::new(&p.grid, &boundary).unwrap(),
+                k,
+            )];
             solve_and_measure(p, &field, &samples, l, steps)
         })
         .collect()
@@ -194,7 +228,12 @@ fn immersed_sphere_with_penalty_boundary_converges() {
     let mut errors = Vec::new();
     for n in [3usize, 6, 12, 24] {
         let h = 2.0 * radius / n as f64;
-        let mut p = problem(&surface, &options(h, 3, IntegrationMode::WeightedCell), material(LawKind::Linear, young, 0.3), VolumetricIntegration::Reduced);
+        let mut p = problem(
+            &surface,
+            &options(h, 3, IntegrationMode::WeightedCell),
+            material(LawKind::Linear, young, 0.3),
+            VolumetricIntegration::Reduced,
+        );
         // Penalty springs on the whole surface, density κ E / h, pulling to u*.
         let mut s = hold(&p, &surface, aabb([-1.0; 3], [1.0; 3]), 1e4, young);
         s.target = s.embedding.rest.iter().map(|x| field.u(x)).collect();

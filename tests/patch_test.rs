@@ -16,7 +16,12 @@ fn gradient() -> Matrix3<f64> {
 /// Grid-aligned box of 4 × 4 × 4 full cells, 125 nodes of which 27 interior.
 fn box_problem(law: LawKind, vol: VolumetricIntegration) -> livereg::mechanics::StaticProblem {
     let s = box_surface(Point3::new(0.0, 0.0, 0.0), Point3::new(0.04, 0.04, 0.04), 4);
-    problem(&s, &options(0.01, 2, IntegrationMode::WeightedCell), material(law, 3000.0, 0.45), vol)
+    problem(
+        &s,
+        &options(0.01, 2, IntegrationMode::WeightedCell),
+        material(law, 3000.0, 0.45),
+        vol,
+    )
 }
 
 fn interior(p: &livereg::mechanics::StaticProblem, n: usize) -> bool {
@@ -48,12 +53,17 @@ fn uniform_deformation_leaves_interior_nodes_in_equilibrium() {
                 u[3 * a..3 * a + 3].copy_from_slice(d.as_slice());
             }
             let mut r = vec![0.0; 3 * n];
-            p.evaluate(&u, 0.0, Need::Force, Some(&mut r), None).expect("no inversion");
+            p.evaluate(&u, 0.0, Need::Force, Some(&mut r), None)
+                .expect("no inversion");
             let scale = r.iter().map(|v| v.abs()).fold(0.0, f64::max);
             assert!(scale > 0.0);
             for a in (0..n).filter(|&a| interior(&p, a)) {
                 for d in 0..3 {
-                    assert!(r[3 * a + d].abs() <= 1e-11 * scale, "{law:?} {vol:?}: node {a} force {}", r[3 * a + d]);
+                    assert!(
+                        r[3 * a + d].abs() <= 1e-11 * scale,
+                        "{law:?} {vol:?}: node {a} force {}",
+                        r[3 * a + d]
+                    );
                 }
             }
         }
@@ -68,7 +78,8 @@ fn prescribed_boundary_reproduces_uniform_strain_inside() {
     let n = p.grid.node_count();
     let mut k = p.new_tangent();
     let u0 = vec![0.0; 3 * n];
-    p.evaluate(&u0, 0.0, Need::Tangent, None, Some(&mut k)).unwrap();
+    p.evaluate(&u0, 0.0, Need::Tangent, None, Some(&mut k))
+        .unwrap();
     let kd = dense(&k);
     let free: Vec<usize> = (0..3 * n).filter(|&i| interior(&p, i / 3)).collect();
     let fixed: Vec<usize> = (0..3 * n).filter(|&i| !interior(&p, i / 3)).collect();
@@ -78,6 +89,11 @@ fn prescribed_boundary_reproduces_uniform_strain_inside() {
     let kib = kd.select_rows(&free).select_columns(&fixed);
     let ui = kii.cholesky().expect("SPD").solve(&(-(kib * ub)));
     for (slot, &i) in free.iter().enumerate() {
-        assert!((ui[slot] - exact(i)).abs() < 1e-12, "dof {i}: {} vs {}", ui[slot], exact(i));
+        assert!(
+            (ui[slot] - exact(i)).abs() < 1e-12,
+            "dof {i}: {} vs {}",
+            ui[slot],
+            exact(i)
+        );
     }
 }

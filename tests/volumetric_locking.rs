@@ -19,13 +19,35 @@ const TRACTION: f64 = 5.0; // Pa, downward on the end face: a small, linear-regi
 /// Tip deflection (m, positive downwards) of the cantilever on cells of edge `h`.
 fn tip_deflection(nu: f64, vol: VolumetricIntegration, h: f64) -> f64 {
     let s = box_surface(Point3::new(0.0, 0.0, 0.0), Point3::new(L, T, T), 8);
-    let mut p = problem(&s, &options(h, 1, IntegrationMode::WeightedCell), material(LawKind::Linear, E, nu), vol);
-    p.springs = vec![hold(&p, &s, aabb([-1e-4, -1.0, -1.0], [1e-4, 1.0, 1.0]), 1e4, E)];
+    let mut p = problem(
+        &s,
+        &options(h, 1, IntegrationMode::WeightedCell),
+        material(LawKind::Linear, E, nu),
+        vol,
+    );
+    p.springs = vec![hold(
+        &p,
+        &s,
+        aabb([-1e-4, -1.0, -1.0], [1e-4, 1.0, 1.0]),
+        1e4,
+        E,
+    )];
     let mut f = vec![0.0; p.dofs()];
-    traction_forces(&p.grid, &s, &aabb([L - 1e-4, -1.0, -1.0], [L + 1e-4, 1.0, 1.0]), Vector3::new(0.0, 0.0, -TRACTION), &mut f).unwrap();
+    traction_forces(
+        &p.grid,
+        &s,
+        &aabb([L - 1e-4, -1.0, -1.0], [L + 1e-4, 1.0, 1.0]),
+        Vector3::new(0.0, 0.0, -TRACTION),
+        &mut f,
+    )
+    .unwrap();
     p.external = f;
     let u0 = vec![0.0; p.dofs()];
-    let r = NewtonSolver::new(NewtonSettings { load_steps: 1, ..NewtonSettings::default() }).solve(&mut p, &u0);
+    let r = NewtonSolver::new(NewtonSettings {
+        load_steps: 1,
+        ..NewtonSettings::default()
+    })
+    .solve(&mut p, &u0);
     assert_eq!(r.outcome, Outcome::Converged);
     let e = Embedding::new(&p.grid, &[Point3::new(L - 1e-6, 0.5 * T, 0.5 * T)]).unwrap();
     -e.interpolate(&r.u)[0].z
@@ -54,7 +76,15 @@ fn nearly_incompressible_cantilever_bends_like_its_reference() {
         full / reference,
         reduced_compressible / timoshenko(0.3)
     );
-    assert!((reduced / reference - 1.0).abs() < 0.06, "reduced integration ratio {}", reduced / reference);
+    assert!(
+        (reduced / reference - 1.0).abs() < 0.06,
+        "reduced integration ratio {}",
+        reduced / reference
+    );
     // Full integration locks: more than 30 % too stiff on the same grid.
-    assert!(full / reference < 0.7, "full integration should lock: ratio {}", full / reference);
+    assert!(
+        full / reference < 0.7,
+        "full integration should lock: ratio {}",
+        full / reference
+    );
 }

@@ -72,7 +72,10 @@ impl Embedding {
         for (index, p) in points.iter().enumerate() {
             out.push(embed_point(grid, p, index)?);
         }
-        Ok(Self { points: out, rest: points.to_vec() })
+        Ok(Self {
+            points: out,
+            rest: points.to_vec(),
+        })
     }
 
     /// Number of embedded points.
@@ -93,7 +96,11 @@ impl Embedding {
 
     /// Current positions of the embedded points for grid displacements `u`.
     pub fn positions(&self, u: &[f64]) -> Vec<Point3<f64>> {
-        self.points.iter().zip(&self.rest).map(|(e, x)| x + interpolate_one(e, u)).collect()
+        self.points
+            .iter()
+            .zip(&self.rest)
+            .map(|(e, x)| x + interpolate_one(e, u))
+            .collect()
     }
 
     /// Adds the grid forces `H f` of point forces `f` (one per point) to `grid_forces`
@@ -118,7 +125,11 @@ pub fn interpolate_one(e: &EmbeddedPoint, u: &[f64]) -> Vector3<f64> {
     v
 }
 
-fn embed_point(grid: &WeightedCellGrid, p: &Point3<f64>, index: usize) -> Result<EmbeddedPoint, EmbeddingError> {
+fn embed_point(
+    grid: &WeightedCellGrid,
+    p: &Point3<f64>,
+    index: usize,
+) -> Result<EmbeddedPoint, EmbeddingError> {
     if !p.coords.iter().all(|c| c.is_finite()) {
         return Err(EmbeddingError::NonFinite { index });
     }
@@ -169,5 +180,9 @@ fn embed_point(grid: &WeightedCellGrid, p: &Point3<f64>, index: usize) -> Result
 fn make(grid: &WeightedCellGrid, cell: usize, p: &Point3<f64>) -> EmbeddedPoint {
     let c = &grid.cells[cell];
     let xi = grid.grid.to_reference(c.coords, p);
-    EmbeddedPoint { cell, nodes: c.nodes, weights: shape_values(&xi) }
+    EmbeddedPoint {
+        cell,
+        nodes: c.nodes,
+        weights: shape_values(&xi),
+    }
 }

@@ -108,7 +108,11 @@ mod tests {
     use super::*;
 
     fn grid() -> RegularGrid {
-        RegularGrid { origin: Point3::new(-1.0, 0.5, 2.0), cell_size: 0.25, dims: [3, 4, 5] }
+        RegularGrid {
+            origin: Point3::new(-1.0, 0.5, 2.0),
+            cell_size: 0.25,
+            dims: [3, 4, 5],
+        }
     }
 
     #[test]

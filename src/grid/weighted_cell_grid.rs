@@ -136,7 +136,11 @@ impl WeightedCellGrid {
         if surface.triangles.is_empty() {
             return Err(GridError::EmptySurface);
         }
-        if let Some(i) = surface.vertices.iter().position(|v| !v.coords.iter().all(|c| c.is_finite())) {
+        if let Some(i) = surface
+            .vertices
+            .iter()
+            .position(|v| !v.coords.iter().all(|c| c.is_finite()))
+        {
             return Err(GridError::NonFiniteVertex(i));
         }
         let (lo, hi) = surface.bounding_box().ok_or(GridError::EmptySurface)?;
@@ -147,15 +151,25 @@ impl WeightedCellGrid {
         for d in 0..3 {
             let n = ((hi[d] - origin[d]) / h - 1e-9).ceil().max(1.0);
             if n > MAX_BACKGROUND_CELLS as f64 {
-                return Err(GridError::TooManyCells { cell_size: h, cells: usize::MAX });
+                return Err(GridError::TooManyCells {
+                    cell_size: h,
+                    cells: usize::MAX,
+                });
             }
             dims[d] = n as usize;
             total = total.saturating_mul(dims[d]);
         }
         if total > MAX_BACKGROUND_CELLS {
-            return Err(GridError::TooManyCells { cell_size: h, cells: total });
+            return Err(GridError::TooManyCells {
+                cell_size: h,
+                cells: total,
+            });
         }
-        let grid = RegularGrid { origin, cell_size: h, dims };
+        let grid = RegularGrid {
+            origin,
+            cell_size: h,
+            dims,
+        };
         let inside = InsideTest::new(&surface.vertices, &surface.triangles);
         let cell_tris = cell_triangle_lists(&grid, surface);
 
@@ -185,7 +199,10 @@ impl WeightedCellGrid {
             .par_iter()
             .map(|(cell, tris)| {
                 let c = grid.cell_coords(*cell);
-                (*cell, measure_cut_cell(&grid, c, surface, tris, &inside, levels, want_points))
+                (
+                    *cell,
+                    measure_cut_cell(&grid, c, surface, tris, &inside, levels, want_points),
+                )
             })
             .collect();
 
@@ -193,7 +210,7 @@ impl WeightedCellGrid {
         let mut cut_iter = cut.into_iter().peekable();
         let mut cells = Vec::new();
         let mut fc_points: Vec<Vec<QuadPoint>> = Vec::new();
-        for index in 0..grid.cell_count() {
+        for (index, &inside_centre) in uncut_inside.iter().enumerate() {
             let coords = grid.cell_coords(index);
             if cut_iter.peek().map(|(c, _)| *c) == Some(index) {
                 let (_, m) = cut_iter.next().expect("peeked");
@@ -209,7 +226,7 @@ impl WeightedCellGrid {
                     octant_fractions: m.octants.map(|v| v.min(1.0)),
                 });
                 fc_points.push(m.points);
-            } else if uncut_inside[index] {
+            } else if inside_centre {
                 cells.push(ActiveCell {
                     coords,
                     nodes: [0; 8],
@@ -252,7 +269,14 @@ impl WeightedCellGrid {
             }
         }
         let quadrature = build_quadrature(&grid, &cells, &fc_points, options);
-        Ok(Self { grid, cells, node_coords, cell_lookup, quadrature, options: *options })
+        Ok(Self {
+            grid,
+            cells,
+            node_coords,
+            cell_lookup,
+            quadrature,
+            options: *options,
+        })
     }
 
     /// Number of active nodes (each carries 3 displacement degrees of freedom).
@@ -267,7 +291,9 @@ impl WeightedCellGrid {
 
     /// Rest positions of all active nodes.
     pub fn node_positions(&self) -> Vec<Point3<f64>> {
-        (0..self.node_count()).map(|n| self.node_position(n)).collect()
+        (0..self.node_count())
+            .map(|n| self.node_position(n))
+            .collect()
     }
 
     /// The active cell at background coordinates `c`, if any.
@@ -283,7 +309,11 @@ impl WeightedCellGrid {
             cells: self.cells.len(),
             cut_cells: self.cells.iter().filter(|c| c.cut).count(),
             nodes: self.node_count(),
-            tiny_cells: self.cells.iter().filter(|c| c.cut && c.fraction < 0.05).count(),
+            tiny_cells: self
+                .cells
+                .iter()
+                .filter(|c| c.cut && c.fraction < 0.05)
+                .count(),
             volume: self.cells.iter().map(|c| c.fraction * h3).sum(),
             quadrature_points: self.quadrature.total_points(),
         }
@@ -291,12 +321,22 @@ impl WeightedCellGrid {
 }
 
 fn check_options(o: &GridOptions) -> Result<(), GridError> {
-    let bad = |name, value, reason| Err(GridError::InvalidOption { name, value, reason });
+    let bad = |name, value, reason| {
+        Err(GridError::InvalidOption {
+            name,
+            value,
+            reason,
+        })
+    };
     if !(o.cell_size.is_finite() && o.cell_size > 0.0) {
         return bad("cell_size", o.cell_size, "must be a positive number");
     }
     if o.subdivisions > 6 {
-        return bad("subdivisions", o.subdivisions as f64, "at most 6 (8^L sub-cells per cut cell)");
+        return bad(
+            "subdivisions",
+            o.subdivisions as f64,
+            "at most 6 (8^L sub-cells per cut cell)",
+        );
     }
     if !(0.0..0.5).contains(&o.min_fraction) {
         return bad("min_fraction", o.min_fraction, "must be in [0, 0.5)");
@@ -331,7 +371,10 @@ fn cell_triangle_lists(grid: &RegularGrid, surface: &TriSurface) -> Vec<(usize, 
                     for i in rx.0..=rx.1 {
                         let c = [i, j, k];
                         let min = grid.cell_min(c);
-                        let b = Aabb { min, max: min + Vector3::repeat(h) };
+                        let b = Aabb {
+                            min,
+                            max: min + Vector3::repeat(h),
+                        };
                         if triangle_overlaps_box(&tri, &b) {
                             out.push((grid.cell_index(c), t));
                         }
@@ -388,11 +431,12 @@ fn measure_cut_cell(
     let mut samples = Vec::new();
     // Octants of the cell: octant I contains corner I.
     for (o, corner) in CORNERS.iter().enumerate() {
-        let omin = cmin + Vector3::new(
-            if corner[0] > 0.0 { 0.5 * h } else { 0.0 },
-            if corner[1] > 0.0 { 0.5 * h } else { 0.0 },
-            if corner[2] > 0.0 { 0.5 * h } else { 0.0 },
-        );
+        let omin = cmin
+            + Vector3::new(
+                if corner[0] > 0.0 { 0.5 * h } else { 0.0 },
+                if corner[1] > 0.0 { 0.5 * h } else { 0.0 },
+                if corner[2] > 0.0 { 0.5 * h } else { 0.0 },
+            );
         subdivide(surface, tris, omin, 0.5 * h, 1, levels, o, h, &mut samples);
     }
     // Classify samples line by line (points sharing x and y).
@@ -435,15 +479,25 @@ fn measure_cut_cell(
             if s.expand > 0.0 {
                 // An uncut inside sub-cell: its own 2×2×2 Gauss points.
                 for g in gauss_points() {
-                    points.push(QuadPoint { xi: xi + g * s.expand, weight: s.volume / 8.0 });
+                    points.push(QuadPoint {
+                        xi: xi + g * s.expand,
+                        weight: s.volume / 8.0,
+                    });
                 }
             } else {
-                points.push(QuadPoint { xi, weight: s.volume });
+                points.push(QuadPoint {
+                    xi,
+                    weight: s.volume,
+                });
             }
         }
     }
     let fraction = octants.iter().sum::<f64>() / 8.0;
-    CutMeasure { fraction, octants, points }
+    CutMeasure {
+        fraction,
+        octants,
+        points,
+    }
 }
 
 /// Recursive octree split of a sub-cell with minimum corner `min` and edge `size` at `level`.
@@ -459,29 +513,56 @@ fn subdivide(
     h: f64,
     samples: &mut Vec<Sample>,
 ) {
-    let b = Aabb { min, max: min + Vector3::repeat(size) };
-    let hits: Vec<usize> =
-        tris.iter().copied().filter(|&t| triangle_overlaps_box(&surface.corners(t), &b)).collect();
+    let b = Aabb {
+        min,
+        max: min + Vector3::repeat(size),
+    };
+    let hits: Vec<usize> = tris
+        .iter()
+        .copied()
+        .filter(|&t| triangle_overlaps_box(&surface.corners(t), &b))
+        .collect();
     let volume = (size / h).powi(3);
     let center = min + Vector3::repeat(0.5 * size);
     if hits.is_empty() {
-        samples.push(Sample { p: center, volume, octant, expand: size / h });
+        samples.push(Sample {
+            p: center,
+            volume,
+            octant,
+            expand: size / h,
+        });
         return;
     }
     if level >= levels {
         for g in gauss_points() {
-            samples.push(Sample { p: center + g * (0.5 * size), volume: volume / 8.0, octant, expand: 0.0 });
+            samples.push(Sample {
+                p: center + g * (0.5 * size),
+                volume: volume / 8.0,
+                octant,
+                expand: 0.0,
+            });
         }
         return;
     }
     let half = 0.5 * size;
     for corner in CORNERS {
-        let cmin = min + Vector3::new(
-            if corner[0] > 0.0 { half } else { 0.0 },
-            if corner[1] > 0.0 { half } else { 0.0 },
-            if corner[2] > 0.0 { half } else { 0.0 },
+        let cmin = min
+            + Vector3::new(
+                if corner[0] > 0.0 { half } else { 0.0 },
+                if corner[1] > 0.0 { half } else { 0.0 },
+                if corner[2] > 0.0 { half } else { 0.0 },
+            );
+        subdivide(
+            surface,
+            &hits,
+            cmin,
+            half,
+            level + 1,
+            levels,
+            octant,
+            h,
+            samples,
         );
-        subdivide(surface, &hits, cmin, half, level + 1, levels, octant, h, samples);
     }
 }
 
@@ -495,24 +576,43 @@ fn build_quadrature(
     let v = grid.cell_size.powi(3);
     let gauss = gauss_points();
     let alpha = options.min_fraction;
-    let mut q = CellQuadratures { offsets: vec![0], points: Vec::new() };
+    let mut q = CellQuadratures {
+        offsets: vec![0],
+        points: Vec::new(),
+    };
     for (cell, fc) in cells.iter().zip(fc_points) {
-        let full = !cell.cut || options.mode == IntegrationMode::FullCell || options.subdivisions == 0;
+        let full =
+            !cell.cut || options.mode == IntegrationMode::FullCell || options.subdivisions == 0;
         match (full, options.mode) {
-            (true, _) => q.points.extend(gauss.iter().map(|xi| QuadPoint { xi: *xi, weight: v / 8.0 })),
+            (true, _) => q.points.extend(gauss.iter().map(|xi| QuadPoint {
+                xi: *xi,
+                weight: v / 8.0,
+            })),
             (false, IntegrationMode::FiniteCell) => {
-                q.points.extend(fc.iter().map(|p| QuadPoint { xi: p.xi, weight: p.weight * v }));
+                q.points.extend(fc.iter().map(|p| QuadPoint {
+                    xi: p.xi,
+                    weight: p.weight * v,
+                }));
                 if alpha > 0.0 {
                     // The fictitious (outside) part of each octant at weight α.
-                    q.points.extend(gauss.iter().zip(cell.octant_fractions).map(|(xi, f)| QuadPoint {
-                        xi: *xi,
-                        weight: alpha * (1.0 - f) * v / 8.0,
-                    }));
+                    q.points
+                        .extend(
+                            gauss
+                                .iter()
+                                .zip(cell.octant_fractions)
+                                .map(|(xi, f)| QuadPoint {
+                                    xi: *xi,
+                                    weight: alpha * (1.0 - f) * v / 8.0,
+                                }),
+                        );
                 }
             }
-            (false, _) => q.points.extend(gauss.iter().zip(cell.octant_fractions).map(|(xi, f)| {
-                QuadPoint { xi: *xi, weight: (f + alpha * (1.0 - f)) * v / 8.0 }
-            })),
+            (false, _) => q.points.extend(gauss.iter().zip(cell.octant_fractions).map(
+                |(xi, f)| QuadPoint {
+                    xi: *xi,
+                    weight: (f + alpha * (1.0 - f)) * v / 8.0,
+                },
+            )),
         }
         q.offsets.push(q.points.len());
     }
@@ -535,9 +635,20 @@ mod tests {
         let exact = s.signed_volume();
         let mut last = f64::INFINITY;
         for levels in 1..=4 {
-            let g = WeightedCellGrid::build(&s, &GridOptions { cell_size: 0.02, subdivisions: levels, ..Default::default() }).unwrap();
+            let g = WeightedCellGrid::build(
+                &s,
+                &GridOptions {
+                    cell_size: 0.02,
+                    subdivisions: levels,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
             let err = (g.stats().volume - exact).abs() / exact;
-            assert!(err < last * 1.05 || err < 2e-3, "level {levels}: error {err} after {last}");
+            assert!(
+                err < last * 1.05 || err < 2e-3,
+                "level {levels}: error {err} after {last}"
+            );
             last = err;
         }
         assert!(last < 5e-3, "level 4 volume error {last}");
@@ -546,9 +657,21 @@ mod tests {
     #[test]
     fn weighted_and_finite_cell_integrate_the_same_inside_volume() {
         let s = sphere();
-        let base = GridOptions { cell_size: 0.02, subdivisions: 3, min_fraction: 0.0, ..Default::default() };
+        let base = GridOptions {
+            cell_size: 0.02,
+            subdivisions: 3,
+            min_fraction: 0.0,
+            ..Default::default()
+        };
         let wc = WeightedCellGrid::build(&s, &base).unwrap();
-        let fc = WeightedCellGrid::build(&s, &GridOptions { mode: IntegrationMode::FiniteCell, ..base }).unwrap();
+        let fc = WeightedCellGrid::build(
+            &s,
+            &GridOptions {
+                mode: IntegrationMode::FiniteCell,
+                ..base
+            },
+        )
+        .unwrap();
         assert_eq!(wc.cells.len(), fc.cells.len());
         for c in 0..wc.cells.len() {
             let (a, b) = (wc.quadrature.cell_volume(c), fc.quadrature.cell_volume(c));
@@ -562,8 +685,20 @@ mod tests {
     fn octant_fractions_follow_a_plane_cut() {
         // A box whose top face z = 0.0125 cuts the cells of the second layer through the
         // middle of their lower octants' upper half: octants below hold 1/2, those above 0.
-        let s = box_surface(Point3::new(0.0, 0.0, 0.0), Point3::new(0.04, 0.04, 0.0125), 4);
-        let g = WeightedCellGrid::build(&s, &GridOptions { cell_size: 0.01, subdivisions: 3, ..Default::default() }).unwrap();
+        let s = box_surface(
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(0.04, 0.04, 0.0125),
+            4,
+        );
+        let g = WeightedCellGrid::build(
+            &s,
+            &GridOptions {
+                cell_size: 0.01,
+                subdivisions: 3,
+                ..Default::default()
+            },
+        )
+        .unwrap();
         let cut: Vec<&ActiveCell> = g.cells.iter().filter(|c| c.cut).collect();
         assert_eq!(cut.len(), 16);
         for c in cut {
@@ -578,9 +713,22 @@ mod tests {
     #[test]
     fn every_cut_cell_keeps_a_floor_of_stiffness_weight() {
         let s = sphere();
-        let g = WeightedCellGrid::build(&s, &GridOptions { cell_size: 0.02, subdivisions: 4, min_fraction: 1e-4, origin_offset: [0.31, 0.77, 0.05], ..Default::default() }).unwrap();
+        let g = WeightedCellGrid::build(
+            &s,
+            &GridOptions {
+                cell_size: 0.02,
+                subdivisions: 4,
+                min_fraction: 1e-4,
+                origin_offset: [0.31, 0.77, 0.05],
+                ..Default::default()
+            },
+        )
+        .unwrap();
         let v8 = 0.02f64.powi(3) / 8.0;
-        assert!(g.stats().tiny_cells > 0, "this offset should make badly cut cells");
+        assert!(
+            g.stats().tiny_cells > 0,
+            "this offset should make badly cut cells"
+        );
         for c in 0..g.cells.len() {
             for q in g.quadrature.cell(c) {
                 assert!(q.weight >= 1e-4 * v8 * (1.0 - 1e-12));
@@ -592,23 +740,75 @@ mod tests {
     fn bad_options_and_surfaces_are_errors() {
         let s = sphere();
         let bad = |o: GridOptions| WeightedCellGrid::build(&s, &o).unwrap_err();
-        assert!(matches!(bad(GridOptions { cell_size: -1.0, ..Default::default() }), GridError::InvalidOption { name: "cell_size", .. }));
-        assert!(matches!(bad(GridOptions { cell_size: f64::NAN, ..Default::default() }), GridError::InvalidOption { .. }));
-        assert!(matches!(bad(GridOptions { subdivisions: 9, ..Default::default() }), GridError::InvalidOption { name: "subdivisions", .. }));
-        assert!(matches!(bad(GridOptions { cell_size: 1e-5, ..Default::default() }), GridError::TooManyCells { .. }));
-        assert_eq!(WeightedCellGrid::build(&TriSurface::default(), &GridOptions::default()).unwrap_err(), GridError::EmptySurface);
+        assert!(matches!(
+            bad(GridOptions {
+                cell_size: -1.0,
+                ..Default::default()
+            }),
+            GridError::InvalidOption {
+                name: "cell_size",
+                ..
+            }
+        ));
+        assert!(matches!(
+            bad(GridOptions {
+                cell_size: f64::NAN,
+                ..Default::default()
+            }),
+            GridError::InvalidOption { .. }
+        ));
+        assert!(matches!(
+            bad(GridOptions {
+                subdivisions: 9,
+                ..Default::default()
+            }),
+            GridError::InvalidOption {
+                name: "subdivisions",
+                ..
+            }
+        ));
+        assert!(matches!(
+            bad(GridOptions {
+                cell_size: 1e-5,
+                ..Default::default()
+            }),
+            GridError::TooManyCells { .. }
+        ));
+        assert_eq!(
+            WeightedCellGrid::build(&TriSurface::default(), &GridOptions::default()).unwrap_err(),
+            GridError::EmptySurface
+        );
         let mut nan = sphere();
         nan.vertices[3].x = f64::NAN;
-        assert_eq!(WeightedCellGrid::build(&nan, &GridOptions::default()).unwrap_err(), GridError::NonFiniteVertex(3));
+        assert_eq!(
+            WeightedCellGrid::build(&nan, &GridOptions::default()).unwrap_err(),
+            GridError::NonFiniteVertex(3)
+        );
     }
 
     #[test]
     fn an_open_surface_still_gives_a_sensible_inside() {
         let mut s = sphere();
-        let closed = WeightedCellGrid::build(&s, &GridOptions { cell_size: 0.02, subdivisions: 2, ..Default::default() }).unwrap();
+        let closed = WeightedCellGrid::build(
+            &s,
+            &GridOptions {
+                cell_size: 0.02,
+                subdivisions: 2,
+                ..Default::default()
+            },
+        )
+        .unwrap();
         // Punch a hole: drop the triangles of a small cap.
         s.triangles.retain(|t| s.vertices[t[0]].z < 0.045);
-        let open = WeightedCellGrid::build(&s, &GridOptions { cell_size: 0.02, subdivisions: 2, ..Default::default() }).unwrap();
+        let open = WeightedCellGrid::build(
+            &s,
+            &GridOptions {
+                cell_size: 0.02,
+                subdivisions: 2,
+                ..Default::default()
+            },
+        )
+        .unwrap();
         let (a, b) = (closed.stats().volume, open.stats().volume);
         assert!((a - b).abs() / a < 0.02, "closed {a} vs open {b}");
     }

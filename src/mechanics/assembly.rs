@@ -80,7 +80,8 @@ impl Assembler {
                 col_ptr.push(row_idx.len());
             }
         }
-        let pattern = SymmetricCsc::from_pattern(3 * n, col_ptr, row_idx).expect("assembled pattern is valid");
+        let pattern = SymmetricCsc::from_pattern(3 * n, col_ptr, row_idx)
+            .expect("assembled pattern is valid");
         let scatter = grid
             .cells
             .iter()
@@ -104,7 +105,11 @@ impl Assembler {
             })
             .collect();
         let buffers = vec![CellResponse::default(); grid.cells.len()];
-        Self { pattern, scatter, buffers }
+        Self {
+            pattern,
+            scatter,
+            buffers,
+        }
     }
 
     /// The sparsity pattern (lower triangle, values zero).
@@ -141,7 +146,9 @@ impl Assembler {
             .zip(grid.cells.par_iter())
             .enumerate()
             .filter_map(|(c, (buf, cell))| {
-                let ul = cell.nodes.map(|n| Vector3::new(u[3 * n], u[3 * n + 1], u[3 * n + 2]));
+                let ul = cell
+                    .nodes
+                    .map(|n| Vector3::new(u[3 * n], u[3 * n + 1], u[3 * n + 2]));
                 evaluate_cell(material, volumetric, h, &ul, q.cell(c), need, buf)
                     .err()
                     .map(|error| CellFailure { cell: c, error })

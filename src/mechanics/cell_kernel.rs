@@ -50,7 +50,11 @@ pub struct CellResponse {
 
 impl Default for CellResponse {
     fn default() -> Self {
-        Self { energy: 0.0, force: CellForce::zeros(), tangent: CellTangent::zeros() }
+        Self {
+            energy: 0.0,
+            force: CellForce::zeros(),
+            tangent: CellTangent::zeros(),
+        }
     }
 }
 
@@ -82,7 +86,16 @@ pub fn evaluate_cell(
         point_contribution(material, part, h, u, &q.xi, q.weight, need, out)?;
     }
     if volumetric == VolumetricIntegration::Reduced && total_weight > 0.0 {
-        point_contribution(material, Part::Volumetric, h, u, &Vector3::zeros(), total_weight, need, out)?;
+        point_contribution(
+            material,
+            Part::Volumetric,
+            h,
+            u,
+            &Vector3::zeros(),
+            total_weight,
+            need,
+            out,
+        )?;
     }
     Ok(())
 }
@@ -111,8 +124,8 @@ fn point_contribution(
     match need {
         Need::Energy => out.energy += w * material.energy(&f, part)?,
         Need::Force => {
-            let p = material.pk1(&f, part)?;
-            out.energy += w * material.energy(&f, part)?;
+            let (energy, p) = material.energy_pk1(&f, part)?;
+            out.energy += w * energy;
             add_force(&p, &g, w, &mut out.force);
         }
         Need::Tangent => {
@@ -132,13 +145,13 @@ fn point_contribution(
                     }
                 }
             }
-            for a in 0..8 {
+            for (a, ma) in m.iter().enumerate() {
                 for b in 0..=a {
-                    for i in 0..3 {
+                    for (i, row) in ma.iter().enumerate() {
                         for k in 0..3 {
-                            let v = m[a][i][3 * k] * g[(b, 0)]
-                                + m[a][i][3 * k + 1] * g[(b, 1)]
-                                + m[a][i][3 * k + 2] * g[(b, 2)];
+                            let v = row[3 * k] * g[(b, 0)]
+                                + row[3 * k + 1] * g[(b, 1)]
+                                + row[3 * k + 2] * g[(b, 2)];
                             out.tangent[(3 * a + i, 3 * b + k)] += v;
                         }
                     }
@@ -152,7 +165,8 @@ fn point_contribution(
 fn add_force(p: &Matrix3<f64>, g: &SMatrix<f64, 8, 3>, w: f64, force: &mut CellForce) {
     for a in 0..8 {
         for i in 0..3 {
-            force[3 * a + i] += w * (p[(i, 0)] * g[(a, 0)] + p[(i, 1)] * g[(a, 1)] + p[(i, 2)] * g[(a, 2)]);
+            force[3 * a + i] +=
+                w * (p[(i, 0)] * g[(a, 0)] + p[(i, 1)] * g[(a, 1)] + p[(i, 2)] * g[(a, 2)]);
         }
     }
 }

@@ -21,7 +21,11 @@ pub struct SurfaceSample {
 /// sub-triangles with edges at most `spacing`, and the centroid of every sub-triangle inside
 /// the box is kept with the sub-triangle's area (a midpoint rule, exact for constant
 /// tractions on the covered area).
-pub fn sample_surface_in_box(surface: &TriSurface, region: &Aabb, spacing: f64) -> Vec<SurfaceSample> {
+pub fn sample_surface_in_box(
+    surface: &TriSurface,
+    region: &Aabb,
+    spacing: f64,
+) -> Vec<SurfaceSample> {
     let mut out = Vec::new();
     for t in 0..surface.triangles.len() {
         let [a, b, c] = surface.corners(t);
@@ -93,7 +97,11 @@ pub fn gravity_forces(grid: &WeightedCellGrid, rho: f64, g: Vector3<f64>, forces
 
 /// Grid forces (N) of a body force density `b(X)` (N/m³, X in m): `f_a = Σ_q b(X_q) N_a(ξ_q) w_q`
 /// over the grid's own integration points (so the load is integrated exactly as the stiffness).
-pub fn body_forces(grid: &WeightedCellGrid, b: impl Fn(&Point3<f64>) -> Vector3<f64>, forces: &mut [f64]) {
+pub fn body_forces(
+    grid: &WeightedCellGrid,
+    b: impl Fn(&Point3<f64>) -> Vector3<f64>,
+    forces: &mut [f64],
+) {
     for (c, cell) in grid.cells.iter().enumerate() {
         for q in grid.quadrature.cell(c) {
             let x = grid.grid.to_physical(cell.coords, &q.xi);

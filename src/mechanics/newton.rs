@@ -102,13 +102,19 @@ struct StepFailure {
 
 impl From<CellFailure> for StepFailure {
     fn from(f: CellFailure) -> Self {
-        StepFailure { outcome: Outcome::Inverted, message: format!("cell {}: {}", f.cell, f.error) }
+        StepFailure {
+            outcome: Outcome::Inverted,
+            message: format!("cell {}: {}", f.cell, f.error),
+        }
     }
 }
 
 impl From<LinalgError> for StepFailure {
     fn from(e: LinalgError) -> Self {
-        StepFailure { outcome: Outcome::Diverged, message: format!("linear solve failed: {e}") }
+        StepFailure {
+            outcome: Outcome::Diverged,
+            message: format!("linear solve failed: {e}"),
+        }
     }
 }
 
@@ -124,7 +130,11 @@ pub struct NewtonSolver {
 impl NewtonSolver {
     /// A solver with `settings`.
     pub fn new(settings: NewtonSettings) -> Self {
-        Self { linear: SparseSolver::new(settings.linear_solver), settings, tangent: None }
+        Self {
+            linear: SparseSolver::new(settings.linear_solver),
+            settings,
+            tangent: None,
+        }
     }
 
     /// Solves from the state `u0` (m; load factor 0 is assumed to hold there) up to full load.
@@ -202,7 +212,10 @@ impl NewtonSolver {
                 let e = problem.evaluate(u, load, Need::Tangent, Some(&mut r), Some(&mut k))?;
                 let rn = norm(&r);
                 if !rn.is_finite() || !e.potential.is_finite() {
-                    return Err(StepFailure { outcome: Outcome::Diverged, message: "non-finite residual".into() });
+                    return Err(StepFailure {
+                        outcome: Outcome::Diverged,
+                        message: "non-finite residual".into(),
+                    });
                 }
                 if it == 0 {
                     reference = rn.max(ext_norm).max(f64::MIN_POSITIVE);
@@ -277,7 +290,8 @@ impl NewtonSolver {
                 match problem.evaluate(trial, load, Need::Energy, None, None) {
                     Ok(e) => {
                         let tol = 1e-12 * (potential.abs() + 1e-300);
-                        e.potential.is_finite() && e.potential <= potential + 1e-4 * alpha * slope + tol
+                        e.potential.is_finite()
+                            && e.potential <= potential + 1e-4 * alpha * slope + tol
                     }
                     Err(f) => {
                         last_failure = Some(f.into());

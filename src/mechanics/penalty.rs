@@ -31,7 +31,12 @@ impl PenaltySprings {
     /// Springs holding the points of `embedding` at their rest positions.
     pub fn fixed(embedding: Embedding, stiffness: Vec<f64>) -> Self {
         let target = vec![Vector3::zeros(); embedding.len()];
-        Self { embedding, target, stiffness, follows_load: false }
+        Self {
+            embedding,
+            target,
+            stiffness,
+            follows_load: false,
+        }
     }
 
     /// Springs holding the part of `surface` inside `region` at rest: the region is sampled

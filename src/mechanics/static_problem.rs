@@ -36,10 +36,21 @@ pub struct Evaluation {
 
 impl StaticProblem {
     /// A problem with no loads and no springs.
-    pub fn new(grid: WeightedCellGrid, material: Material, volumetric: VolumetricIntegration) -> Self {
+    pub fn new(
+        grid: WeightedCellGrid,
+        material: Material,
+        volumetric: VolumetricIntegration,
+    ) -> Self {
         let assembler = Assembler::new(&grid);
         let external = vec![0.0; 3 * grid.node_count()];
-        Self { grid, material, volumetric, external, springs: Vec::new(), assembler }
+        Self {
+            grid,
+            material,
+            volumetric,
+            external,
+            springs: Vec::new(),
+            assembler,
+        }
     }
 
     /// Number of unknowns (3 per active node).
@@ -91,8 +102,16 @@ impl StaticProblem {
                 &self.assembler,
                 u,
                 load,
-                if need >= Need::Force { residual.as_deref_mut() } else { None },
-                if need >= Need::Tangent { tangent.as_deref_mut() } else { None },
+                if need >= Need::Force {
+                    residual.as_deref_mut()
+                } else {
+                    None
+                },
+                if need >= Need::Tangent {
+                    tangent.as_deref_mut()
+                } else {
+                    None
+                },
             );
         }
         let mut work = 0.0;
@@ -105,6 +124,9 @@ impl StaticProblem {
                 *ri -= load * f;
             }
         }
-        Ok(Evaluation { potential, strain_energy: strain })
+        Ok(Evaluation {
+            potential,
+            strain_energy: strain,
+        })
     }
 }

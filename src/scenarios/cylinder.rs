@@ -41,20 +41,39 @@ pub struct ScenarioResult {
 impl ScenarioResult {
     /// Relative L2 difference `‖d − d_ref‖ / ‖d_ref‖` of the sample displacements.
     pub fn relative_difference(&self, reference: &[Vector3<f64>]) -> f64 {
-        let num: f64 = self.displacements.iter().zip(reference).map(|(a, b)| (a - b).norm_squared()).sum();
+        let num: f64 = self
+            .displacements
+            .iter()
+            .zip(reference)
+            .map(|(a, b)| (a - b).norm_squared())
+            .sum();
         let den: f64 = reference.iter().map(|b| b.norm_squared()).sum();
         (num / den).sqrt()
     }
 }
 
 fn face_box(z: f64) -> Aabb {
-    Aabb { min: Point3::new(-1.0, -1.0, z - 1e-4), max: Point3::new(1.0, 1.0, z + 1e-4) }
+    Aabb {
+        min: Point3::new(-1.0, -1.0, z - 1e-4),
+        max: Point3::new(1.0, 1.0, z + 1e-4),
+    }
 }
 
-fn base_problem(surface: &TriSurface, cell_size: f64, levels: u32, mode: IntegrationMode) -> StaticProblem {
-    let opts = GridOptions { cell_size, subdivisions: levels, mode, ..GridOptions::default() };
+fn base_problem(
+    surface: &TriSurface,
+    cell_size: f64,
+    levels: u32,
+    mode: IntegrationMode,
+) -> StaticProblem {
+    let opts = GridOptions {
+        cell_size,
+        subdivisions: levels,
+        mode,
+        ..GridOptions::default()
+    };
     let grid = WeightedCellGrid::build(surface, &opts).expect("cylinder grid");
-    let m = Material::from_young_poisson(LawKind::NeoHookean, YOUNG, POISSON).expect("valid material");
+    let m =
+        Material::from_young_poisson(LawKind::NeoHookean, YOUNG, POISSON).expect("valid material");
     StaticProblem::new(grid, m, VolumetricIntegration::Reduced)
 }
 
@@ -65,11 +84,22 @@ fn held_face(p: &StaticProblem, surface: &TriSurface, z: f64) -> PenaltySprings 
         .expect("face holds samples")
 }
 
-fn finish(mut p: StaticProblem, settings: NewtonSettings, samples: Vec<Point3<f64>>) -> ScenarioResult {
+fn finish(
+    mut p: StaticProblem,
+    settings: NewtonSettings,
+    samples: Vec<Point3<f64>>,
+) -> ScenarioResult {
     let u0 = vec![0.0; p.dofs()];
     let report = NewtonSolver::new(settings).solve(&mut p, &u0);
-    let displacements = Embedding::new(&p.grid, &samples).expect("samples embed").interpolate(&report.u);
-    ScenarioResult { report, samples, displacements, nodes: p.grid.node_count() }
+    let displacements = Embedding::new(&p.grid, &samples)
+        .expect("samples embed")
+        .interpolate(&report.u);
+    ScenarioResult {
+        report,
+        samples,
+        displacements,
+        nodes: p.grid.node_count(),
+    }
 }
 
 /// Cylinder bending (thesis fig. 4.6).
@@ -112,10 +142,20 @@ impl CylinderBending {
         let mut p = base_problem(&s, self.cell_size, self.levels, self.mode);
         p.springs = vec![held_face(&p, &s, 0.0)];
         let mut f = vec![0.0; p.dofs()];
-        traction_forces(&p.grid, &s, &face_box(Self::LENGTH), Vector3::new(0.0, -Self::TRACTION, 0.0), &mut f)
-            .expect("end face embeds");
+        traction_forces(
+            &p.grid,
+            &s,
+            &face_box(Self::LENGTH),
+            Vector3::new(0.0, -Self::TRACTION, 0.0),
+            &mut f,
+        )
+        .expect("end face embeds");
         p.external = f;
-        let settings = NewtonSettings { load_steps: 10, max_iterations: 25, ..NewtonSettings::default() };
+        let settings = NewtonSettings {
+            load_steps: 10,
+            max_iterations: 25,
+            ..NewtonSettings::default()
+        };
         finish(p, settings, Self::samples())
     }
 }
@@ -137,7 +177,10 @@ impl CylinderStretching {
 
     /// Sample points on the axis near both end faces.
     pub fn samples() -> Vec<Point3<f64>> {
-        vec![Point3::new(0.0, 0.0, Self::LENGTH - 1e-3), Point3::new(0.0, 0.0, 1e-3)]
+        vec![
+            Point3::new(0.0, 0.0, Self::LENGTH - 1e-3),
+            Point3::new(0.0, 0.0, 1e-3),
+        ]
     }
 
     /// Solves it with 10 load steps: each end face pulled outwards by one length.
@@ -151,6 +194,13 @@ impl CylinderStretching {
         top.target = vec![Vector3::new(0.0, 0.0, Self::LENGTH); top.embedding.len()];
         top.follows_load = true;
         p.springs = vec![bottom, top];
-        finish(p, NewtonSettings { load_steps: 10, ..NewtonSettings::default() }, Self::samples())
+        finish(
+            p,
+            NewtonSettings {
+                load_steps: 10,
+                ..NewtonSettings::default()
+            },
+            Self::samples(),
+        )
     }
 }

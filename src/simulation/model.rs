@@ -6,7 +6,10 @@ use std::path::PathBuf;
 use nalgebra::{Point3, Vector3};
 
 use crate::geometry::Aabb;
-use crate::grid::{Embedding, EmbeddingError, GridError, GridOptions, IntegrationMode, WeightedCellGrid};
+use crate::grid::{
+    Embedding, EmbeddingError, GridError, GridOptions, IntegrationMode, WeightedCellGrid,
+};
+use crate::linalg::SolverKind;
 use crate::mechanics::loads::{gravity_forces, traction_forces};
 use crate::mechanics::{
     LawKind, Material, NewtonSettings, PenaltySprings, StaticProblem, VolumetricIntegration,
@@ -15,7 +18,6 @@ use crate::mesh::{read_points, read_surface, validate, MeshError, SurfaceReport,
 use crate::scene::{
     FixedRegion, IntegrationKind, LawName, LinearSolverKind, LoadedScene, PointSource, Scene,
 };
-use crate::linalg::SolverKind;
 
 /// Default penalty factor κ of fixed regions: a held surface sample of area A gets a spring of
 /// `κ E A / h` (N/m), a held point `κ E h`; relative to the cell stiffness `~E h` this holds
@@ -106,8 +108,12 @@ pub fn material(scene: &Scene) -> Result<(Material, VolumetricIntegration), Mode
         LawName::Corotated => LawKind::Corotated,
         LawName::Linear => LawKind::Linear,
     };
-    let m = Material::from_young_poisson(law, scene.material.young_modulus, scene.material.poisson_ratio)
-        .map_err(|e| ModelError::Invalid(format!("material: {e}")))?;
+    let m = Material::from_young_poisson(
+        law,
+        scene.material.young_modulus,
+        scene.material.poisson_ratio,
+    )
+    .map_err(|e| ModelError::Invalid(format!("material: {e}")))?;
     let vol = match scene.material.volumetric {
         crate::scene::VolumetricIntegration::Reduced => VolumetricIntegration::Reduced,
         crate::scene::VolumetricIntegration::Full => VolumetricIntegration::Full,
@@ -139,11 +145,18 @@ fn to_point(p: [f64; 3], scale: f64) -> Point3<f64> {
 }
 
 fn region_box(min: [f64; 3], max: [f64; 3], scale: f64) -> Aabb {
-    Aabb { min: to_point(min, scale), max: to_point(max, scale) }
+    Aabb {
+        min: to_point(min, scale),
+        max: to_point(max, scale),
+    }
 }
 
 /// Points of a point source, in metres.
-fn source_points(source: &PointSource, scene: &LoadedScene, scale: f64) -> Result<Vec<Point3<f64>>, ModelError> {
+fn source_points(
+    source: &PointSource,
+    scene: &LoadedScene,
+    scale: f64,
+) -> Result<Vec<Point3<f64>>, ModelError> {
     match source {
         PointSource::Inline(v) => Ok(v.iter().map(|p| to_point(*p, scale)).collect()),
         PointSource::File(path) => {
@@ -169,21 +182,31 @@ impl SceneModel {
             crate::mesh::orient_outward(&mut surface);
         }
         let options = grid_options(scene, scale);
-        let grid = WeightedCellGrid::build(&surface, &options)
-            .map_err(|source| ModelError::Grid { file: surface_path.clone(), source })?;
+        let grid =
+            WeightedCellGrid::build(&surface, &options).map_err(|source| ModelError::Grid {
+                file: surface_path.clone(),
+                source,
+            })?;
         let h = grid.grid.cell_size;
         let (material, volumetric) = material(scene)?;
         let young = scene.material.young_modulus;
         let embed = |what: String, pts: &[Point3<f64>], grid: &WeightedCellGrid| {
             Embedding::new(grid, pts).map_err(|source| ModelError::Embedding { what, source })
         };
-        let surface_embedding = embed(format!("{}: surface vertices", surface_path.display()), &surface.vertices, &grid)?;
+        let surface_embedding = embed(
+            format!("{}: surface vertices", surface_path.display()),
+            &surface.vertices,
+            &grid,
+        )?;
 
         let mut external = vec![0.0; 3 * grid.node_count()];
         for (i, t) in scene.load.traction.iter().enumerate() {
             let b = region_box(t.bbox.min, t.bbox.max, scale);
             let n = traction_forces(&grid, &surface, &b, Vector3::from(t.value), &mut external)
-                .map_err(|source| ModelError::Embedding { what: format!("load.traction[{i}]"), source })?;
+                .map_err(|source| ModelError::Embedding {
+                    what: format!("load.traction[{i}]"),
+                    source,
+                })?;
             if n == 0 {
                 return Err(ModelError::Invalid(format!(
                     "{}: load.traction[{i}]: the box holds no part of the surface",
@@ -204,8 +227,12 @@ impl SceneModel {
                     // Spring density κE/h per unit area, or the given stiffness per sample.
                     let region = region_box(b.min, b.max, scale);
                     let density = DEFAULT_FIXED_PENALTY_FACTOR * young / h;
-                    let set = PenaltySprings::fixed_surface_region(&grid, &surface, &region, density)
-                        .map_err(|source| ModelError::Embedding { what: key.clone(), source })?;
+                    let set =
+                        PenaltySprings::fixed_surface_region(&grid, &surface, &region, density)
+                            .map_err(|source| ModelError::Embedding {
+                                what: key.clone(),
+                                source,
+                            })?;
                     set.map(|mut s| {
                         if let Some(k) = f.stiffness {
                             s.stiffness.iter_mut().for_each(|v| *v = k);
@@ -215,7 +242,9 @@ impl SceneModel {
                 }
                 Some(FixedRegion::Points(src)) => {
                     let pts = source_points(src, loaded, scale)?;
-                    let k = f.stiffness.unwrap_or(DEFAULT_FIXED_PENALTY_FACTOR * young * h);
+                    let k = f
+                        .stiffness
+                        .unwrap_or(DEFAULT_FIXED_PENALTY_FACTOR * young * h);
                     let emb = embed(key.clone(), &pts, &grid)?;
                     (!pts.is_empty()).then(|| PenaltySprings::fixed(emb, vec![k; pts.len()]))
                 }
@@ -246,7 +275,10 @@ impl SceneModel {
         let mut structures = Vec::new();
         for s in &scene.model.structures {
             let (points, triangles) = match (&s.points, &s.mesh) {
-                (Some(p), None) => (source_points(&PointSource::File(p.clone()), loaded, scale)?, None),
+                (Some(p), None) => (
+                    source_points(&PointSource::File(p.clone()), loaded, scale)?,
+                    None,
+                ),
                 (None, Some(m)) => {
                     let mut mesh = read_surface(&loaded.resolve(m))?;
                     mesh.scale(scale);
@@ -261,7 +293,11 @@ impl SceneModel {
                 }
             };
             let embedding = embed(format!("model.structures '{}'", s.name), &points, &grid)?;
-            structures.push(EmbeddedStructure { name: s.name.clone(), embedding, triangles });
+            structures.push(EmbeddedStructure {
+                name: s.name.clone(),
+                embedding,
+                triangles,
+            });
         }
 
         let mut problem = StaticProblem::new(grid, material, volumetric);
@@ -283,6 +319,9 @@ impl SceneModel {
     /// The deformed surface (scene units) for grid displacements `u` (m).
     pub fn deformed_surface(&self, u: &[f64]) -> TriSurface {
         let pos = self.surface_embedding.positions(u);
-        TriSurface::new(pos.iter().map(|p| p / self.length_scale).collect(), self.surface.triangles.clone())
+        TriSurface::new(
+            pos.iter().map(|p| p / self.length_scale).collect(),
+            self.surface.triangles.clone(),
+        )
     }
 }

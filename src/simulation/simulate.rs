@@ -25,7 +25,10 @@ pub enum SimulateError {
 
 /// Builds the scene's model, solves it and returns the contract's report; writes the deformed
 /// surface to `out_dir/deformed.obj` when given.
-pub fn simulate_scene(loaded: &LoadedScene, out_dir: Option<&Path>) -> Result<SimulateReport, SimulateError> {
+pub fn simulate_scene(
+    loaded: &LoadedScene,
+    out_dir: Option<&Path>,
+) -> Result<SimulateReport, SimulateError> {
     let start = Instant::now();
     let mut model = SceneModel::build(loaded)?;
     let mut solver = NewtonSolver::new(model.newton);
@@ -37,7 +40,10 @@ pub fn simulate_scene(loaded: &LoadedScene, out_dir: Option<&Path>) -> Result<Si
         .rest
         .iter()
         .zip(model.probes.interpolate(&result.u))
-        .map(|(x, d)| ProbeResult { point: (x.coords / scale).into(), displacement: (d / scale).into() })
+        .map(|(x, d)| ProbeResult {
+            point: (x.coords / scale).into(),
+            displacement: (d / scale).into(),
+        })
         .collect();
     let max_displacement = model
         .surface_embedding
@@ -52,7 +58,8 @@ pub fn simulate_scene(loaded: &LoadedScene, out_dir: Option<&Path>) -> Result<Si
         };
         std::fs::create_dir_all(dir).map_err(|e| out_err(dir, &e))?;
         let path = dir.join("deformed.obj");
-        crate::mesh::write_obj(&path, &model.deformed_surface(&result.u)).map_err(|e| out_err(&path, &e))?;
+        crate::mesh::write_obj(&path, &model.deformed_surface(&result.u))
+            .map_err(|e| out_err(&path, &e))?;
     }
     let stats = model.problem.grid.stats();
     let mut message = result.message.clone();
@@ -68,7 +75,11 @@ pub fn simulate_scene(loaded: &LoadedScene, out_dir: Option<&Path>) -> Result<Si
         newton_iterations: result.newton_iterations,
         load_steps: result.load_steps,
         wall_ms: start.elapsed().as_secs_f64() * 1e3,
-        grid: GridSummary { nodes: stats.nodes, cells: stats.cells, cut_cells: stats.cut_cells },
+        grid: GridSummary {
+            nodes: stats.nodes,
+            cells: stats.cells,
+            cut_cells: stats.cut_cells,
+        },
         probes,
         max_displacement,
         outcome: result.outcome.name().to_string(),

@@ -9,15 +9,31 @@ use livereg::mesh::TriSurface;
 use nalgebra::{DMatrix, Point3};
 
 /// All four laws.
-pub const LAWS: [LawKind; 4] = [LawKind::Linear, LawKind::Corotated, LawKind::Svk, LawKind::NeoHookean];
+pub const LAWS: [LawKind; 4] = [
+    LawKind::Linear,
+    LawKind::Corotated,
+    LawKind::Svk,
+    LawKind::NeoHookean,
+];
 
 /// Grid options with the given cell size, levels and mode (α = 1e-4, no offset).
 pub fn options(cell_size: f64, subdivisions: u32, mode: IntegrationMode) -> GridOptions {
-    GridOptions { cell_size, subdivisions, mode, min_fraction: 1e-4, origin_offset: [0.0; 3] }
+    GridOptions {
+        cell_size,
+        subdivisions,
+        mode,
+        min_fraction: 1e-4,
+        origin_offset: [0.0; 3],
+    }
 }
 
 /// A problem on `surface` with the given grid options and material.
-pub fn problem(surface: &TriSurface, opts: &GridOptions, material: Material, vol: VolumetricIntegration) -> StaticProblem {
+pub fn problem(
+    surface: &TriSurface,
+    opts: &GridOptions,
+    material: Material,
+    vol: VolumetricIntegration,
+) -> StaticProblem {
     let grid = WeightedCellGrid::build(surface, opts).expect("grid builds");
     StaticProblem::new(grid, material, vol)
 }
@@ -28,7 +44,13 @@ pub fn material(law: LawKind, young: f64, poisson: f64) -> Material {
 }
 
 /// Springs holding the part of the surface inside `region`, density κE/h.
-pub fn hold(problem: &StaticProblem, surface: &TriSurface, region: Aabb, kappa: f64, young: f64) -> PenaltySprings {
+pub fn hold(
+    problem: &StaticProblem,
+    surface: &TriSurface,
+    region: Aabb,
+    kappa: f64,
+    young: f64,
+) -> PenaltySprings {
     let h = problem.grid.grid.cell_size;
     PenaltySprings::fixed_surface_region(&problem.grid, surface, &region, kappa * young / h)
         .expect("embeds")
@@ -37,7 +59,10 @@ pub fn hold(problem: &StaticProblem, surface: &TriSurface, region: Aabb, kappa: 
 
 /// Axis-aligned box from two corners.
 pub fn aabb(min: [f64; 3], max: [f64; 3]) -> Aabb {
-    Aabb { min: Point3::from(min), max: Point3::from(max) }
+    Aabb {
+        min: Point3::from(min),
+        max: Point3::from(max),
+    }
 }
 
 /// The full symmetric dense matrix of a lower-triangle CSC matrix.

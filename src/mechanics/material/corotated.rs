@@ -330,6 +330,11 @@ impl Law for Corotated {
         Ok(energy_and_pk1(p, f, &rotation(f)).1)
     }
 
+    fn energy_pk1(p: Lame, f: &Mat3) -> Result<(f64, Mat3), MaterialError> {
+        let (w, pk1, _) = energy_and_pk1(p, f, &rotation(f));
+        Ok((w, pk1))
+    }
+
     #[inline]
     fn response(p: Lame, f: &Mat3) -> Result<PointResponse, MaterialError> {
         let (r, g_inv) = rotation_and_g_inv(f);

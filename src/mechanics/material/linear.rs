@@ -30,20 +30,21 @@ fn stress(p: Lame, eps: &Mat3) -> Mat3 {
 /// The constant small-strain tangent (Pa) in [`Tangent9`] layout.
 #[inline(always)]
 pub(super) fn tangent(p: Lame) -> Tangent9 {
-    let mut a = Tangent9::zeros();
+    // column-major storage `cols[3k+L][3i+J]`
+    let mut cols = [[0.0f64; 9]; 9];
     for i in 0..3 {
         for j in 0..3 {
-            // δ_ik δ_JL
-            a[(3 * i + j, 3 * i + j)] += p.mu;
-            // δ_iL δ_Jk
-            a[(3 * i + j, 3 * j + i)] += p.mu;
+            // μ δ_ik δ_JL
+            cols[3 * i + j][3 * i + j] += p.mu;
+            // μ δ_iL δ_Jk
+            cols[3 * j + i][3 * i + j] += p.mu;
         }
         for k in 0..3 {
-            // δ_iJ δ_kL
-            a[(3 * i + i, 3 * k + k)] += p.lambda;
+            // λ δ_iJ δ_kL
+            cols[3 * k + k][3 * i + i] += p.lambda;
         }
     }
-    a
+    Tangent9::from_data(nalgebra::ArrayStorage(cols))
 }
 
 impl Law for Linear {
@@ -55,6 +56,15 @@ impl Law for Linear {
 
     fn pk1(p: Lame, f: &Mat3) -> Result<Mat3, MaterialError> {
         Ok(stress(p, &strain(f)))
+    }
+
+    fn energy_pk1(p: Lame, f: &Mat3) -> Result<(f64, Mat3), MaterialError> {
+        let eps = strain(f);
+        let tr = eps.trace();
+        Ok((
+            p.mu * eps.norm_squared() + 0.5 * p.lambda * tr * tr,
+            stress(p, &eps),
+        ))
     }
 
     #[inline]

@@ -120,6 +120,8 @@ trait Law {
     fn energy(p: Lame, f: &Mat3) -> Result<f64, MaterialError>;
     /// First Piola–Kirchhoff stress (Pa).
     fn pk1(p: Lame, f: &Mat3) -> Result<Mat3, MaterialError>;
+    /// Energy density (J/m³) and P (Pa) in one pass.
+    fn energy_pk1(p: Lame, f: &Mat3) -> Result<(f64, Mat3), MaterialError>;
     /// Energy, P and ∂P/∂F in one pass.
     fn response(p: Lame, f: &Mat3) -> Result<PointResponse, MaterialError>;
     /// Second Piola–Kirchhoff stress (Pa).
@@ -216,6 +218,20 @@ impl Material {
             LawKind::Corotated => corotated::Corotated::pk1(p, f),
             LawKind::Svk => svk::Svk::pk1(p, f),
             LawKind::NeoHookean => neo_hookean::NeoHookean::pk1(p, f),
+        }
+    }
+
+    /// Energy density (J/m³) and `P = ∂W/∂F` (Pa) in one pass, sharing the
+    /// kinematics (for corotated: one polar decomposition instead of two).
+    /// Same values and errors as [`Material::energy`] and [`Material::pk1`].
+    pub fn energy_pk1(&self, f: &Mat3, part: Part) -> Result<(f64, Mat3), MaterialError> {
+        check_finite(f)?;
+        let p = self.lame(part);
+        match self.law {
+            LawKind::Linear => linear::Linear::energy_pk1(p, f),
+            LawKind::Corotated => corotated::Corotated::energy_pk1(p, f),
+            LawKind::Svk => svk::Svk::energy_pk1(p, f),
+            LawKind::NeoHookean => neo_hookean::NeoHookean::energy_pk1(p, f),
         }
     }
 

@@ -47,16 +47,6 @@ fn kinematics(f: &Mat3) -> Result<(f64, Mat3), MaterialError> {
     Ok((j.ln(), h))
 }
 
-/// `ln J` alone (energy path), erroring on `J ≤ 0`.
-#[inline(always)]
-fn log_det(f: &Mat3) -> Result<f64, MaterialError> {
-    let j = f.determinant();
-    if j.is_nan() || j <= 0.0 {
-        return Err(MaterialError::Inverted { det: j });
-    }
-    Ok(j.ln())
-}
-
 #[inline(always)]
 fn energy_of(p: Lame, f: &Mat3, ln_j: f64) -> f64 {
     0.5 * p.mu * (f.norm_squared() - 3.0) - p.mu * ln_j + 0.5 * p.lambda * ln_j * ln_j
@@ -64,13 +54,23 @@ fn energy_of(p: Lame, f: &Mat3, ln_j: f64) -> f64 {
 
 impl Law for NeoHookean {
     fn energy(p: Lame, f: &Mat3) -> Result<f64, MaterialError> {
-        let ln_j = log_det(f)?;
+        // same admissibility test as `pk1`/`response` (a line search calling
+        // `energy` must fail exactly where the Newton step would)
+        let (ln_j, _) = kinematics(f)?;
         Ok(energy_of(p, f, ln_j))
     }
 
     fn pk1(p: Lame, f: &Mat3) -> Result<Mat3, MaterialError> {
         let (ln_j, h) = kinematics(f)?;
         Ok(f * p.mu + h * (p.lambda * ln_j - p.mu))
+    }
+
+    fn energy_pk1(p: Lame, f: &Mat3) -> Result<(f64, Mat3), MaterialError> {
+        let (ln_j, h) = kinematics(f)?;
+        Ok((
+            energy_of(p, f, ln_j),
+            f * p.mu + h * (p.lambda * ln_j - p.mu),
+        ))
     }
 
     #[inline]
@@ -80,26 +80,24 @@ impl Law for NeoHookean {
         let pk1 = f * p.mu + h * (p.lambda * ln_j - p.mu);
         let (mu, la) = (p.mu, p.lambda);
         let g = mu - la * ln_j;
-        // Block (i, k) of A, indices (J, L):
-        // (μ − λ ln J) H_kJ H_iL + λ H_iJ H_kL + μ δ_ik δ_JL.
-        let rows = [
-            h.row(0).transpose(),
-            h.row(1).transpose(),
-            h.row(2).transpose(),
-        ];
-        let mut tangent = Tangent9::zeros();
-        for i in 0..3 {
-            for k in 0..3 {
-                let mut blk =
-                    rows[k] * (rows[i] * g).transpose() + rows[i] * (rows[k] * la).transpose();
-                if i == k {
-                    blk[(0, 0)] += mu;
-                    blk[(1, 1)] += mu;
-                    blk[(2, 2)] += mu;
+        // A[(3i+J),(3k+L)] = (μ − λ ln J) H_iL H_kJ + λ H_iJ H_kL + μ δ_ik δ_JL;
+        // `cols[3k+L][3i+J]` is the column-major storage of A.
+        let ha: [[f64; 3]; 3] = h.transpose().into(); // ha[i][J] = H_iJ
+        let mut cols = [[0.0f64; 9]; 9];
+        for k in 0..3 {
+            for l in 0..3 {
+                let col = &mut cols[3 * k + l];
+                let lhkl = la * ha[k][l];
+                for i in 0..3 {
+                    let ghil = g * ha[i][l];
+                    for j in 0..3 {
+                        col[3 * i + j] = ghil * ha[k][j] + lhkl * ha[i][j];
+                    }
                 }
-                tangent.fixed_view_mut::<3, 3>(3 * i, 3 * k).copy_from(&blk);
+                col[3 * k + l] += mu;
             }
         }
+        let tangent = Tangent9::from_data(nalgebra::ArrayStorage(cols));
         Ok(PointResponse {
             energy,
             pk1,
@@ -161,6 +159,7 @@ mod tests {
                 };
                 check(m.energy(&f, part).unwrap_err());
                 check(m.pk1(&f, part).unwrap_err());
+                check(m.energy_pk1(&f, part).unwrap_err());
                 check(m.response(&f, part).unwrap_err());
                 check(m.pk2(&f, part).unwrap_err());
                 check(m.material_tangent(&f, part).unwrap_err());
@@ -170,6 +169,10 @@ mod tests {
         let f = Mat3::from_diagonal(&Vector3::new(1e-200, 1e-200, 1.0));
         assert!(matches!(
             m.response(&f, Part::Full),
+            Err(MaterialError::Inverted { .. })
+        ));
+        assert!(matches!(
+            m.energy(&f, Part::Full),
             Err(MaterialError::Inverted { .. })
         ));
         let msg = m

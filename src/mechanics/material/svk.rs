@@ -40,6 +40,11 @@ impl Law for Svk {
         Ok(f * pk2_and_energy(p, &green(f)).0)
     }
 
+    fn energy_pk1(p: Lame, f: &Mat3) -> Result<(f64, Mat3), MaterialError> {
+        let (s, w) = pk2_and_energy(p, &green(f));
+        Ok((w, f * s))
+    }
+
     #[inline]
     fn response(p: Lame, f: &Mat3) -> Result<PointResponse, MaterialError> {
         let (s, energy) = pk2_and_energy(p, &green(f));

@@ -158,6 +158,8 @@ fn finite_differences_energy_stress_tangent() {
                 let wfloor = energy_floor(&m);
                 assert!((r.energy - w).abs() <= 1e-12 * w.abs().max(wfloor), "{ctx}");
                 assert!((r.pk1 - p).amax() <= 1e-12 * p.amax().max(floor), "{ctx}");
+                let (w2, p2) = m.energy_pk1(&f, part).unwrap();
+                assert!(w2 == w && p2 == p, "{ctx}: energy_pk1 differs");
 
                 let mut p_fd = Mat3::zeros();
                 let mut a_fd = Tangent9::zeros();
@@ -433,6 +435,7 @@ fn non_finite_input_is_rejected() {
                     let e = MaterialError::NonFinite;
                     assert_eq!(m.energy(&f, part), Err(e));
                     assert_eq!(m.pk1(&f, part), Err(e));
+                    assert_eq!(m.energy_pk1(&f, part), Err(e));
                     assert_eq!(m.pk2(&f, part), Err(e));
                     assert_eq!(m.material_tangent(&f, part), Err(e));
                     assert!(matches!(
