@@ -8,7 +8,9 @@ use common::*;
 use livereg::grid::IntegrationMode;
 use livereg::mechanics::loads::traction_forces;
 use livereg::mechanics::newton::norm;
-use livereg::mechanics::{LawKind, Need, NewtonSettings, NewtonSolver, Outcome, StaticProblem, VolumetricIntegration};
+use livereg::mechanics::{
+    LawKind, Need, NewtonSettings, NewtonSolver, Outcome, StaticProblem, VolumetricIntegration,
+};
 use livereg::mesh::primitives::box_surface;
 use nalgebra::{Point3, Vector3};
 
@@ -16,10 +18,28 @@ use nalgebra::{Point3, Vector3};
 fn column(traction: f64) -> StaticProblem {
     let s = box_surface(Point3::origin(), Point3::new(0.02, 0.02, 0.08), 4);
     let young = 3000.0;
-    let mut p = problem(&s, &options(0.005, 1, IntegrationMode::WeightedCell), material(LawKind::NeoHookean, young, 0.45), VolumetricIntegration::Reduced);
-    p.springs = vec![hold(&p, &s, aabb([-1.0, -1.0, -1e-4], [1.0, 1.0, 1e-4]), 1e3, young)];
+    let mut p = problem(
+        &s,
+        &options(0.005, 1, IntegrationMode::WeightedCell),
+        material(LawKind::NeoHookean, young, 0.45),
+        VolumetricIntegration::Reduced,
+    );
+    p.springs = vec![hold(
+        &p,
+        &s,
+        aabb([-1.0, -1.0, -1e-4], [1.0, 1.0, 1e-4]),
+        1e3,
+        young,
+    )];
     let mut f = vec![0.0; p.dofs()];
-    traction_forces(&p.grid, &s, &aabb([-1.0, -1.0, 0.08 - 1e-4], [1.0, 1.0, 0.08 + 1e-4]), Vector3::new(traction, 0.0, 0.0), &mut f).unwrap();
+    traction_forces(
+        &p.grid,
+        &s,
+        &aabb([-1.0, -1.0, 0.08 - 1e-4], [1.0, 1.0, 0.08 + 1e-4]),
+        Vector3::new(traction, 0.0, 0.0),
+        &mut f,
+    )
+    .unwrap();
     p.external = f;
     p
 }
@@ -28,10 +48,17 @@ fn column(traction: f64) -> StaticProblem {
 fn bisection_rescues_a_single_large_increment() {
     let mut p = column(400.0);
     let u0 = vec![0.0; p.dofs()];
-    let settings = NewtonSettings { load_steps: 1, max_iterations: 8, ..NewtonSettings::default() };
+    let settings = NewtonSettings {
+        load_steps: 1,
+        max_iterations: 8,
+        ..NewtonSettings::default()
+    };
     let r = NewtonSolver::new(settings).solve(&mut p, &u0);
     assert_eq!(r.outcome, Outcome::Converged, "{:?}", r.message);
-    assert!(r.bisections > 0, "a single 400 Pa step in 8 iterations should need halving");
+    assert!(
+        r.bisections > 0,
+        "a single 400 Pa step in 8 iterations should need halving"
+    );
     assert!(r.load_steps > 1);
     assert_eq!(r.load_reached, 1.0);
     // The tip moved a lot: large deformation.
@@ -43,7 +70,12 @@ fn bisection_rescues_a_single_large_increment() {
 fn capped_solve_reports_its_cause_and_the_last_equilibrium() {
     let mut p = column(400.0);
     let u0 = vec![0.0; p.dofs()];
-    let settings = NewtonSettings { load_steps: 1, max_iterations: 3, max_bisections: 2, ..NewtonSettings::default() };
+    let settings = NewtonSettings {
+        load_steps: 1,
+        max_iterations: 3,
+        max_bisections: 2,
+        ..NewtonSettings::default()
+    };
     let r = NewtonSolver::new(settings).solve(&mut p, &u0);
     assert_ne!(r.outcome, Outcome::Converged);
     let msg = r.message.clone().expect("a failure says why");
@@ -52,10 +84,17 @@ fn capped_solve_reports_its_cause_and_the_last_equilibrium() {
     assert!(r.load_reached < 1.0);
     // The returned state is an equilibrium at the load it reports.
     let mut res = vec![0.0; p.dofs()];
-    p.evaluate(&r.u, r.load_reached, Need::Force, Some(&mut res), None).expect("valid state");
+    p.evaluate(&r.u, r.load_reached, Need::Force, Some(&mut res), None)
+        .expect("valid state");
     let mut ext = p.external.clone();
-    ext.iter_mut().for_each(|v| *v *= r.load_reached.max(1e-300));
-    assert!(norm(&res) <= 1e-6 * norm(&ext).max(1e-12), "residual {} at load {}", norm(&res), r.load_reached);
+    ext.iter_mut()
+        .for_each(|v| *v *= r.load_reached.max(1e-300));
+    assert!(
+        norm(&res) <= 1e-6 * norm(&ext).max(1e-12),
+        "residual {} at load {}",
+        norm(&res),
+        r.load_reached
+    );
 }
 
 #[test]
@@ -65,15 +104,30 @@ fn without_line_search_inversion_is_caught_and_survived() {
     let mut p = column(0.0);
     let mut f = vec![0.0; p.dofs()];
     let s = box_surface(Point3::origin(), Point3::new(0.02, 0.02, 0.08), 4);
-    traction_forces(&p.grid, &s, &aabb([-1.0, -1.0, 0.08 - 1e-4], [1.0, 1.0, 0.08 + 1e-4]), Vector3::new(0.0, 0.0, -3000.0), &mut f).unwrap();
+    traction_forces(
+        &p.grid,
+        &s,
+        &aabb([-1.0, -1.0, 0.08 - 1e-4], [1.0, 1.0, 0.08 + 1e-4]),
+        Vector3::new(0.0, 0.0, -3000.0),
+        &mut f,
+    )
+    .unwrap();
     p.external = f;
     let u0 = vec![0.0; p.dofs()];
-    let settings = NewtonSettings { load_steps: 1, line_search: false, max_bisections: 3, ..NewtonSettings::default() };
+    let settings = NewtonSettings {
+        load_steps: 1,
+        line_search: false,
+        max_bisections: 3,
+        ..NewtonSettings::default()
+    };
     let r = NewtonSolver::new(settings).solve(&mut p, &u0);
     assert!(r.u.iter().all(|v| v.is_finite()));
     if r.outcome != Outcome::Converged {
         assert!(r.message.is_some());
     }
     assert!(r.bisections > 0 || r.outcome == Outcome::Converged);
-    println!("outcome {:?}, bisections {}, load {:.3}, message {:?}", r.outcome, r.bisections, r.load_reached, r.message);
+    println!(
+        "outcome {:?}, bisections {}, load {:.3}, message {:?}",
+        r.outcome, r.bisections, r.load_reached, r.message
+    );
 }

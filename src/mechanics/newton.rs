@@ -91,6 +91,19 @@ pub struct SolveReport {
     pub relative_residual: f64,
     /// Wall time, ms.
     pub wall_ms: f64,
+    /// Every Newton iteration, in order (diagnostics).
+    pub history: Vec<IterationRecord>,
+}
+
+/// One Newton iteration, for diagnostics.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct IterationRecord {
+    /// Load factor of the increment being solved.
+    pub load: f64,
+    /// ‖R‖ / reference before the step.
+    pub relative_residual: f64,
+    /// Line-search step length taken.
+    pub step: f64,
 }
 
 /// Why one increment failed.
@@ -156,13 +169,22 @@ impl NewtonSolver {
             bisections: 0,
             relative_residual: 0.0,
             wall_ms: 0.0,
+            history: Vec::new(),
         };
+        // The previous converged state, for the secant predictor of the next increment.
+        let mut previous: Option<(Vec<f64>, f64)> = None;
         while load < 1.0 - 1e-12 {
             let target = (load + step).min(1.0);
-            let mut trial = u.clone();
-            match self.increment(problem, &mut trial, target, &mut report.newton_iterations) {
+            let mut trial = self.predict(problem, &u, load, previous.as_ref(), target);
+            match self.increment(
+                problem,
+                &mut trial,
+                target,
+                &mut report.newton_iterations,
+                &mut report.history,
+            ) {
                 Ok(rel) => {
-                    u = trial;
+                    previous = Some((std::mem::replace(&mut u, trial), load));
                     load = target;
                     report.load_steps += 1;
                     report.relative_residual = rel;
@@ -190,6 +212,39 @@ impl NewtonSolver {
         report
     }
 
+    /// Starting state of the increment to `target`: the secant extrapolation
+    /// `u + (target − load)/(load − load_prev) · (u − u_prev)` of the last two converged states,
+    /// when it is a valid state with lower potential than `u` at the new load; `u` otherwise.
+    fn predict(
+        &self,
+        problem: &mut StaticProblem,
+        u: &[f64],
+        load: f64,
+        previous: Option<&(Vec<f64>, f64)>,
+        target: f64,
+    ) -> Vec<f64> {
+        let Some((u_prev, load_prev)) = previous else {
+            return u.to_vec();
+        };
+        let ratio = (target - load) / (load - load_prev);
+        if !(ratio.is_finite() && ratio > 0.0) {
+            return u.to_vec();
+        }
+        let guess: Vec<f64> = u
+            .iter()
+            .zip(u_prev)
+            .map(|(a, b)| a + ratio * (a - b))
+            .collect();
+        let energy = |v: &[f64], p: &mut StaticProblem| {
+            p.evaluate(v, target, Need::Energy, None, None)
+                .map(|e| e.potential)
+        };
+        match (energy(&guess, problem), energy(u, problem)) {
+            (Ok(g), Ok(c)) if g.is_finite() && g < c => guess,
+            _ => u.to_vec(),
+        }
+    }
+
     /// Newton iterations at load factor `load` starting from `u`; on success `u` holds the
     /// equilibrium and the final relative residual is returned.
     fn increment(
@@ -198,6 +253,7 @@ impl NewtonSolver {
         u: &mut [f64],
         load: f64,
         iterations: &mut usize,
+        history: &mut Vec<IterationRecord>,
     ) -> Result<f64, StepFailure> {
         let s = self.settings;
         let n = problem.dofs();
@@ -244,6 +300,11 @@ impl NewtonSolver {
                 } else {
                     1.0
                 };
+                history.push(IterationRecord {
+                    load,
+                    relative_residual: rel,
+                    step: alpha,
+                });
                 for (ui, di) in u.iter_mut().zip(&du) {
                     *ui += alpha * di;
                 }
