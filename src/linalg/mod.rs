@@ -13,6 +13,9 @@
 //!   Cholesky `LLᵀ`, falling back to an intranodal Bunch–Kaufman `LBLᵀ` for
 //!   indefinite matrices) or runs a Jacobi-preconditioned conjugate gradient,
 //!   selected by [`SolverKind`];
+//! * [`nested_dissection()`]: a geometric nested-dissection fill-reducing
+//!   ordering for grid nodes, used by the direct solvers when given node
+//!   coordinates ([`SparseSolver::with_node_coordinates`]);
 //! * [`testing`]: a small generator of linear-elasticity grid matrices used by
 //!   the tests and the benchmarks.
 //!
@@ -24,6 +27,7 @@
 
 mod cg;
 mod csc;
+mod nested_dissection;
 mod solver;
 pub mod testing;
 
@@ -31,6 +35,10 @@ pub mod testing;
 mod tests;
 
 pub use csc::SymmetricCsc;
+pub use nested_dissection::{
+    expand_node_permutation, inverse_permutation, nested_dissection,
+    nested_dissection_with_leaf_size, ND_LEAF_NODES,
+};
 pub use solver::{SolveStats, SolverKind, SparseSolver, AUTO_DIRECT_MAX_DOFS};
 
 /// Errors reported by the sparse linear algebra layer.

@@ -16,6 +16,7 @@ use faer::{Conj, MatMut, Par, Side, Spec};
 use serde::{Deserialize, Serialize};
 
 use super::cg::{self, CgWork, FullOperator};
+use super::nested_dissection::{expand_node_permutation, inverse_permutation, nested_dissection};
 use super::{LinalgError, SymmetricCsc};
 
 /// Largest dimension (degrees of freedom) for which [`SolverKind::Auto`]
@@ -57,7 +58,8 @@ pub enum SolverKind {
     /// [`SolverKind::JacobiCg`] beyond.
     #[default]
     Auto,
-    /// Sparse supernodal Cholesky `LLᵀ` (AMD ordering); if the matrix turns out
+    /// Sparse supernodal Cholesky `LLᵀ` (AMD ordering, or nested dissection
+    /// given [`SparseSolver::with_node_coordinates`]); if the matrix turns out
     /// not to be positive definite, automatically refactorised with the
     /// intranodal Bunch–Kaufman `LBLᵀ` on the same symbolic structure.
     Cholesky,
@@ -125,6 +127,7 @@ struct Direct {
     perm_inv: Vec<usize>,
     mem: MemBuffer,
     factor: Option<DirectFactor>,
+    nested_dissection: bool,
 }
 
 /// Cached operator structure and preconditioner of the CG solver.
@@ -163,6 +166,7 @@ pub struct SparseSolver {
     analyses: usize,
     factor_ms: f64,
     factorized_key: Option<PatternKey>,
+    node_coords: Option<Vec<[usize; 3]>>,
 }
 
 impl std::fmt::Debug for SparseSolver {
@@ -174,6 +178,7 @@ impl std::fmt::Debug for SparseSolver {
             .field("active", &self.active)
             .field("symbolic_analyses", &self.analyses)
             .field("factor_ms", &self.factor_ms)
+            .field("node_coordinates", &self.node_coords.as_ref().map(Vec::len))
             .finish_non_exhaustive()
     }
 }
@@ -221,7 +226,40 @@ impl SparseSolver {
             analyses: 0,
             factor_ms: 0.0,
             factorized_key: None,
+            node_coords: None,
         }
+    }
+
+    /// Hint for the direct solvers' fill-reducing ordering: `coords[node]`
+    /// are the integer grid coordinates `[i, j, k]` of the nodes, whose
+    /// degrees of freedom are `3 node, 3 node + 1, 3 node + 2`, and two nodes
+    /// are coupled only if `|Δi|, |Δj|, |Δk| ≤ 1` (hexahedra of a regular
+    /// grid).
+    ///
+    /// For matrices with `n = 3 coords.len()`, the symbolic analysis then
+    /// orders by geometric nested dissection
+    /// ([`nested_dissection`](super::nested_dissection())) instead of AMD;
+    /// for other dimensions the hint is ignored (AMD). A cached symbolic
+    /// analysis is discarded, so the next [`SparseSolver::factorize`]
+    /// analyses anew.
+    pub fn with_node_coordinates(mut self, coords: Vec<[usize; 3]>) -> Self {
+        self.node_coords = Some(coords);
+        self.direct = None;
+        self.active = None;
+        self.factorized_key = None;
+        self
+    }
+
+    /// Fill-reducing ordering of the current direct symbolic analysis:
+    /// `Some("nested-dissection")` or `Some("amd")`, `None` if there is none.
+    pub fn fill_reducing_ordering(&self) -> Option<&'static str> {
+        self.direct.as_ref().map(|d| {
+            if d.nested_dissection {
+                "nested-dissection"
+            } else {
+                "amd"
+            }
+        })
     }
 
     /// Sets the conjugate-gradient stopping rule: relative residual
@@ -357,11 +395,25 @@ impl SparseSolver {
             supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SUPERNODAL,
             ..Default::default()
         };
-        let symbolic =
-            factorize_symbolic_cholesky(a.symbolic(), Side::Lower, SymmetricOrdering::Amd, params)
-                .map_err(|e| LinalgError::Faer(format!("symbolic analysis: {e:?}")))?;
-        self.analyses += 1;
         let n = k.n;
+        // Geometric nested dissection if node coordinates match the matrix.
+        // faer's `Custom(PermRef)` takes `fwd[new] = old`, `inv[old] = new`.
+        let nd_perm = self
+            .node_coords
+            .as_ref()
+            .filter(|c| !c.is_empty() && 3 * c.len() == n)
+            .map(|c| {
+                let fwd = expand_node_permutation(&nested_dissection(c), 3);
+                let inv = inverse_permutation(&fwd);
+                (fwd, inv)
+            });
+        let ordering = match &nd_perm {
+            Some((fwd, inv)) => SymmetricOrdering::Custom(PermRef::new_checked(fwd, inv, n)),
+            None => SymmetricOrdering::Amd,
+        };
+        let symbolic = factorize_symbolic_cholesky(a.symbolic(), Side::Lower, ordering, params)
+            .map_err(|e| LinalgError::Faer(format!("symbolic analysis: {e:?}")))?;
+        self.analyses += 1;
         let mut l_values = Vec::new();
         l_values
             .try_reserve_exact(symbolic.len_val())
@@ -378,6 +430,7 @@ impl SparseSolver {
             perm_inv: vec![0; n],
             mem,
             factor: None,
+            nested_dissection: nd_perm.is_some(),
         });
         Ok(())
     }

@@ -208,6 +208,166 @@ pub fn cut_cell_grid_matrix(
     k
 }
 
+/// Grid coordinates `[ix, iy, iz]` of the nodes of an `m × m × m` grid in
+/// the node numbering of [`grid_pattern`] / [`elasticity_grid_matrix`]
+/// (node `ix + m (iy + m iz)`), e.g. for
+/// [`SparseSolver::with_node_coordinates`](super::SparseSolver::with_node_coordinates).
+pub fn grid_node_coordinates(m: usize) -> Vec<[usize; 3]> {
+    let mut coords = Vec::with_capacity(m * m * m);
+    for iz in 0..m {
+        for iy in 0..m {
+            for ix in 0..m {
+                coords.push([ix, iy, iz]);
+            }
+        }
+    }
+    coords
+}
+
+/// Linear-elasticity stiffness (E = 1, ν = 0.3, unit cubes) of an arbitrary
+/// set of grid cells, with the node coordinates.
+///
+/// A grid node `[i, j, k]` (`i, j, k < extent`) is *inside* if
+/// `inside([i, j, k])`; a cell is active if its 8 corner nodes are inside;
+/// the active nodes are the corners of active cells, numbered in `z, y, x`
+/// lexicographic order (x fastest, as in [`grid_pattern`]) with 3 dofs each.
+/// Two nodes are coupled iff they share an active cell. The nodes of the
+/// lowest occupied `z` layer are fixed by a penalty of `1e8 ×` the largest
+/// element-diagonal entry (every connected component must touch that layer
+/// for the matrix to be positive definite).
+///
+/// Returns the matrix and `coords[node] = [i, j, k]`.
+///
+/// # Panics
+/// Panics if no cell is active.
+pub fn node_set_elasticity_matrix(
+    extent: usize,
+    inside: impl Fn([usize; 3]) -> bool,
+) -> (SymmetricCsc, Vec<[usize; 3]>) {
+    let e = extent;
+    let idx = |i: usize, j: usize, k: usize| i + e * (j + e * k);
+    let corner =
+        |c: [usize; 3], a: usize| [c[0] + (a & 1), c[1] + ((a >> 1) & 1), c[2] + ((a >> 2) & 1)];
+    let mut cell_active = vec![false; e * e * e];
+    let mut node_used = vec![false; e * e * e];
+    let mut cells = Vec::new();
+    for k in 0..e.saturating_sub(1) {
+        for j in 0..e - 1 {
+            for i in 0..e - 1 {
+                if (0..8).all(|a| inside(corner([i, j, k], a))) {
+                    cell_active[idx(i, j, k)] = true;
+                    cells.push([i, j, k]);
+                    for a in 0..8 {
+                        let [x, y, z] = corner([i, j, k], a);
+                        node_used[idx(x, y, z)] = true;
+                    }
+                }
+            }
+        }
+    }
+    assert!(!cells.is_empty(), "no active cell");
+    let mut node_id = vec![usize::MAX; e * e * e];
+    let mut coords = Vec::new();
+    for k in 0..e {
+        for j in 0..e {
+            for i in 0..e {
+                if node_used[idx(i, j, k)] {
+                    node_id[idx(i, j, k)] = coords.len();
+                    coords.push([i, j, k]);
+                }
+            }
+        }
+    }
+    // Pattern: for each node, the nodes of the active cells around it.
+    let n = 3 * coords.len();
+    let mut col_ptr = Vec::with_capacity(n + 1);
+    let mut row_idx = Vec::new();
+    col_ptr.push(0);
+    let mut neighbours = Vec::with_capacity(27);
+    for &[i, j, k] in &coords {
+        let node = node_id[idx(i, j, k)];
+        neighbours.clear();
+        for a in 0..8 {
+            let (dx, dy, dz) = (a & 1, (a >> 1) & 1, (a >> 2) & 1);
+            if i < dx || j < dy || k < dz {
+                continue;
+            }
+            let c = [i - dx, j - dy, k - dz];
+            if c[0] + 1 >= e
+                || c[1] + 1 >= e
+                || c[2] + 1 >= e
+                || !cell_active[idx(c[0], c[1], c[2])]
+            {
+                continue;
+            }
+            for b in 0..8 {
+                let [x, y, z] = corner(c, b);
+                neighbours.push(node_id[idx(x, y, z)]);
+            }
+        }
+        neighbours.sort_unstable();
+        neighbours.dedup();
+        for c in 0..3 {
+            let col = 3 * node + c;
+            for &nb in &neighbours {
+                for c2 in 0..3 {
+                    if 3 * nb + c2 >= col {
+                        row_idx.push(3 * nb + c2);
+                    }
+                }
+            }
+            col_ptr.push(row_idx.len());
+        }
+    }
+    let mut k = SymmetricCsc::from_pattern(n, col_ptr, row_idx)
+        .expect("node-set pattern is valid by construction");
+    let ke = hex8_stiffness(1.0, 0.3, 1.0);
+    let mut gdofs = [0usize; 24];
+    for &c in &cells {
+        for a in 0..8 {
+            let [x, y, z] = corner(c, a);
+            for d in 0..3 {
+                gdofs[3 * a + d] = 3 * node_id[idx(x, y, z)] + d;
+            }
+        }
+        for i in 0..24 {
+            for j in 0..24 {
+                if gdofs[i] >= gdofs[j] {
+                    let p = k
+                        .position(gdofs[i], gdofs[j])
+                        .expect("element entry in pattern");
+                    k.values[p] += ke[i][j];
+                }
+            }
+        }
+    }
+    let kmax = (0..24).map(|i| ke[i][i]).fold(0.0, f64::max);
+    let zmin = coords.iter().map(|c| c[2]).min().unwrap_or(0);
+    for (node, c) in coords.iter().enumerate() {
+        if c[2] == zmin {
+            for d in 0..3 {
+                let p = k
+                    .position(3 * node + d, 3 * node + d)
+                    .expect("diagonal present");
+                k.values[p] += 1e8 * kmax;
+            }
+        }
+    }
+    (k, coords)
+}
+
+/// Inside test of a ball of radius `radius` centred at node `[c, c, c]`
+/// (`(i − c)² + (j − c)² + (k − c)² ≤ radius²`), for
+/// [`node_set_elasticity_matrix`] with `extent ≥ 2c + 1`.
+pub fn ball(c: usize, radius: f64) -> impl Fn([usize; 3]) -> bool {
+    move |p: [usize; 3]| {
+        p.iter()
+            .map(|&x| (x as f64 - c as f64).powi(2))
+            .sum::<f64>()
+            <= radius * radius
+    }
+}
+
 /// Deterministic pseudo-random vector with entries uniform in `[-1, 1)`
 /// (splitmix64 generator seeded by `seed`).
 pub fn random_vector(n: usize, seed: u64) -> Vec<f64> {

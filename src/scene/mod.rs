@@ -22,9 +22,9 @@ pub use error::{Problem, SceneError};
 pub use load::{load_scene, load_scene_str, parse_scene, LoadedScene, SceneFormat};
 pub use output::{GridSummary, Outcome, ProbeResult, SimulateReport};
 pub use types::{
-    defaults, BoundarySpec, BoxRegion, Camera, FixedRegion, FixedSpec, GridSpec, IntegrationKind,
-    LawName, LinearSolverKind, LoadSpec, MaterialSpec, ModelSpec, PointSource, ProbeSpec,
-    RegistrationSpec, RigidMode, Scene, SolverSpec, StructureSpec, TractionSpec, Units, Vec3,
+    defaults, BoundarySpec, BoxRegion, Camera, FixedRegion, FixedSpec, GridSpec, IntegrationMode,
+    LawKind, LoadSpec, MaterialSpec, ModelSpec, PointSource, ProbeSpec, RegistrationSpec,
+    RigidMode, Scene, SolverKind, SolverSpec, StructureSpec, TractionSpec, Units, Vec3,
     VolumetricIntegration,
 };
 pub use validate::{

@@ -138,11 +138,11 @@ fn contract_example_parses_with_documented_defaults() {
 
     assert_eq!(s.grid.cell_size, 0.01);
     assert_eq!(s.grid.subdivisions, 4);
-    assert_eq!(s.grid.integration, IntegrationKind::WeightedCell);
+    assert_eq!(s.grid.integration, IntegrationMode::WeightedCell);
     assert_eq!(s.grid.min_fraction, 1e-4);
     assert_eq!(s.grid.origin_offset, [0.0; 3]);
 
-    assert_eq!(s.material.law, LawName::NeoHookean);
+    assert_eq!(s.material.law, LawKind::NeoHookean);
     assert_eq!(s.material.young_modulus, 4500.0);
     assert_eq!(s.material.poisson_ratio, 0.49);
     assert_eq!(s.material.density, 1000.0);
@@ -174,7 +174,7 @@ fn contract_example_parses_with_documented_defaults() {
             displacement_tolerance: 1e-8,
             max_bisections: 6,
             line_search: true,
-            linear_solver: LinearSolverKind::Auto,
+            linear_solver: SolverKind::Auto,
             penalty_stiffness: None,
         }
     );
@@ -226,7 +226,7 @@ fn minimal_scene_defaults() {
         s.material,
         MaterialSpec {
             poisson_ratio: 0.45,
-            ..MaterialSpec::new(LawName::NeoHookean, 4500.0, 0.45)
+            ..MaterialSpec::new(LawKind::NeoHookean, 4500.0, 0.45)
         }
     );
     assert_eq!(s.boundary, BoundarySpec::default());
@@ -302,9 +302,9 @@ max_icp_iterations = 7
     assert_eq!(s.model.structures[0].mesh, Some(abs("tumour.OBJ")));
     assert_eq!(s.grid.cell_size, 8.0);
     assert_eq!(s.grid.subdivisions, 0);
-    assert_eq!(s.grid.integration, IntegrationKind::FiniteCell);
+    assert_eq!(s.grid.integration, IntegrationMode::FiniteCell);
     assert_eq!(s.grid.origin_offset, [0.5, 0.25, 0.999]);
-    assert_eq!(s.material.law, LawName::Svk);
+    assert_eq!(s.material.law, LawKind::Svk);
     assert_eq!(s.material.volumetric, VolumetricIntegration::Full);
     assert_eq!(
         s.boundary.fixed[0].points,
@@ -316,7 +316,7 @@ max_icp_iterations = 7
         Some(PointSource::Inline(vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]))
     );
     assert_eq!(s.load.gravity, [0.0, 0.0, -9.81]);
-    assert_eq!(s.solver.linear_solver, LinearSolverKind::JacobiCg);
+    assert_eq!(s.solver.linear_solver, SolverKind::JacobiCg);
     assert!(!s.solver.line_search);
     assert_eq!(s.solver.penalty_stiffness, Some(1e5));
     assert_eq!(s.probe[0].points, PointSource::File(abs("probe.txt")));

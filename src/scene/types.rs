@@ -12,6 +12,10 @@ use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 
+pub use crate::grid::IntegrationMode;
+pub use crate::linalg::SolverKind;
+pub use crate::mechanics::{LawKind, VolumetricIntegration};
+
 /// A point or vector `[x, y, z]`.
 pub type Vec3 = [f64; 3];
 
@@ -165,20 +169,6 @@ pub struct StructureSpec {
     pub mesh: Option<PathBuf>,
 }
 
-/// How cut cells (cells crossed by the surface) are integrated.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum IntegrationKind {
-    /// `"weighted-cell"` (default): the 8 Gauss points of the hexahedron, each weight scaled by
-    /// the inside volume fraction of its first-level sub-cell (thesis 4.12–4.13).
-    #[default]
-    WeightedCell,
-    /// `"finite-cell"`: recursive octree subdivision, Gauss points on the leaves (4.6–4.8).
-    FiniteCell,
-    /// `"full-cell"`: cut cells counted as full hexahedra.
-    FullCell,
-}
-
 /// `[grid]`: the regular grid of hexahedral cells laid over the surface.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -191,7 +181,7 @@ pub struct GridSpec {
     pub subdivisions: u32,
     /// Integration of cut cells (default `"weighted-cell"`).
     #[serde(default)]
-    pub integration: IntegrationKind,
+    pub integration: IntegrationMode,
     /// Fictitious-domain floor (dimensionless, in `[0, 0.5)`, default 1e-4): a cut cell's
     /// (sub-cell's) integration weight fraction is never taken below this, so cells with almost
     /// no inside volume keep a little stiffness and `K` stays non-singular.
@@ -209,38 +199,11 @@ impl GridSpec {
         GridSpec {
             cell_size,
             subdivisions: defaults::subdivisions(),
-            integration: IntegrationKind::WeightedCell,
+            integration: IntegrationMode::WeightedCell,
             min_fraction: defaults::min_fraction(),
             origin_offset: [0.0; 3],
         }
     }
-}
-
-/// Constitutive law.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum LawName {
-    /// `"neo-hookean"` (default), compressible, thesis (2.9). Undefined for J ≤ 0.
-    #[default]
-    NeoHookean,
-    /// `"svk"`: St Venant–Kirchhoff, thesis (2.8).
-    Svk,
-    /// `"corotated"`: corotated linear elasticity.
-    Corotated,
-    /// `"linear"`: small-strain linear elasticity.
-    Linear,
-}
-
-/// How the volumetric (λ) terms of the stiffness are integrated.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum VolumetricIntegration {
-    /// `"reduced"` (default): selective reduced integration of the λ-terms (one point per
-    /// cell), against volumetric locking at ν → 0.5.
-    #[default]
-    Reduced,
-    /// `"full"`: the λ-terms on the same Gauss points as the rest (locks at ν → 0.5).
-    Full,
 }
 
 /// `[material]`: homogeneous hyperelastic material. Constants are SI whatever `units` says.
@@ -249,7 +212,7 @@ pub enum VolumetricIntegration {
 pub struct MaterialSpec {
     /// Constitutive law (default `"neo-hookean"`).
     #[serde(default)]
-    pub law: LawName,
+    pub law: LawKind,
     /// Young's modulus E, in Pa. Required; > 0.
     pub young_modulus: f64,
     /// Poisson's ratio ν (dimensionless). Required; −1 < ν < 0.5 (use ≤ 0.499 for "nearly
@@ -266,7 +229,7 @@ pub struct MaterialSpec {
 impl MaterialSpec {
     /// A material with the given law, Young's modulus (Pa) and Poisson's ratio, other keys at
     /// their defaults.
-    pub fn new(law: LawName, young_modulus: f64, poisson_ratio: f64) -> Self {
+    pub fn new(law: LawKind, young_modulus: f64, poisson_ratio: f64) -> Self {
         MaterialSpec {
             law,
             young_modulus,
@@ -358,21 +321,6 @@ pub struct TractionSpec {
     pub value: Vec3,
 }
 
-/// Linear solver used inside Newton.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum LinearSolverKind {
-    /// `"auto"` (default): the solver's choice.
-    #[default]
-    Auto,
-    /// `"cholesky"`: sparse Cholesky (K symmetric positive definite).
-    Cholesky,
-    /// `"ldlt"`: sparse LDLᵀ (symmetric, possibly indefinite).
-    Ldlt,
-    /// `"jacobi-cg"`: conjugate gradients with a Jacobi (diagonal) preconditioner.
-    JacobiCg,
-}
-
 /// `[solver]`: static Newton–Raphson with load stepping and increment bisection. All optional.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -397,7 +345,7 @@ pub struct SolverSpec {
     pub line_search: bool,
     /// Linear solver (default `"auto"`).
     #[serde(default)]
-    pub linear_solver: LinearSolverKind,
+    pub linear_solver: SolverKind,
     /// Penalty stiffness of Dirichlet springs in N/m, for fixed regions without their own
     /// `stiffness`. `None` (default): automatic. Finite and > 0 when given.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -413,7 +361,7 @@ impl Default for SolverSpec {
             displacement_tolerance: defaults::tolerance(),
             max_bisections: defaults::max_bisections(),
             line_search: true,
-            linear_solver: LinearSolverKind::Auto,
+            linear_solver: SolverKind::Auto,
             penalty_stiffness: None,
         }
     }

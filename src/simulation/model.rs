@@ -6,18 +6,13 @@ use std::path::PathBuf;
 use nalgebra::{Point3, Vector3};
 
 use crate::geometry::Aabb;
-use crate::grid::{
-    Embedding, EmbeddingError, GridError, GridOptions, IntegrationMode, WeightedCellGrid,
-};
-use crate::linalg::SolverKind;
+use crate::grid::{Embedding, EmbeddingError, GridError, GridOptions, WeightedCellGrid};
 use crate::mechanics::loads::{gravity_forces, traction_forces};
 use crate::mechanics::{
-    LawKind, Material, NewtonSettings, PenaltySprings, StaticProblem, VolumetricIntegration,
+    Material, NewtonSettings, PenaltySprings, StaticProblem, VolumetricIntegration,
 };
 use crate::mesh::{read_points, read_surface, validate, MeshError, SurfaceReport, TriSurface};
-use crate::scene::{
-    FixedRegion, IntegrationKind, LawName, LinearSolverKind, LoadedScene, PointSource, Scene,
-};
+use crate::scene::{FixedRegion, LoadedScene, PointSource, Scene};
 
 /// Default penalty factor κ of fixed regions: a held surface sample of area A gets a spring of
 /// `κ E A / h` (N/m), a held point `κ E h`; relative to the cell stiffness `~E h` this holds
@@ -90,11 +85,7 @@ pub fn grid_options(scene: &Scene, scale: f64) -> GridOptions {
     GridOptions {
         cell_size: scene.grid.cell_size * scale,
         subdivisions: scene.grid.subdivisions,
-        mode: match scene.grid.integration {
-            IntegrationKind::WeightedCell => IntegrationMode::WeightedCell,
-            IntegrationKind::FiniteCell => IntegrationMode::FiniteCell,
-            IntegrationKind::FullCell => IntegrationMode::FullCell,
-        },
+        mode: scene.grid.integration,
         min_fraction: scene.grid.min_fraction,
         origin_offset: scene.grid.origin_offset,
     }
@@ -102,23 +93,13 @@ pub fn grid_options(scene: &Scene, scale: f64) -> GridOptions {
 
 /// Material from `[material]`.
 pub fn material(scene: &Scene) -> Result<(Material, VolumetricIntegration), ModelError> {
-    let law = match scene.material.law {
-        LawName::NeoHookean => LawKind::NeoHookean,
-        LawName::Svk => LawKind::Svk,
-        LawName::Corotated => LawKind::Corotated,
-        LawName::Linear => LawKind::Linear,
-    };
     let m = Material::from_young_poisson(
-        law,
+        scene.material.law,
         scene.material.young_modulus,
         scene.material.poisson_ratio,
     )
     .map_err(|e| ModelError::Invalid(format!("material: {e}")))?;
-    let vol = match scene.material.volumetric {
-        crate::scene::VolumetricIntegration::Reduced => VolumetricIntegration::Reduced,
-        crate::scene::VolumetricIntegration::Full => VolumetricIntegration::Full,
-    };
-    Ok((m, vol))
+    Ok((m, scene.material.volumetric))
 }
 
 /// Newton settings from `[solver]`.
@@ -131,12 +112,7 @@ pub fn newton_settings(scene: &Scene) -> NewtonSettings {
         displacement_tolerance: s.displacement_tolerance,
         max_bisections: s.max_bisections as usize,
         line_search: s.line_search,
-        linear_solver: match s.linear_solver {
-            LinearSolverKind::Auto => SolverKind::Auto,
-            LinearSolverKind::Cholesky => SolverKind::Cholesky,
-            LinearSolverKind::Ldlt => SolverKind::Ldlt,
-            LinearSolverKind::JacobiCg => SolverKind::JacobiCg,
-        },
+        linear_solver: s.linear_solver,
     }
 }
 

@@ -84,7 +84,9 @@ pub struct PointResponse {
 
 /// Constitutive law selector. Serde names: `"linear"`, `"corotated"`, `"svk"`,
 /// `"neo-hookean"`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, Default, serde::Deserialize, serde::Serialize,
+)]
 #[serde(rename_all = "kebab-case")]
 pub enum LawKind {
     /// Small-strain linear elasticity, `W = μ ε:ε + λ/2 (tr ε)²`, `ε = sym(F) − I`;
@@ -98,7 +100,8 @@ pub enum LawKind {
     /// `E = ½(FᵀF − I)`. Defined for every `F`.
     Svk,
     /// Compressible neo-Hookean (thesis eq. 2.9),
-    /// `W = μ/2 (tr C − 3) − μ ln J + λ/2 (ln J)²`. Requires `J = det F > 0`.
+    /// `W = μ/2 (tr C − 3) − μ ln J + λ/2 (ln J)²`. Requires `J = det F > 0`. The default.
+    #[default]
     NeoHookean,
 }
 
