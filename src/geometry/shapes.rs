@@ -14,66 +14,8 @@ pub type Mesh = (Vec<Point3<f64>>, Vec<[usize; 3]>);
 /// `subdivisions` times into 4, with all vertices projected onto the sphere
 /// (`20 · 4^subdivisions` triangles; 5 subdivisions give 20 480).
 pub fn icosphere(subdivisions: u32, radius: f64) -> Mesh {
-    let phi = (1.0 + 5f64.sqrt()) / 2.0;
-    let raw = [
-        [-1.0, phi, 0.0],
-        [1.0, phi, 0.0],
-        [-1.0, -phi, 0.0],
-        [1.0, -phi, 0.0],
-        [0.0, -1.0, phi],
-        [0.0, 1.0, phi],
-        [0.0, -1.0, -phi],
-        [0.0, 1.0, -phi],
-        [phi, 0.0, -1.0],
-        [phi, 0.0, 1.0],
-        [-phi, 0.0, -1.0],
-        [-phi, 0.0, 1.0],
-    ];
-    let mut vertices: Vec<Point3<f64>> = raw
-        .iter()
-        .map(|c| Point3::from(Point3::new(c[0], c[1], c[2]).coords.normalize() * radius))
-        .collect();
-    let mut triangles: Vec<[usize; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..subdivisions {
-        let mut midpoint: HashMap<(usize, usize), usize> = HashMap::new();
-        let mut mid = |a: usize, b: usize, vertices: &mut Vec<Point3<f64>>| {
-            *midpoint.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                let m = nalgebra::center(&vertices[a], &vertices[b]);
-                vertices.push(Point3::from(m.coords.normalize() * radius));
-                vertices.len() - 1
-            })
-        };
-        let mut next = Vec::with_capacity(triangles.len() * 4);
-        for &[a, b, c] in &triangles {
-            let ab = mid(a, b, &mut vertices);
-            let bc = mid(b, c, &mut vertices);
-            let ca = mid(c, a, &mut vertices);
-            next.extend_from_slice(&[[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        triangles = next;
-    }
-    (vertices, triangles)
+    let s = crate::mesh::primitives::icosphere(Point3::origin(), radius, subdivisions as usize);
+    (s.vertices, s.triangles)
 }
 
 /// Torus around the z axis through the origin: tube centre radius `major`, tube radius

@@ -26,6 +26,42 @@ pub fn lower_slot(a: usize, b: usize, i: usize, k: usize) -> usize {
     }
 }
 
+/// Row and column, in the 24 × 24 cell tangent, of each stored entry in [`lower_slot`] order.
+const LOWER_ROW_COL: [(u8, u8); CELL_LOWER_ENTRIES] = {
+    let mut out = [(0u8, 0u8); CELL_LOWER_ENTRIES];
+    let mut s = 0;
+    let mut a = 0;
+    while a < 8 {
+        let mut b = 0;
+        while b <= a {
+            let mut i = 0;
+            while i < 3 {
+                let mut k = 0;
+                while k < 3 {
+                    if a > b || k <= i {
+                        out[s] = ((3 * a + i) as u8, (3 * b + k) as u8);
+                        s += 1;
+                    }
+                    k += 1;
+                }
+                i += 1;
+            }
+            b += 1;
+        }
+        a += 1;
+    }
+    out
+};
+
+/// The stored entries `(a, b, i, k)` of a cell tangent (blocks `a ≥ b`, and `i ≥ k` on the
+/// diagonal blocks), in the order of [`lower_slot`].
+pub fn lower_entries() -> impl Iterator<Item = (usize, usize, usize, usize)> {
+    LOWER_ROW_COL.iter().map(|&(r, c)| {
+        let (r, c) = (r as usize, c as usize);
+        (r / 3, c / 3, r % 3, c % 3)
+    })
+}
+
 /// A failed cell evaluation.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CellFailure {
@@ -87,19 +123,9 @@ impl Assembler {
             .iter()
             .map(|cell| {
                 let mut map = [0u32; CELL_LOWER_ENTRIES];
-                for a in 0..8 {
-                    for b in 0..=a {
-                        for i in 0..3 {
-                            for k in 0..3 {
-                                if a == b && k > i {
-                                    continue;
-                                }
-                                let (r, c) = (3 * cell.nodes[a] + i, 3 * cell.nodes[b] + k);
-                                let pos = pattern.position(r, c).expect("cell entry in pattern");
-                                map[lower_slot(a, b, i, k)] = pos as u32;
-                            }
-                        }
-                    }
+                for (slot, (a, b, i, k)) in lower_entries().enumerate() {
+                    let (r, c) = (3 * cell.nodes[a] + i, 3 * cell.nodes[b] + k);
+                    map[slot] = pattern.position(r, c).expect("cell entry in pattern") as u32;
                 }
                 map
             })
@@ -173,19 +199,8 @@ impl Assembler {
         if let (true, Some(k)) = (need >= Need::Tangent, tangent) {
             let values = &mut k.values;
             for (buf, map) in self.buffers.iter().zip(&self.scatter) {
-                let mut s = 0;
-                for a in 0..8 {
-                    for b in 0..=a {
-                        for i in 0..3 {
-                            for kk in 0..3 {
-                                if a == b && kk > i {
-                                    continue;
-                                }
-                                values[map[s] as usize] += buf.tangent[(3 * a + i, 3 * b + kk)];
-                                s += 1;
-                            }
-                        }
-                    }
+                for (pos, &(r, c)) in map.iter().zip(&LOWER_ROW_COL) {
+                    values[*pos as usize] += buf.tangent[(r as usize, c as usize)];
                 }
             }
         }
@@ -199,20 +214,12 @@ mod tests {
 
     #[test]
     fn lower_slots_enumerate_every_entry_once_in_order() {
-        let mut s = 0;
-        for a in 0..8 {
-            for b in 0..=a {
-                for i in 0..3 {
-                    for k in 0..3 {
-                        if a == b && k > i {
-                            continue;
-                        }
-                        assert_eq!(lower_slot(a, b, i, k), s);
-                        s += 1;
-                    }
-                }
-            }
+        let mut count = 0;
+        for (s, (a, b, i, k)) in lower_entries().enumerate() {
+            assert!(a > b || (a == b && k <= i));
+            assert_eq!(lower_slot(a, b, i, k), s);
+            count += 1;
         }
-        assert_eq!(s, CELL_LOWER_ENTRIES);
+        assert_eq!(count, CELL_LOWER_ENTRIES);
     }
 }

@@ -20,7 +20,7 @@ mod tests;
 
 pub use error::{Problem, SceneError};
 pub use load::{load_scene, load_scene_str, parse_scene, LoadedScene, SceneFormat};
-pub use output::{GridSummary, Outcome, ProbeResult, SimulateReport};
+pub use output::{GridSummary, ProbeResult, SimulateReport};
 pub use types::{
     defaults, BoundarySpec, BoxRegion, Camera, FixedRegion, FixedSpec, GridSpec, IntegrationMode,
     LawKind, LoadSpec, MaterialSpec, ModelSpec, PointSource, ProbeSpec, RegistrationSpec,

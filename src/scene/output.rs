@@ -27,43 +27,6 @@ pub struct ProbeResult {
     pub displacement: Vec3,
 }
 
-/// How a simulation ended: the values of [`SimulateReport::outcome`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Outcome {
-    /// `"converged"`: every load step converged.
-    Converged,
-    /// `"iteration-cap"`: Newton hit `solver.max_newton_iterations` (after all bisections).
-    IterationCap,
-    /// `"diverged"`: the residual grew / became non-finite (after all bisections).
-    Diverged,
-    /// `"inverted"`: a quadrature point reached J ≤ 0 (after all bisections).
-    Inverted,
-}
-
-impl Outcome {
-    /// The string written in the report.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Outcome::Converged => "converged",
-            Outcome::IterationCap => "iteration-cap",
-            Outcome::Diverged => "diverged",
-            Outcome::Inverted => "inverted",
-        }
-    }
-}
-
-impl From<Outcome> for String {
-    fn from(o: Outcome) -> String {
-        o.as_str().to_string()
-    }
-}
-
-impl std::fmt::Display for Outcome {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
 /// The result of `livereg simulate`, printed as one JSON object:
 ///
 /// ```json
@@ -90,7 +53,7 @@ pub struct SimulateReport {
     pub probes: Vec<ProbeResult>,
     /// Largest nodal (or embedded-point) displacement norm, in scene units.
     pub max_displacement: f64,
-    /// How it ended (see [`Outcome`]): `"converged"`, `"iteration-cap"`, `"diverged"` or
+    /// How it ended (see [`crate::mechanics::Outcome`]): `"converged"`, `"iteration-cap"`, `"diverged"` or
     /// `"inverted"`.
     pub outcome: String,
     /// A human-readable detail (why it failed, warnings); omitted when `None`.

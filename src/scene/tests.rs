@@ -1,5 +1,6 @@
 //! Tests of scene parsing, validation, error messages and the simulate report.
 
+use crate::mechanics::Outcome;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -842,7 +843,7 @@ fn simulate_report_uses_contract_keys_in_order() {
             displacement: [0.0, -0.0123, -0.0004],
         }],
         max_displacement: 0.0131,
-        outcome: Outcome::Converged.into(),
+        outcome: Outcome::Converged.name().to_string(),
         message: None,
         bisections: 0,
     };
@@ -862,7 +863,7 @@ fn simulate_report_uses_contract_keys_in_order() {
     assert_eq!(back, r);
     let failed = SimulateReport {
         converged: false,
-        outcome: Outcome::Inverted.to_string(),
+        outcome: Outcome::Inverted.name().to_string(),
         message: Some("J <= 0 in cell 12".into()),
         bisections: 6,
         ..r
