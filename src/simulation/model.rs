@@ -210,7 +210,7 @@ impl SceneModel {
                                 source,
                             })?;
                     set.map(|mut s| {
-                        if let Some(k) = f.stiffness {
+                        if let Some(k) = f.stiffness.or(scene.solver.penalty_stiffness) {
                             s.stiffness.iter_mut().for_each(|v| *v = k);
                         }
                         s
@@ -220,6 +220,7 @@ impl SceneModel {
                     let pts = source_points(src, loaded, scale)?;
                     let k = f
                         .stiffness
+                        .or(scene.solver.penalty_stiffness)
                         .unwrap_or(DEFAULT_FIXED_PENALTY_FACTOR * young * h);
                     let emb = embed(key.clone(), &pts, &grid)?;
                     (!pts.is_empty()).then(|| PenaltySprings::fixed(emb, vec![k; pts.len()]))
