@@ -114,3 +114,79 @@ pub fn body_forces(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::GridOptions;
+    use crate::mesh::primitives::{cylinder_surface, icosphere};
+
+    fn total(forces: &[f64]) -> Vector3<f64> {
+        forces.chunks(3).fold(Vector3::zeros(), |acc, f| {
+            acc + Vector3::new(f[0], f[1], f[2])
+        })
+    }
+
+    #[test]
+    fn gravity_totals_weight_of_the_inside_volume() {
+        let s = icosphere(Point3::new(0.001, 0.0, -0.002), 0.05, 4);
+        let g = WeightedCellGrid::build(
+            &s,
+            &GridOptions {
+                cell_size: 0.015,
+                subdivisions: 3,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let mut f = vec![0.0; 3 * g.node_count()];
+        let gv = Vector3::new(0.0, 0.0, -9.81);
+        gravity_forces(&g, 1000.0, gv, &mut f);
+        let expected = gv * 1000.0 * g.stats().volume;
+        assert!((total(&f) - expected).norm() < 1e-12 * expected.norm());
+        // And the inside volume is close to the sphere's.
+        assert!((g.stats().volume / s.signed_volume() - 1.0).abs() < 0.01);
+    }
+
+    #[test]
+    fn traction_totals_value_times_loaded_area() {
+        // The end disc of a cylinder (polygon area) under a uniform traction.
+        let s = cylinder_surface(0.05, 0.0, 0.2, 32, 8);
+        let g = WeightedCellGrid::build(
+            &s,
+            &GridOptions {
+                cell_size: 0.02,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let region = Aabb {
+            min: Point3::new(-1.0, -1.0, 0.2 - 1e-6),
+            max: Point3::new(1.0, 1.0, 0.2 + 1e-6),
+        };
+        let t = Vector3::new(3.0, -30.0, 1.0);
+        let mut f = vec![0.0; 3 * g.node_count()];
+        traction_forces(&g, &s, &region, t, &mut f).unwrap();
+        let area = 0.5 * 32.0 * 0.05f64.powi(2) * (std::f64::consts::TAU / 32.0).sin();
+        assert!((total(&f) - t * area).norm() < 1e-12 * (t * area).norm());
+    }
+
+    #[test]
+    fn surface_samples_cover_the_area_in_the_box_once() {
+        let s = icosphere(Point3::origin(), 1.0, 3);
+        let everything = Aabb {
+            min: Point3::new(-2.0, -2.0, -2.0),
+            max: Point3::new(2.0, 2.0, 2.0),
+        };
+        let samples = sample_surface_in_box(&s, &everything, 0.05);
+        let area: f64 = samples.iter().map(|x| x.area).sum();
+        let exact: f64 = (0..s.triangles.len())
+            .map(|t| 0.5 * s.scaled_normal(t).norm())
+            .sum();
+        assert!((area - exact).abs() < 1e-12 * exact);
+        assert!(
+            samples.len() > s.triangles.len() * 4,
+            "triangles are subdivided to the spacing"
+        );
+    }
+}
