@@ -59,7 +59,8 @@ fn bench_newton_iteration(c: &mut Criterion) {
         let u: Vec<f64> = (0..n).map(|i| 1e-4 * ((i as f64) * 0.37).sin()).collect();
         let mut r = vec![0.0; n];
         let mut k = p.new_tangent();
-        let mut solver = SparseSolver::new(SolverKind::Auto);
+        let mut solver =
+            SparseSolver::new(SolverKind::Auto).with_node_coordinates(p.grid.node_coords.clone());
         let mut du = vec![0.0; n];
         group.bench_function(BenchmarkId::new("assembly", nodes), |b| {
             b.iter(|| {

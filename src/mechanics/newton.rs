@@ -138,6 +138,8 @@ pub struct NewtonSolver {
     pub settings: NewtonSettings,
     linear: SparseSolver,
     tangent: Option<SymmetricCsc>,
+    /// Grid (dims, node count) the linear solver's nested-dissection ordering was made for.
+    ordered_for: Option<([usize; 3], usize)>,
 }
 
 impl NewtonSolver {
@@ -147,12 +149,14 @@ impl NewtonSolver {
             linear: SparseSolver::new(settings.linear_solver),
             settings,
             tangent: None,
+            ordered_for: None,
         }
     }
 
     /// Solves from the state `u0` (m; load factor 0 is assumed to hold there) up to full load.
     pub fn solve(&mut self, problem: &mut StaticProblem, u0: &[f64]) -> SolveReport {
         let start = Instant::now();
+        self.prepare_for(problem);
         let s = self.settings;
         let nominal = 1.0 / s.load_steps.max(1) as f64;
         let mut u = u0.to_vec();
@@ -210,6 +214,18 @@ impl NewtonSolver {
         report.load_reached = load;
         report.wall_ms = start.elapsed().as_secs_f64() * 1e3;
         report
+    }
+
+    /// Gives the linear solver the grid's node coordinates (a nested-dissection ordering,
+    /// computed once per grid) and drops buffers of another grid.
+    fn prepare_for(&mut self, problem: &StaticProblem) {
+        let key = (problem.grid.grid.dims, problem.grid.node_count());
+        if self.ordered_for != Some(key) {
+            self.linear = SparseSolver::new(self.settings.linear_solver)
+                .with_node_coordinates(problem.grid.node_coords.clone());
+            self.tangent = None;
+            self.ordered_for = Some(key);
+        }
     }
 
     /// Starting state of the increment to `target`: the secant extrapolation
