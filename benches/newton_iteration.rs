@@ -56,12 +56,24 @@ fn bench_newton_iteration(c: &mut Criterion) {
         let mut p = problem(cell, 4, IntegrationMode::WeightedCell);
         let nodes = p.grid.node_count();
         let n = p.dofs();
-        let u: Vec<f64> = (0..n).map(|i| 1e-4 * ((i as f64) * 0.37).sin()).collect();
+        // The rest state: a symmetric positive definite tangent, as near every equilibrium.
+        let u = vec![0.0; n];
         let mut r = vec![0.0; n];
         let mut k = p.new_tangent();
         let mut solver =
             SparseSolver::new(SolverKind::Auto).with_node_coordinates(p.grid.node_coords.clone());
         let mut du = vec![0.0; n];
+        p.evaluate(&u, 1.0, Need::Tangent, Some(&mut r), Some(&mut k))
+            .unwrap();
+        solver.factorize(&k).unwrap();
+        eprintln!(
+            "{nodes} nodes: {} dofs, {} cells, method {:?}, ordering {:?}, factor entries {}",
+            n,
+            p.grid.cells.len(),
+            solver.factorized_method(),
+            solver.fill_reducing_ordering(),
+            solver.factor_nnz()
+        );
         group.bench_function(BenchmarkId::new("assembly", nodes), |b| {
             b.iter(|| {
                 p.evaluate(&u, 1.0, Need::Tangent, Some(&mut r), Some(&mut k))

@@ -14,8 +14,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let r = NewtonSolver::new(model.newton).solve(&mut model.problem, &u0);
     for it in &r.history {
         println!(
-            "load {:.4}  residual {:.3e}  step {:.4}",
-            it.load, it.relative_residual, it.step
+            "load {:.4}  residual {:.3e}  step {:.4}  {} shift {:.0e}",
+            it.load, it.relative_residual, it.step, it.linear_method, it.regularization
         );
     }
     println!(

@@ -318,6 +318,12 @@ impl SparseSolver {
         }
     }
 
+    /// Whether the last factorisation asked for Cholesky but found the matrix indefinite and
+    /// fell back to the Bunch–Kaufman LBLᵀ factorisation.
+    pub fn fell_back_to_indefinite(&self) -> bool {
+        self.factorized_method() == Some(M_FALLBACK)
+    }
+
     /// Number of stored values of the current direct factor (0 if none), a
     /// measure of its memory use (8 bytes each).
     pub fn factor_nnz(&self) -> usize {

@@ -104,6 +104,10 @@ pub struct IterationRecord {
     pub relative_residual: f64,
     /// Line-search step length taken.
     pub step: f64,
+    /// Linear solver used (e.g. `"cholesky"`, or the indefinite fallback).
+    pub linear_method: &'static str,
+    /// Diagonal shift τ applied to an indefinite tangent (0 when none was needed).
+    pub regularization: f64,
 }
 
 /// Why one increment failed.
@@ -303,11 +307,11 @@ impl NewtonSolver {
                     });
                 }
                 *iterations += 1;
-                self.linear.factorize(&k)?;
+                let regularization = self.factorize_descent(&mut k)?;
                 for v in r.iter_mut() {
                     *v = -*v;
                 }
-                self.linear.solve(&k, &r, &mut du)?;
+                let stats = self.linear.solve(&k, &r, &mut du)?;
                 for v in r.iter_mut() {
                     *v = -*v;
                 }
@@ -320,6 +324,8 @@ impl NewtonSolver {
                     load,
                     relative_residual: rel,
                     step: alpha,
+                    linear_method: stats.method,
+                    regularization,
                 });
                 for (ui, di) in u.iter_mut().zip(&du) {
                     *ui += alpha * di;
@@ -338,6 +344,37 @@ impl NewtonSolver {
         })();
         self.tangent = Some(k);
         result
+    }
+
+    /// Factorises the tangent. Far from equilibrium the tangent can be indefinite, and its
+    /// Newton step then need not lower the energy; unless the LDLᵀ solver was asked for
+    /// explicitly, the diagonal is then raised to `(1 + τ) K_ii` with τ = 10⁻³, 10⁻², … 10³
+    /// (Levenberg–Marquardt) until the Cholesky factorisation succeeds, which makes the step a
+    /// descent direction. Near equilibrium the tangent is positive definite and the iteration is
+    /// plain Newton, with its quadratic convergence. Returns the shift τ used (0 when none).
+    fn factorize_descent(&mut self, k: &mut SymmetricCsc) -> Result<f64, LinalgError> {
+        self.linear.factorize(k)?;
+        if !self.linear.fell_back_to_indefinite() || self.settings.linear_solver == SolverKind::Ldlt
+        {
+            return Ok(0.0);
+        }
+        let diag: Vec<usize> = (0..k.n)
+            .map(|i| k.position(i, i).expect("diagonal stored"))
+            .collect();
+        let original: Vec<f64> = diag.iter().map(|&p| k.values[p]).collect();
+        let mut tau = 1e-3;
+        for _ in 0..7 {
+            for (&p, &d) in diag.iter().zip(&original) {
+                k.values[p] = d + tau * d.abs();
+            }
+            self.linear.factorize(k)?;
+            if !self.linear.fell_back_to_indefinite() {
+                return Ok(tau);
+            }
+            tau *= 10.0;
+        }
+        // Still indefinite: keep the LBLᵀ factorisation of the last shifted matrix.
+        Ok(tau / 10.0)
     }
 
     /// Backtracking on the potential energy (Armijo), falling back to the residual norm when
