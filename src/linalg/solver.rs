@@ -189,13 +189,13 @@ impl Default for SparseSolver {
     }
 }
 
+/// Parallelism of the factorisation and triangular solves: sequential. faer parallelises only
+/// inside each supernode's dense kernels, and on these grid matrices that costs more than it
+/// gains on this 2-core machine (criterion, `benches/newton_iteration.rs`, liver-like ellipsoid
+/// with nested dissection: factorisation 17.4 → 6.5 ms at 937 nodes and 270 → 213 ms at
+/// 6,576 nodes going from 2 threads to 1). Assembly stays parallel.
 fn par() -> Par {
-    let t = rayon::current_num_threads();
-    if t > 1 {
-        Par::rayon(t)
-    } else {
-        Par::Seq
-    }
+    Par::Seq
 }
 
 fn ms_since(t: Instant) -> f64 {
