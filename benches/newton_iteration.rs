@@ -52,7 +52,7 @@ fn bench_newton_iteration(c: &mut Criterion) {
     let mut group = c.benchmark_group("newton_iteration");
     group.sample_size(10);
     // ~1,000 and ~10,000 nodes.
-    for cell in [0.0155, 0.0071] {
+    for cell in [0.0155, 0.0062] {
         let mut p = problem(cell, 4, IntegrationMode::WeightedCell);
         let nodes = p.grid.node_count();
         let n = p.dofs();

@@ -58,7 +58,7 @@ pub fn cylinder_surface(
     let rings = rings.max(1);
     let mut b = Builder::default();
     let at = |r: f64, k: usize, z: f64| {
-        let t = std::f64::consts::TAU * k as f64 / segments as f64;
+        let t = std::f64::consts::TAU * (k % segments) as f64 / segments as f64;
         Point3::new(r * t.cos(), r * t.sin(), z)
     };
     for i in 0..rings {
@@ -203,6 +203,20 @@ impl Builder {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn primitives_are_watertight() {
+        let surfaces = [
+            box_surface(Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 2.0, 3.0), 3),
+            cylinder_surface(0.5, -1.0, 2.0, 48, 12),
+            icosphere(Point3::origin(), 1.0, 3),
+        ];
+        for s in &surfaces {
+            let report = crate::mesh::validate(s);
+            assert!(report.watertight, "{report}");
+            assert_eq!(report.degenerate_triangles, 0);
+        }
+    }
 
     #[test]
     fn volumes_match_closed_forms() {
