@@ -8,6 +8,8 @@
 //! - [`mechanics`]: materials, the hexahedral cell, assembly, loads, penalties, Newton;
 //! - [`scene`]: the scene file; [`simulation`]: a scene turned into a solved model;
 //! - [`scenarios`]: reference problems from the source texts (tests, benchmarks);
+//! - [`phantom`]: the bundled liver phantom (surface, vessel targets, tumour, ligament);
+//! - [`synthetic`]: a virtual camera producing partial, noisy point clouds (tests, benchmarks);
 //! - [`cli`]: the command line.
 //!
 //! Lower layers never import higher ones. Inside the mechanics everything is SI (m, N, Pa, J).
@@ -19,6 +21,8 @@ pub mod grid;
 pub mod linalg;
 pub mod mechanics;
 pub mod mesh;
+pub mod phantom;
 pub mod scenarios;
 pub mod scene;
 pub mod simulation;
+pub mod synthetic;

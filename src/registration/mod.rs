@@ -1,0 +1,42 @@
+//! Registration of the pre-operative liver model to intra-operative point clouds.
+//!
+//! This module holds the RIGID stage (thesis alg. 2): [`RigidTransform`] (a proper rigid motion,
+//! metres and radians), [`kabsch`] (weighted least-squares rigid fit of paired points),
+//! [`ModelTarget`] (the model surface densely sampled into a k-d tree, built once per model and
+//! reused across frames) and [`RigidIcp`] (iterative closest point aligning a cloud to the
+//! model, with the thesis's outlier rule and optional trimming).
+//!
+//! ```
+//! use livereg::mesh::primitives::icosphere;
+//! use livereg::registration::{ModelTarget, RigidIcp, RigidTransform};
+//! use nalgebra::{Point3, Rotation3, Vector3};
+//!
+//! let mut model = icosphere(Point3::origin(), 1.0, 3);
+//! for v in &mut model.vertices {
+//!     // a 20 × 15 × 10 cm ellipsoid with a lump, so the fit is unique
+//!     *v = Point3::new(0.10 * v.x, 0.075 * v.y, 0.05 * v.z) + 0.02 * v.x.max(0.0).powi(8) * v.coords;
+//! }
+//! let target = ModelTarget::new(&model, 0.004).unwrap();
+//! let truth = RigidTransform::new(
+//!     Rotation3::from_axis_angle(&Vector3::z_axis(), 0.1),
+//!     Vector3::new(0.01, 0.0, 0.005),
+//! );
+//! let cloud: Vec<_> = model.vertices.iter().map(|p| truth.apply(p)).collect();
+//! let result = RigidIcp::default().register(&target, &cloud, None).unwrap();
+//! assert!(result.model_to_cloud.rotation_angle_to(&truth) < 0.01);
+//! ```
+
+pub mod kabsch;
+pub mod model_target;
+pub mod rigid_icp;
+pub mod rigid_transform;
+
+#[cfg(test)]
+mod test_support;
+#[cfg(test)]
+mod tests;
+
+pub use kabsch::kabsch;
+pub use model_target::ModelTarget;
+pub use rigid_icp::{IcpError, IcpResult, RigidIcp};
+pub use rigid_transform::RigidTransform;

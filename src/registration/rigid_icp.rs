@@ -1,0 +1,437 @@
+//! Rigid iterative closest point (thesis alg. 2): aligns an intra-operative point cloud to the
+//! model surface.
+//!
+//! Each iteration: every cloud point, moved by the current estimate, is paired with its closest
+//! point on the model ([`ModelTarget::closest_point`]); pairs farther than
+//! `max_correspondence_distance` are dropped, then (trimmed ICP) all but the best
+//! `trim_fraction` of the cloud, then those farther than mean + `outlier_sigma` · standard
+//! deviation of the remaining pair distances (the thesis's "twice the standard deviation" rule,
+//! read as a band above the mean); the best rigid motion of the kept pairs ([`kabsch`]) becomes
+//! the new estimate. It stops when the mean squared distance of the kept pairs changes by at
+//! most `relative_tolerance` relative to the previous iteration, or after `max_iterations`.
+//!
+//! The cloud is the moving side because a partial cloud has a counterpart for every point on the
+//! full model surface, not the other way round.
+
+use std::collections::VecDeque;
+
+use nalgebra::{DMatrix, DVector, Point3, Rotation3, Vector3, Vector6};
+use rayon::prelude::*;
+use serde::Serialize;
+use thiserror::Error;
+
+use crate::registration::{kabsch, ModelTarget, RigidTransform};
+
+/// What can go wrong in rigid registration. Messages say what is wrong and where.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum IcpError {
+    /// The point cloud has no points.
+    #[error("the point cloud is empty: rigid registration needs at least 3 points")]
+    EmptyCloud,
+    /// A cloud point has a NaN or infinite coordinate.
+    #[error("cloud point {index} has a non-finite coordinate: [{}, {}, {}]", point[0], point[1], point[2])]
+    NonFiniteCloudPoint {
+        /// Index of the first offending point in the cloud.
+        index: usize,
+        /// Its coordinates, metres.
+        point: [f64; 3],
+    },
+    /// The initial transform has a NaN or infinite entry.
+    #[error("the initial rigid transform has a non-finite entry")]
+    NonFiniteInitial,
+    /// Too few pairs survived outlier rejection to fit a rigid motion.
+    #[error(
+        "only {inliers} of {total} cloud points were kept as inliers at ICP iteration \
+         {iteration} (at least {needed} needed): the cloud is too far from the model, too \
+         small, or max_correspondence_distance / trim_fraction are too strict"
+    )]
+    TooFewInliers {
+        /// The iteration (0 = at the initial transform).
+        iteration: usize,
+        /// Pairs kept.
+        inliers: usize,
+        /// Pairs required ([`RigidIcp::min_inliers`], at least 3).
+        needed: usize,
+        /// Cloud size.
+        total: usize,
+    },
+    /// The kept pairs are degenerate (cloud points coincident or collinear).
+    #[error(
+        "the {inliers} inlier cloud points at ICP iteration {iteration} are coincident or \
+         collinear: the rigid motion is undetermined"
+    )]
+    Degenerate {
+        /// The iteration (0 = at the initial transform).
+        iteration: usize,
+        /// Pairs kept.
+        inliers: usize,
+    },
+    /// A setting of [`RigidIcp`] or [`ModelTarget::new`] is out of range.
+    #[error("invalid rigid ICP setting: {0}")]
+    InvalidSetting(String),
+    /// The model surface cannot serve as a target.
+    #[error("invalid model surface for rigid ICP: {0}")]
+    InvalidModel(String),
+}
+
+/// Settings of rigid ICP. Lengths in metres. `Default` gives the thesis's settings.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RigidIcp {
+    /// Most Kabsch updates (default 50). 0 only evaluates the initial transform.
+    pub max_iterations: usize,
+    /// Stop when the mean squared inlier distance changes by at most this fraction of its
+    /// previous value (default 1e-6); ≥ 0.
+    pub relative_tolerance: f64,
+    /// Reject pairs farther than mean + `k` · standard deviation of the pair distances
+    /// (thesis: twice the standard deviation, default `Some(2.0)`); `None` keeps them; > 0.
+    pub outlier_sigma: Option<f64>,
+    /// Trimmed ICP: keep only the closest `fraction` of the cloud's pairs each iteration
+    /// (before the sigma rule), for clouds that overlap the model only partly, e.g. `Some(0.4)`
+    /// when about half the cloud lies on the model. Default `None`; in (0, 1].
+    pub trim_fraction: Option<f64>,
+    /// Drop pairs farther than this, metres (default `None`); > 0.
+    pub max_correspondence_distance: Option<f64>,
+    /// Fewest inliers accepted (default 3, values below 3 act as 3).
+    pub min_inliers: usize,
+}
+
+impl Default for RigidIcp {
+    fn default() -> Self {
+        RigidIcp {
+            max_iterations: 50,
+            relative_tolerance: 1e-6,
+            outlier_sigma: Some(2.0),
+            trim_fraction: None,
+            max_correspondence_distance: None,
+            min_inliers: 3,
+        }
+    }
+}
+
+/// The outcome of [`RigidIcp::register`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct IcpResult {
+    /// The estimated motion taking cloud points onto the model surface.
+    pub cloud_to_model: RigidTransform,
+    /// Its inverse: the motion of the model into the cloud (what the pipeline applies to the
+    /// model).
+    pub model_to_cloud: RigidTransform,
+    /// Kabsch updates performed.
+    pub iterations: usize,
+    /// Root mean square distance of the inlier pairs at the returned transform, metres.
+    pub rms: f64,
+    /// Fraction of cloud points kept as inliers at the returned transform, in [0, 1].
+    pub inlier_fraction: f64,
+    /// `true` when the relative-tolerance test stopped the iterations (not `max_iterations`).
+    pub converged: bool,
+}
+
+/// Reusable buffers of one registration.
+struct Workspace {
+    /// Closest model point and squared distance of each cloud point.
+    pairs: Vec<(Point3<f64>, f64)>,
+    /// Indices of pairs under consideration / kept.
+    keep: Vec<usize>,
+    src: Vec<Point3<f64>>,
+    dst: Vec<Point3<f64>>,
+}
+
+impl RigidIcp {
+    /// Checks the settings' ranges.
+    pub fn validate(&self) -> Result<(), IcpError> {
+        let bad = |msg: String| Err(IcpError::InvalidSetting(msg));
+        if !(self.relative_tolerance.is_finite() && self.relative_tolerance >= 0.0) {
+            return bad(format!(
+                "relative_tolerance must be finite and >= 0, got {}",
+                self.relative_tolerance
+            ));
+        }
+        if let Some(k) = self.outlier_sigma {
+            if !(k.is_finite() && k > 0.0) {
+                return bad(format!("outlier_sigma must be finite and > 0, got {k}"));
+            }
+        }
+        if let Some(f) = self.trim_fraction {
+            if !(f > 0.0 && f <= 1.0) {
+                return bad(format!("trim_fraction must be in (0, 1], got {f}"));
+            }
+        }
+        if let Some(d) = self.max_correspondence_distance {
+            if d.is_nan() || d <= 0.0 {
+                return bad(format!(
+                    "max_correspondence_distance must be > 0 metres, got {d}"
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Aligns `cloud` (metres) to the model surface.
+    ///
+    /// `initial` is the starting estimate of the cloud → model motion (the same direction as
+    /// [`IcpResult::cloud_to_model`]): the previous frame's `cloud_to_model` for warm start, or
+    /// the inverse of a tracked model pose; `None` starts from the identity.
+    ///
+    /// Errors: empty cloud, non-finite cloud coordinate (naming the index), non-finite initial
+    /// transform, invalid settings, too few inliers, degenerate inliers. Never panics; the loop
+    /// is bounded by `max_iterations`.
+    pub fn register(
+        &self,
+        model: &ModelTarget,
+        cloud: &[Point3<f64>],
+        initial: Option<RigidTransform>,
+    ) -> Result<IcpResult, IcpError> {
+        self.validate()?;
+        if cloud.is_empty() {
+            return Err(IcpError::EmptyCloud);
+        }
+        if let Some(index) = cloud.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
+            let p = cloud[index];
+            return Err(IcpError::NonFiniteCloudPoint {
+                index,
+                point: [p.x, p.y, p.z],
+            });
+        }
+        let mut estimate = initial.unwrap_or_default();
+        if !estimate.is_finite() {
+            return Err(IcpError::NonFiniteInitial);
+        }
+        if model.is_empty() {
+            return Err(IcpError::InvalidModel(
+                "the model target has no samples".into(),
+            ));
+        }
+        let needed = self.min_inliers.max(3);
+        let mut ws = Workspace {
+            pairs: Vec::with_capacity(cloud.len()),
+            keep: Vec::with_capacity(cloud.len()),
+            src: Vec::with_capacity(cloud.len()),
+            dst: Vec::with_capacity(cloud.len()),
+        };
+        let mut accel = Anderson::new(cloud, &estimate);
+        let mut previous_mse: Option<f64> = None;
+        // The plain ICP step behind an accelerated estimate, to fall back to.
+        let mut plain_step: Option<RigidTransform> = None;
+        let mut iterations = 0;
+        loop {
+            let mut mse = self.match_and_select(model, cloud, &estimate, &mut ws);
+            if let (Some(plain), Some(prev)) = (plain_step, previous_mse) {
+                if mse.is_nan() || mse > prev {
+                    // The extrapolation made things worse: take the plain step instead.
+                    estimate = plain;
+                    accel.reset(&estimate);
+                    mse = self.match_and_select(model, cloud, &estimate, &mut ws);
+                }
+            }
+            let inliers = ws.keep.len();
+            if inliers < needed {
+                return Err(IcpError::TooFewInliers {
+                    iteration: iterations,
+                    inliers,
+                    needed,
+                    total: cloud.len(),
+                });
+            }
+            let converged = previous_mse
+                .is_some_and(|prev| (prev - mse).abs() <= self.relative_tolerance * prev);
+            if converged || iterations >= self.max_iterations {
+                let cloud_to_model = estimate;
+                return Ok(IcpResult {
+                    cloud_to_model,
+                    model_to_cloud: cloud_to_model.inverse(),
+                    iterations,
+                    rms: mse.sqrt(),
+                    inlier_fraction: inliers as f64 / cloud.len() as f64,
+                    converged,
+                });
+            }
+            ws.src.clear();
+            ws.dst.clear();
+            for &i in &ws.keep {
+                ws.src.push(cloud[i]);
+                ws.dst.push(ws.pairs[i].0);
+            }
+            let step = kabsch(&ws.src, &ws.dst, None).ok_or(IcpError::Degenerate {
+                iteration: iterations,
+                inliers,
+            })?;
+            match accel.next(&estimate, &step) {
+                Some(extrapolated) => {
+                    estimate = extrapolated;
+                    plain_step = Some(step);
+                }
+                None => {
+                    estimate = step;
+                    plain_step = None;
+                }
+            }
+            iterations += 1;
+            previous_mse = Some(mse);
+        }
+    }
+
+    /// Pairs every cloud point (moved by `estimate`) with its closest model point, fills
+    /// `ws.keep` with the inliers and returns their mean squared distance (m²).
+    fn match_and_select(
+        &self,
+        model: &ModelTarget,
+        cloud: &[Point3<f64>],
+        estimate: &RigidTransform,
+        ws: &mut Workspace,
+    ) -> f64 {
+        cloud
+            .par_iter()
+            .with_min_len(256)
+            .map(|p| model.closest_point(&estimate.apply(p)))
+            .collect_into_vec(&mut ws.pairs);
+        let pairs = &ws.pairs;
+        let keep = &mut ws.keep;
+        keep.clear();
+        match self.max_correspondence_distance {
+            Some(d) => {
+                let d2 = d * d;
+                keep.extend((0..pairs.len()).filter(|&i| pairs[i].1 <= d2));
+            }
+            None => keep.extend(0..pairs.len()),
+        }
+        if let Some(fraction) = self.trim_fraction {
+            let wanted = ((fraction * pairs.len() as f64).round() as usize).max(3);
+            if wanted < keep.len() {
+                keep.select_nth_unstable_by(wanted - 1, |&a, &b| pairs[a].1.total_cmp(&pairs[b].1));
+                keep.truncate(wanted);
+            }
+        }
+        if let (Some(k), true) = (self.outlier_sigma, keep.len() > 1) {
+            let n = keep.len() as f64;
+            let mean = keep.iter().map(|&i| pairs[i].1.sqrt()).sum::<f64>() / n;
+            let var = keep
+                .iter()
+                .map(|&i| (pairs[i].1.sqrt() - mean).powi(2))
+                .sum::<f64>()
+                / n;
+            let limit = mean + k * var.sqrt();
+            let limit2 = limit * limit;
+            keep.retain(|&i| pairs[i].1 <= limit2);
+        }
+        if keep.is_empty() {
+            return f64::INFINITY;
+        }
+        keep.iter().map(|&i| pairs[i].1).sum::<f64>() / keep.len() as f64
+    }
+}
+
+/// Past iterates kept by the Anderson acceleration.
+const ANDERSON_DEPTH: usize = 5;
+
+/// Anderson acceleration of the ICP fixed-point map (Pavlov et al., "AA-ICP", ICRA 2018).
+///
+/// Plain point-to-point ICP creeps when the cloud slides along a smooth surface (hundreds of
+/// iterations from a 30° offset). The ICP step `x ↦ G(x)` is treated as a fixed-point map on
+/// the six pose parameters (rotation vector relative to a reference rotation, scaled by the
+/// cloud's RMS radius so that it is in metres like the translation; and the image of the cloud
+/// centroid), and the next estimate is the combination of the last few `G(xᵢ)` that minimises
+/// the combined residual `G(x) − x`. The caller falls back to the plain step whenever the
+/// extrapolated estimate has a larger mean squared distance.
+struct Anderson {
+    centroid: Vector3<f64>,
+    radius: f64,
+    reference: Rotation3<f64>,
+    /// `(G(xᵢ), G(xᵢ) − xᵢ)`, oldest first.
+    history: VecDeque<(Vector6<f64>, Vector6<f64>)>,
+}
+
+impl Anderson {
+    fn new(cloud: &[Point3<f64>], estimate: &RigidTransform) -> Self {
+        let n = cloud.len() as f64;
+        let centroid = cloud.iter().map(|p| p.coords).sum::<Vector3<f64>>() / n;
+        let radius = (cloud
+            .iter()
+            .map(|p| (p.coords - centroid).norm_squared())
+            .sum::<f64>()
+            / n)
+            .sqrt();
+        Anderson {
+            centroid,
+            radius: if radius > 0.0 && radius.is_finite() {
+                radius
+            } else {
+                1.0
+            },
+            reference: estimate.rotation,
+            history: VecDeque::with_capacity(ANDERSON_DEPTH + 1),
+        }
+    }
+
+    /// Forgets the history and re-anchors the rotation parameters at `estimate`.
+    fn reset(&mut self, estimate: &RigidTransform) {
+        self.history.clear();
+        self.reference = estimate.rotation;
+    }
+
+    fn params(&self, t: &RigidTransform) -> Vector6<f64> {
+        let w = log_rotation(&(t.rotation * self.reference.inverse())) * self.radius;
+        let c = t.rotation * self.centroid + t.translation;
+        Vector6::new(w.x, w.y, w.z, c.x, c.y, c.z)
+    }
+
+    fn transform(&self, x: &Vector6<f64>) -> RigidTransform {
+        let w = Vector3::new(x[0], x[1], x[2]) / self.radius;
+        let rotation = Rotation3::new(w) * self.reference;
+        let translation = Vector3::new(x[3], x[4], x[5]) - rotation * self.centroid;
+        RigidTransform::new(rotation, translation).renormalized()
+    }
+
+    /// Records the plain step `current → step` and returns the accelerated estimate, or `None`
+    /// when there is not enough history yet (or the extrapolation is unusable).
+    fn next(&mut self, current: &RigidTransform, step: &RigidTransform) -> Option<RigidTransform> {
+        let x = self.params(current);
+        let g = self.params(step);
+        if x.rows(0, 3).norm() > 2.0 * self.radius || g.rows(0, 3).norm() > 2.0 * self.radius {
+            // Far from the reference rotation (log map ambiguity near π): start over.
+            self.reset(step);
+            return None;
+        }
+        if self.history.len() > ANDERSON_DEPTH {
+            self.history.pop_front();
+        }
+        self.history.push_back((g, g - x));
+        let k = self.history.len() - 1;
+        if k == 0 {
+            return None;
+        }
+        let (g_last, f_last) = self.history[k];
+        let mut df = DMatrix::zeros(6, k);
+        let mut dg = DMatrix::zeros(6, k);
+        for j in 0..k {
+            let (g0, f0) = self.history[j];
+            let (g1, f1) = self.history[j + 1];
+            df.set_column(j, &(f1 - f0));
+            dg.set_column(j, &(g1 - g0));
+        }
+        let rhs = DVector::from_column_slice(f_last.as_slice());
+        let scale = df.amax();
+        if scale.is_nan() || scale <= 0.0 {
+            return None;
+        }
+        let gamma = df.svd(true, true).solve(&rhs, 1e-10 * scale).ok()?;
+        let x_new = g_last - Vector6::from_iterator((dg * gamma).iter().copied());
+        let t = self.transform(&x_new);
+        t.is_finite().then_some(t)
+    }
+}
+
+/// The rotation vector (axis · angle, radians) of `r`, accurate near the identity.
+fn log_rotation(r: &Rotation3<f64>) -> Vector3<f64> {
+    let m = r.matrix();
+    let v = Vector3::new(
+        m[(2, 1)] - m[(1, 2)],
+        m[(0, 2)] - m[(2, 0)],
+        m[(1, 0)] - m[(0, 1)],
+    ) / 2.0;
+    let s = v.norm();
+    let c = (m.trace() - 1.0) / 2.0;
+    if s < 1e-12 {
+        return if c > 0.0 { v } else { r.scaled_axis() };
+    }
+    v * (s.atan2(c) / s)
+}

@@ -1,0 +1,53 @@
+//! Errors of the synthetic camera and point-cloud generator.
+
+/// Everything that can go wrong while setting up a synthetic camera or synthesizing a cloud.
+/// Messages quote the offending values.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SynthError {
+    /// The surface has no triangles (or no vertices).
+    #[error("the surface is empty ({vertices} vertices, {triangles} triangles)")]
+    EmptySurface {
+        /// Number of vertices.
+        vertices: usize,
+        /// Number of triangles.
+        triangles: usize,
+    },
+    /// The surface cannot be used (out-of-range index, non-finite coordinate, ...).
+    #[error("invalid surface: {0}")]
+    InvalidSurface(String),
+    /// The camera is unusable (position equal to `look_at`, `up` parallel to the view, bad
+    /// field of view, non-finite values).
+    #[error("invalid camera: {0}")]
+    InvalidCamera(String),
+    /// A [`crate::synthetic::CloudSpec`] parameter is out of its range.
+    #[error("invalid cloud specification: {0}")]
+    InvalidSpec(String),
+    /// The requested patch is larger than the part of the surface the camera sees.
+    #[error(
+        "visible_fraction {requested} asks for {requested_area_cm2:.2} cm² but only \
+         {visible_area_cm2:.2} cm² ({visible_fraction:.4} of the surface) is visible"
+    )]
+    PatchTooLarge {
+        /// The requested fraction of the whole surface area.
+        requested: f64,
+        /// The requested patch area, cm².
+        requested_area_cm2: f64,
+        /// The visible area, cm².
+        visible_area_cm2: f64,
+        /// The visible area as a fraction of the whole surface area.
+        visible_fraction: f64,
+    },
+    /// No sample of the surface is visible from the camera.
+    #[error(
+        "nothing is visible: none of the {samples} surface samples lies in the camera's \
+         field of view unoccluded (camera at {camera}, looking at {look_at})"
+    )]
+    NothingVisible {
+        /// Number of surface samples drawn.
+        samples: usize,
+        /// Camera position, formatted.
+        camera: String,
+        /// Camera target, formatted.
+        look_at: String,
+    },
+}
