@@ -8,6 +8,7 @@
 //! - [`mechanics`]: materials, the hexahedral cell, assembly, loads, penalties, Newton;
 //! - [`scene`]: the scene file; [`simulation`]: a scene turned into a solved model;
 //! - [`scenarios`]: reference problems from the source texts (tests, benchmarks);
+//! - [`registration`]: rigid ICP (and, to come, the non-rigid stage);
 //! - [`phantom`]: the bundled liver phantom (surface, vessel targets, tumour, ligament);
 //! - [`synthetic`]: a virtual camera producing partial, noisy point clouds (tests, benchmarks);
 //! - [`cli`]: the command line.
@@ -22,6 +23,7 @@ pub mod linalg;
 pub mod mechanics;
 pub mod mesh;
 pub mod phantom;
+pub mod registration;
 pub mod scenarios;
 pub mod scene;
 pub mod simulation;
