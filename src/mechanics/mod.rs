@@ -13,6 +13,8 @@ pub mod static_problem;
 pub use assembly::Assembler;
 pub use cell_kernel::{Need, VolumetricIntegration};
 pub use material::{LawKind, Material, MaterialError, Part};
-pub use newton::{IterationRecord, NewtonSettings, NewtonSolver, Outcome, SolveReport};
+pub use newton::{
+    ImproveReport, IterationRecord, NewtonSettings, NewtonSolver, Outcome, SolveReport,
+};
 pub use penalty::PenaltySprings;
 pub use static_problem::StaticProblem;

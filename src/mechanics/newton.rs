@@ -95,6 +95,20 @@ pub struct SolveReport {
     pub history: Vec<IterationRecord>,
 }
 
+/// What [`NewtonSolver::improve`] achieved.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImproveReport {
+    /// Newton iterations done.
+    pub iterations: usize,
+    /// Relative residual before the last step (or at convergence).
+    pub relative_residual: f64,
+    /// Whether equilibrium was reached.
+    pub converged: bool,
+    /// A failure other than the iteration cap (inversion no step avoided, linear solve), with
+    /// its message; the state is still the last valid one.
+    pub failure: Option<(Outcome, String)>,
+}
+
 /// One Newton iteration, for diagnostics.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct IterationRecord {
@@ -220,6 +234,44 @@ impl NewtonSolver {
         report
     }
 
+    /// Improves the state `u` (m, updated in place) of a problem at full load by at most
+    /// `max_iterations` Newton iterations with line search, stopping early when converged:
+    /// what each iteration of non-rigid ICP needs (a few iterations, not full equilibrium).
+    /// The state stays valid whatever happens; the report says how far it got.
+    pub fn improve(
+        &mut self,
+        problem: &mut StaticProblem,
+        u: &mut [f64],
+        max_iterations: usize,
+    ) -> ImproveReport {
+        self.prepare_for(problem);
+        let mut iterations = 0;
+        let mut history = Vec::new();
+        let result = self.iterate(
+            problem,
+            u,
+            1.0,
+            max_iterations,
+            &mut iterations,
+            &mut history,
+        );
+        let last = history.last().map_or(0.0, |h| h.relative_residual);
+        match result {
+            Ok(rel) => ImproveReport {
+                iterations,
+                relative_residual: rel,
+                converged: true,
+                failure: None,
+            },
+            Err(f) => ImproveReport {
+                iterations,
+                relative_residual: last,
+                converged: false,
+                failure: (f.outcome != Outcome::IterationCap).then_some((f.outcome, f.message)),
+            },
+        }
+    }
+
     /// Gives the linear solver the grid's node coordinates (a nested-dissection ordering,
     /// computed once per grid) and drops buffers of another grid.
     fn prepare_for(&mut self, problem: &StaticProblem) {
@@ -275,6 +327,21 @@ impl NewtonSolver {
         iterations: &mut usize,
         history: &mut Vec<IterationRecord>,
     ) -> Result<f64, StepFailure> {
+        let cap = self.settings.max_iterations;
+        self.iterate(problem, u, load, cap, iterations, history)
+    }
+
+    /// At most `max_iterations` Newton iterations at load factor `load` from `u` (updated in
+    /// place; every accepted step keeps it valid). `Ok(relative residual)` when converged.
+    fn iterate(
+        &mut self,
+        problem: &mut StaticProblem,
+        u: &mut [f64],
+        load: f64,
+        max_iterations: usize,
+        iterations: &mut usize,
+        history: &mut Vec<IterationRecord>,
+    ) -> Result<f64, StepFailure> {
         let s = self.settings;
         let n = problem.dofs();
         let mut k = self.tangent.take().unwrap_or_else(|| problem.new_tangent());
@@ -284,7 +351,7 @@ impl NewtonSolver {
         let ext_norm = load * norm(&problem.external);
         let result = (|| {
             let mut reference = 0.0;
-            for it in 0..s.max_iterations {
+            for it in 0..max_iterations {
                 let e = problem.evaluate(u, load, Need::Tangent, Some(&mut r), Some(&mut k))?;
                 let rn = norm(&r);
                 if !rn.is_finite() || !e.potential.is_finite() {
@@ -339,7 +406,7 @@ impl NewtonSolver {
             }
             Err(StepFailure {
                 outcome: Outcome::IterationCap,
-                message: format!("no convergence in {} Newton iterations", s.max_iterations),
+                message: format!("no convergence in {max_iterations} Newton iterations"),
             })
         })();
         self.tangent = Some(k);

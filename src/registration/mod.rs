@@ -4,7 +4,8 @@
 //! metres and radians), [`kabsch`] (weighted least-squares rigid fit of paired points),
 //! [`ModelTarget`] (the model surface densely sampled into a k-d tree, built once per model and
 //! reused across frames) and [`RigidIcp`] (iterative closest point aligning a cloud to the
-//! model, with the thesis's outlier rule and optional trimming).
+//! model, with the thesis's outlier rule and optional trimming; point-to-plane updates by
+//! default, Kabsch point-to-point selectable via [`IcpMetric`]).
 //!
 //! ```
 //! use livereg::mesh::primitives::icosphere;
@@ -28,6 +29,7 @@
 
 pub mod kabsch;
 pub mod model_target;
+pub mod non_rigid_icp;
 pub mod rigid_icp;
 pub mod rigid_transform;
 
@@ -38,5 +40,6 @@ mod tests;
 
 pub use kabsch::kabsch;
 pub use model_target::ModelTarget;
-pub use rigid_icp::{IcpError, IcpResult, RigidIcp};
+pub use non_rigid_icp::{register_non_rigid, NonRigidError, NonRigidReport, NonRigidSettings};
+pub use rigid_icp::{IcpError, IcpMetric, IcpResult, RigidIcp};
 pub use rigid_transform::RigidTransform;

@@ -28,6 +28,8 @@ pub struct ModelTarget {
     samples: Vec<Point3<f64>>,
     sample_triangle: Vec<u32>,
     triangles: Vec<[Point3<f64>; 3]>,
+    /// Unit normal of each triangle (zero for a degenerate triangle), for point-to-plane ICP.
+    normals: Vec<Vector3<f64>>,
     /// Edge neighbours of each triangle (across edges bc, ca, ab), `NO_TRIANGLE` on a border.
     neighbours: Vec<[u32; 3]>,
     spacing: f64,
@@ -170,11 +172,24 @@ impl ModelTarget {
             IcpError::InvalidModel(format!("could not build the model k-d tree: {e:?}"))
         })?;
         let neighbours = edge_neighbours(&surface.triangles);
+        let normals = triangles
+            .iter()
+            .map(|[a, b, c]| {
+                let n = (b - a).cross(&(c - a));
+                let len = n.norm();
+                if len > 0.0 && len.is_finite() {
+                    n / len
+                } else {
+                    Vector3::zeros()
+                }
+            })
+            .collect();
         Ok(ModelTarget {
             tree,
             samples,
             sample_triangle,
             triangles,
+            normals,
             neighbours,
             spacing,
         })
@@ -215,9 +230,35 @@ impl ModelTarget {
     /// to neighbouring triangles while that gets strictly closer (at most 8 steps). Never
     /// farther than the nearest sample; exact whenever the walk reaches the closest triangle.
     pub fn closest_point(&self, p: &Point3<f64>) -> (Point3<f64>, f64) {
+        let (q, d2, _) = self.closest(p);
+        (q, d2)
+    }
+
+    /// [`ModelTarget::closest_point`] plus the unit normal of the model triangle the closest
+    /// point lies on (for point-to-plane ICP; orientation follows the triangle's winding). The
+    /// normal is zero when the closest point is an isolated vertex or its triangle is degenerate.
+    pub fn closest_point_with_normal(&self, p: &Point3<f64>) -> (Point3<f64>, f64, Vector3<f64>) {
+        let (q, d2, t) = self.closest(p);
+        let normal = if t == NO_TRIANGLE {
+            Vector3::zeros()
+        } else {
+            self.normals[t as usize]
+        };
+        (q, d2, normal)
+    }
+
+    /// The unit normal of triangle `t` of the model (zero for a degenerate triangle); `None` when
+    /// `t` is out of range.
+    pub fn triangle_normal(&self, t: usize) -> Option<Vector3<f64>> {
+        self.normals.get(t).copied()
+    }
+
+    /// The closest point, its squared distance and the triangle it lies on (`NO_TRIANGLE` for an
+    /// isolated vertex sample).
+    fn closest(&self, p: &Point3<f64>) -> (Point3<f64>, f64, u32) {
         let (i, d2) = self.nearest_sample(p);
-        let mut best = (self.samples[i], d2);
         let mut t = self.sample_triangle[i];
+        let mut best = (self.samples[i], d2, t);
         if t == NO_TRIANGLE {
             return best;
         }
@@ -226,7 +267,7 @@ impl ModelTarget {
         if dq.is_nan() || dq > best.1 {
             return best;
         }
-        best = (q, dq);
+        best = (q, dq, t);
         if inside {
             return best;
         }
@@ -239,7 +280,7 @@ impl ModelTarget {
                 let (q, inside) = closest_point_on_triangle(p, &self.triangles[n as usize]);
                 let dq = (p - q).norm_squared();
                 if dq < best.1 {
-                    best = (q, dq);
+                    best = (q, dq, n);
                     next = Some((n, inside));
                 }
             }
@@ -365,6 +406,22 @@ mod tests {
             exact_hits += (d2.sqrt() - brute < 1e-9) as usize;
         }
         assert!(exact_hits > 450, "{exact_hits} of 500 exact");
+    }
+
+    #[test]
+    fn closest_point_normal_is_the_triangle_normal() {
+        let sphere = icosphere(Point3::origin(), 0.1, 3);
+        let target = ModelTarget::new(&sphere, 0.005).unwrap();
+        let mut rng = Rng::new(13);
+        for _ in 0..500 {
+            let p = Point3::from(rng.unit_vector() * rng.uniform(0.09, 0.11));
+            let (q, d2, n) = target.closest_point_with_normal(&p);
+            assert_eq!((q, d2), target.closest_point(&p));
+            assert!((n.norm() - 1.0).abs() < 1e-12);
+            // The facet normal of a fine icosphere is nearly radial.
+            assert!(n.dot(&q.coords.normalize()).abs() > 0.99);
+        }
+        assert!(target.triangle_normal(sphere.triangles.len()).is_none());
     }
 
     #[test]

@@ -6,16 +6,28 @@
 //! `max_correspondence_distance` are dropped, then (trimmed ICP) all but the best
 //! `trim_fraction` of the cloud, then those farther than mean + `outlier_sigma` · standard
 //! deviation of the remaining pair distances (the thesis's "twice the standard deviation" rule,
-//! read as a band above the mean); the best rigid motion of the kept pairs ([`kabsch`]) becomes
-//! the new estimate. It stops when the mean squared distance of the kept pairs changes by at
-//! most `relative_tolerance` relative to the previous iteration, or after `max_iterations`.
+//! read as a band above the mean, re-applied to the fresh pair distances every iteration); the
+//! kept pairs give the update:
+//!
+//! - [`IcpMetric::PointToPlane`] (default): one Gauss–Newton step of the linearised
+//!   small-rotation least squares `Σ ((ω × (pᵢ − c) + t + pᵢ − qᵢ) · nᵢ)²` (6×6 normal equations,
+//!   `nᵢ` the normal of the model triangle holding the closest point `qᵢ`, `c` the centroid of the
+//!   kept points). Converges in a handful of iterations because the cloud may slide along the
+//!   surface. Falls back to Kabsch when the normal equations are singular (e.g. a planar cloud).
+//! - [`IcpMetric::PointToPoint`]: the best rigid motion of the kept pairs ([`kabsch`], thesis
+//!   alg. 2), with Anderson acceleration.
+//!
+//! It stops when the update changes the pose by less than `rotation_tolerance` (radians) and
+//! `translation_tolerance` (metres, displacement of the cloud centroid), or when the mean squared
+//! distance of the kept pairs changes by at most `relative_tolerance` relative to the previous
+//! iteration, or after `max_iterations`.
 //!
 //! The cloud is the moving side because a partial cloud has a counterpart for every point on the
 //! full model surface, not the other way round.
 
 use std::collections::VecDeque;
 
-use nalgebra::{DMatrix, DVector, Point3, Rotation3, Vector3, Vector6};
+use nalgebra::{DMatrix, DVector, Matrix6, Point3, Rotation3, Vector3, Vector6};
 use rayon::prelude::*;
 use serde::Serialize;
 use thiserror::Error;
@@ -74,14 +86,41 @@ pub enum IcpError {
     InvalidModel(String),
 }
 
-/// Settings of rigid ICP. Lengths in metres. `Default` gives the thesis's settings.
+/// The error metric minimised by each ICP update.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+pub enum IcpMetric {
+    /// Squared distances between paired points, solved exactly by [`kabsch`] (thesis alg. 2),
+    /// with Anderson acceleration. Slow on smooth surfaces (the cloud creeps tangentially).
+    PointToPoint,
+    /// Squared distances of the cloud points to the tangent planes of their closest model
+    /// triangles, one linearised (small-rotation) Gauss–Newton step per iteration.
+    #[default]
+    PointToPlane,
+}
+
+/// Most step halvings of the point-to-plane line search per iteration.
+const MAX_HALVINGS: usize = 1;
+
+/// Ratio of the smallest to the largest eigenvalue of the point-to-plane normal equations
+/// (rotation scaled by the cloud radius) below which the step falls back to [`kabsch`].
+const PLANE_DEGENERACY_RATIO: f64 = 1e-9;
+
+/// Settings of rigid ICP. Lengths in metres. `Default` gives the thesis's settings with the
+/// point-to-plane update.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct RigidIcp {
-    /// Most Kabsch updates (default 50). 0 only evaluates the initial transform.
+    /// Most updates (default 50). 0 only evaluates the initial transform.
     pub max_iterations: usize,
+    /// The update's error metric (default [`IcpMetric::PointToPlane`]).
+    pub metric: IcpMetric,
     /// Stop when the mean squared inlier distance changes by at most this fraction of its
     /// previous value (default 1e-6); ≥ 0.
     pub relative_tolerance: f64,
+    /// Stop when an update rotates the cloud by less than this, radians (default 1e-5) and moves
+    /// its centroid by less than `translation_tolerance`; ≥ 0.
+    pub rotation_tolerance: f64,
+    /// See `rotation_tolerance`; metres (default 1e-6); ≥ 0.
+    pub translation_tolerance: f64,
     /// Reject pairs farther than mean + `k` · standard deviation of the pair distances
     /// (thesis: twice the standard deviation, default `Some(2.0)`); `None` keeps them; > 0.
     pub outlier_sigma: Option<f64>,
@@ -99,7 +138,10 @@ impl Default for RigidIcp {
     fn default() -> Self {
         RigidIcp {
             max_iterations: 50,
+            metric: IcpMetric::default(),
             relative_tolerance: 1e-6,
+            rotation_tolerance: 1e-5,
+            translation_tolerance: 1e-6,
             outlier_sigma: Some(2.0),
             trim_fraction: None,
             max_correspondence_distance: None,
@@ -116,22 +158,25 @@ pub struct IcpResult {
     /// Its inverse: the motion of the model into the cloud (what the pipeline applies to the
     /// model).
     pub model_to_cloud: RigidTransform,
-    /// Kabsch updates performed.
+    /// Updates performed.
     pub iterations: usize,
     /// Root mean square distance of the inlier pairs at the returned transform, metres.
     pub rms: f64,
     /// Fraction of cloud points kept as inliers at the returned transform, in [0, 1].
     pub inlier_fraction: f64,
-    /// `true` when the relative-tolerance test stopped the iterations (not `max_iterations`).
+    /// `true` when the pose-change or relative-MSE test stopped the iterations (not
+    /// `max_iterations`).
     pub converged: bool,
 }
 
 /// Reusable buffers of one registration.
 struct Workspace {
-    /// Closest model point and squared distance of each cloud point.
-    pairs: Vec<(Point3<f64>, f64)>,
+    /// Closest model point, squared distance and model triangle normal of each cloud point.
+    pairs: Vec<(Point3<f64>, f64, Vector3<f64>)>,
     /// Indices of pairs under consideration / kept.
     keep: Vec<usize>,
+    /// `keep` of the previous iteration (point-to-plane backtracking).
+    prev_keep: Vec<usize>,
     src: Vec<Point3<f64>>,
     dst: Vec<Point3<f64>>,
 }
@@ -145,6 +190,14 @@ impl RigidIcp {
                 "relative_tolerance must be finite and >= 0, got {}",
                 self.relative_tolerance
             ));
+        }
+        for (name, v) in [
+            ("rotation_tolerance", self.rotation_tolerance),
+            ("translation_tolerance", self.translation_tolerance),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(format!("{name} must be finite and >= 0, got {v}"));
+            }
         }
         if let Some(k) = self.outlier_sigma {
             if !(k.is_finite() && k > 0.0) {
@@ -205,6 +258,7 @@ impl RigidIcp {
         let mut ws = Workspace {
             pairs: Vec::with_capacity(cloud.len()),
             keep: Vec::with_capacity(cloud.len()),
+            prev_keep: Vec::with_capacity(cloud.len()),
             src: Vec::with_capacity(cloud.len()),
             dst: Vec::with_capacity(cloud.len()),
         };
@@ -212,6 +266,10 @@ impl RigidIcp {
         let mut previous_mse: Option<f64> = None;
         // The plain ICP step behind an accelerated estimate, to fall back to.
         let mut plain_step: Option<RigidTransform> = None;
+        // The last update moved the pose by less than the pose tolerances.
+        let mut pose_converged = false;
+        // The estimate before the last point-to-plane update, for backtracking.
+        let mut previous_estimate: Option<RigidTransform> = None;
         let mut iterations = 0;
         loop {
             let mut mse = self.match_and_select(model, cloud, &estimate, &mut ws);
@@ -220,6 +278,20 @@ impl RigidIcp {
                     // The extrapolation made things worse: take the plain step instead.
                     estimate = plain;
                     accel.reset(&estimate);
+                    mse = self.match_and_select(model, cloud, &estimate, &mut ws);
+                }
+            }
+            if let (Some(before), Some(prev)) = (previous_estimate, previous_mse) {
+                // Point-to-plane line search: the Gauss–Newton step can overshoot across the
+                // facet edges of the model (a 2-cycle that never meets the tolerances); halve it
+                // while the previous iteration's inliers got farther from the surface.
+                for _ in 0..MAX_HALVINGS {
+                    let same_set = ws.prev_keep.iter().map(|&i| ws.pairs[i].1).sum::<f64>()
+                        / ws.prev_keep.len() as f64;
+                    if same_set <= prev {
+                        break;
+                    }
+                    estimate = accel.interpolate(&before, &estimate, 0.5);
                     mse = self.match_and_select(model, cloud, &estimate, &mut ws);
                 }
             }
@@ -232,8 +304,9 @@ impl RigidIcp {
                     total: cloud.len(),
                 });
             }
-            let converged = previous_mse
-                .is_some_and(|prev| (prev - mse).abs() <= self.relative_tolerance * prev);
+            let converged = pose_converged
+                || previous_mse
+                    .is_some_and(|prev| (prev - mse).abs() <= self.relative_tolerance * prev);
             if converged || iterations >= self.max_iterations {
                 let cloud_to_model = estimate;
                 return Ok(IcpResult {
@@ -245,17 +318,40 @@ impl RigidIcp {
                     converged,
                 });
             }
-            ws.src.clear();
-            ws.dst.clear();
-            for &i in &ws.keep {
-                ws.src.push(cloud[i]);
-                ws.dst.push(ws.pairs[i].0);
+            let plane_step = match self.metric {
+                IcpMetric::PointToPlane => point_to_plane_step(cloud, &estimate, &ws),
+                IcpMetric::PointToPoint => None,
+            };
+            let step = match plane_step {
+                Some(step) => step,
+                None => {
+                    ws.src.clear();
+                    ws.dst.clear();
+                    for &i in &ws.keep {
+                        ws.src.push(cloud[i]);
+                        ws.dst.push(ws.pairs[i].0);
+                    }
+                    kabsch(&ws.src, &ws.dst, None).ok_or(IcpError::Degenerate {
+                        iteration: iterations,
+                        inliers,
+                    })?
+                }
+            };
+            // The fixed-point residual of the plain step decides convergence (an extrapolated
+            // estimate is then not needed).
+            let (rotation, shift) = accel.pose_change(&estimate, &step);
+            pose_converged =
+                rotation < self.rotation_tolerance && shift < self.translation_tolerance;
+            previous_estimate = None;
+            if self.metric == IcpMetric::PointToPlane {
+                previous_estimate = Some(estimate);
+                ws.prev_keep.clone_from(&ws.keep);
             }
-            let step = kabsch(&ws.src, &ws.dst, None).ok_or(IcpError::Degenerate {
-                iteration: iterations,
-                inliers,
-            })?;
-            match accel.next(&estimate, &step) {
+            let accelerated = match self.metric {
+                IcpMetric::PointToPoint if !pose_converged => accel.next(&estimate, &step),
+                _ => None,
+            };
+            match accelerated {
                 Some(extrapolated) => {
                     estimate = extrapolated;
                     plain_step = Some(step);
@@ -282,7 +378,7 @@ impl RigidIcp {
         cloud
             .par_iter()
             .with_min_len(256)
-            .map(|p| model.closest_point(&estimate.apply(p)))
+            .map(|p| model.closest_point_with_normal(&estimate.apply(p)))
             .collect_into_vec(&mut ws.pairs);
         let pairs = &ws.pairs;
         let keep = &mut ws.keep;
@@ -318,6 +414,67 @@ impl RigidIcp {
         }
         keep.iter().map(|&i| pairs[i].1).sum::<f64>() / keep.len() as f64
     }
+}
+
+/// One Gauss–Newton step of point-to-plane ICP from `estimate` over the kept pairs of `ws`:
+/// minimises `Σ ((ω × (pᵢ − c) + t + pᵢ − qᵢ) · nᵢ)²` over the small rotation `ω` about the
+/// centroid `c` of the kept moved points `pᵢ` and the translation `t` (6×6 normal equations,
+/// rotation scaled by the RMS radius for conditioning), then applies the exact rotation
+/// `exp(ω)`. `None` when fewer than 6 pairs have a normal or the equations are (nearly)
+/// singular ([`PLANE_DEGENERACY_RATIO`]): the caller falls back to Kabsch.
+fn point_to_plane_step(
+    cloud: &[Point3<f64>],
+    estimate: &RigidTransform,
+    ws: &Workspace,
+) -> Option<RigidTransform> {
+    let usable = ws
+        .keep
+        .iter()
+        .filter(|&&i| ws.pairs[i].2 != Vector3::zeros())
+        .count();
+    if usable < 6 {
+        return None;
+    }
+    let moved = |i: usize| estimate.apply(&cloud[i]).coords;
+    let mut c = Vector3::zeros();
+    for &i in &ws.keep {
+        c += moved(i);
+    }
+    c /= ws.keep.len() as f64;
+    let mut spread = 0.0;
+    for &i in &ws.keep {
+        spread += (moved(i) - c).norm_squared();
+    }
+    let radius = (spread / ws.keep.len() as f64).sqrt();
+    if radius.is_nan() || radius <= 0.0 {
+        return None;
+    }
+    let mut a = Matrix6::zeros();
+    let mut b = Vector6::zeros();
+    for &i in &ws.keep {
+        let (q, _, n) = ws.pairs[i];
+        if n == Vector3::zeros() {
+            continue;
+        }
+        let p = moved(i);
+        let rot = (p - c).cross(&n) / radius;
+        let j = Vector6::new(rot.x, rot.y, rot.z, n.x, n.y, n.z);
+        let r = (p - q.coords).dot(&n);
+        a += j * j.transpose();
+        b += j * r;
+    }
+    let eigen = a.symmetric_eigen();
+    let (lo, hi) = (eigen.eigenvalues.min(), eigen.eigenvalues.max());
+    if !(hi.is_finite() && hi > 0.0 && lo > PLANE_DEGENERACY_RATIO * hi) {
+        return None;
+    }
+    let x = a.cholesky()?.solve(&(-b));
+    let rotation = Rotation3::new(Vector3::new(x[0], x[1], x[2]) / radius);
+    let translation = Vector3::new(x[3], x[4], x[5]);
+    // x ↦ R (x − c) + c + t
+    let increment = RigidTransform::new(rotation, c + translation - rotation * c);
+    let next = increment.compose(estimate).renormalized();
+    next.is_finite().then_some(next)
 }
 
 /// Past iterates kept by the Anderson acceleration.
@@ -360,6 +517,24 @@ impl Anderson {
             reference: estimate.rotation,
             history: VecDeque::with_capacity(ANDERSON_DEPTH + 1),
         }
+    }
+
+    /// The rotation angle (radians) between `a` and `b` and the distance (metres) between their
+    /// images of the cloud centroid.
+    fn pose_change(&self, a: &RigidTransform, b: &RigidTransform) -> (f64, f64) {
+        let shift = (a.apply_vector(&self.centroid) + a.translation)
+            - (b.apply_vector(&self.centroid) + b.translation);
+        (a.rotation_angle_to(b), shift.norm())
+    }
+
+    /// The pose a fraction `s` of the way from `a` to `b` (rotation by slerp, the image of the
+    /// cloud centroid linearly).
+    fn interpolate(&self, a: &RigidTransform, b: &RigidTransform, s: f64) -> RigidTransform {
+        let ca = a.apply_vector(&self.centroid) + a.translation;
+        let cb = b.apply_vector(&self.centroid) + b.translation;
+        let rotation = a.rotation.slerp(&b.rotation, s);
+        let c = ca + (cb - ca) * s;
+        RigidTransform::new(rotation, c - rotation * self.centroid).renormalized()
     }
 
     /// Forgets the history and re-anchors the rotation parameters at `estimate`.
