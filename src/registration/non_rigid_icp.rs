@@ -40,8 +40,8 @@ impl Default for NonRigidSettings {
             penalty_start: None,
             penalty_end: None,
             penalty_steps: 5,
-            max_icp_iterations: 10,
-            newton_iterations: 3,
+            max_icp_iterations: 20,
+            newton_iterations: 5,
             tolerance: 2e-4,
             outlier_sigma: 2.0,
         }
