@@ -31,6 +31,9 @@ pub struct NonRigidSettings {
     pub tolerance: f64,
     /// Pairs farther apart than mean + this × standard deviation are outliers (thesis: 2).
     pub outlier_sigma: f64,
+    /// Pairs farther apart than this (m) are dropped as well: with a partial cloud, visible
+    /// model points beyond the seen patch would otherwise be dragged onto its rim. `None`: no cap.
+    pub max_pair_distance: Option<f64>,
 }
 
 impl Default for NonRigidSettings {
@@ -44,6 +47,7 @@ impl Default for NonRigidSettings {
             newton_iterations: 5,
             tolerance: 2e-4,
             outlier_sigma: 2.0,
+            max_pair_distance: None,
         }
     }
 }
@@ -175,7 +179,8 @@ pub fn register_non_rigid(
                 })
                 .collect();
             let dists: Vec<f64> = pairs.iter().map(|p| p.2).collect();
-            let limit = rejection_threshold(&dists, settings.outlier_sigma);
+            let limit = rejection_threshold(&dists, settings.outlier_sigma)
+                .min(settings.max_pair_distance.unwrap_or(f64::INFINITY));
             let kept: Vec<(usize, usize, f64)> =
                 pairs.into_iter().filter(|p| p.2 <= limit).collect();
             if kept.len() < 3 {
