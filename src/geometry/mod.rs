@@ -37,12 +37,15 @@
 pub mod aabb;
 pub mod bucket_grid;
 pub mod bvh;
+pub mod camera;
 pub mod holes;
 pub mod inside;
 pub mod line_crossings;
 pub mod predicates;
 pub mod shapes;
 pub mod tri_box;
+pub mod view_error;
+pub mod visibility;
 pub mod winding;
 
 #[cfg(test)]
@@ -50,6 +53,9 @@ mod tests;
 
 pub use aabb::Aabb;
 pub use bvh::{Bvh, BvhNode};
+pub use camera::{Camera, DEFAULT_FOV_DEG};
 pub use inside::{GeometryError, InsideTest};
 pub use tri_box::triangle_overlaps_box;
+pub use view_error::ViewError;
+pub use visibility::VisibleSurface;
 pub use winding::{solid_angle, winding_number_brute, ExpansionOrder, FastWinding};

@@ -1,7 +1,7 @@
 //! Registration of the pre-operative liver model to intra-operative point clouds.
 //!
 //! This module holds the RIGID stage (thesis alg. 2): [`RigidTransform`] (a proper rigid motion,
-//! metres and radians), [`kabsch`] (weighted least-squares rigid fit of paired points),
+//! metres and radians), [`kabsch()`] (weighted least-squares rigid fit of paired points),
 //! [`ModelTarget`] (the model surface densely sampled into a k-d tree, built once per model and
 //! reused across frames) and [`RigidIcp`] (iterative closest point aligning a cloud to the
 //! model, with the thesis's outlier rule and optional trimming; point-to-plane updates by

@@ -5,11 +5,11 @@
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Point3, Vector3};
 
+use crate::geometry::{Camera, VisibleSurface};
 use crate::grid::Embedding;
 use crate::mechanics::{NewtonSolver, PenaltySprings};
 use crate::mesh::TriSurface;
 use crate::simulation::SceneModel;
-use crate::synthetic::{Camera, VisibleSurface};
 
 /// Settings of the non-rigid stage. Stiffnesses in N/m per source point, lengths in metres.
 #[derive(Debug, Clone, Copy, PartialEq)]

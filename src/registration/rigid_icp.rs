@@ -14,7 +14,7 @@
 //!   `nᵢ` the normal of the model triangle holding the closest point `qᵢ`, `c` the centroid of the
 //!   kept points). Converges in a handful of iterations because the cloud may slide along the
 //!   surface. Falls back to Kabsch when the normal equations are singular (e.g. a planar cloud).
-//! - [`IcpMetric::PointToPoint`]: the best rigid motion of the kept pairs ([`kabsch`], thesis
+//! - [`IcpMetric::PointToPoint`]: the best rigid motion of the kept pairs ([`kabsch()`], thesis
 //!   alg. 2), with Anderson acceleration.
 //!
 //! It stops when the update changes the pose by less than `rotation_tolerance` (radians) and
@@ -89,7 +89,7 @@ pub enum IcpError {
 /// The error metric minimised by each ICP update.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
 pub enum IcpMetric {
-    /// Squared distances between paired points, solved exactly by [`kabsch`] (thesis alg. 2),
+    /// Squared distances between paired points, solved exactly by [`kabsch()`] (thesis alg. 2),
     /// with Anderson acceleration. Slow on smooth surfaces (the cloud creeps tangentially).
     PointToPoint,
     /// Squared distances of the cloud points to the tangent planes of their closest model
@@ -102,7 +102,7 @@ pub enum IcpMetric {
 const MAX_HALVINGS: usize = 1;
 
 /// Ratio of the smallest to the largest eigenvalue of the point-to-plane normal equations
-/// (rotation scaled by the cloud radius) below which the step falls back to [`kabsch`].
+/// (rotation scaled by the cloud radius) below which the step falls back to [`kabsch()`].
 const PLANE_DEGENERACY_RATIO: f64 = 1e-9;
 
 /// Settings of rigid ICP. Lengths in metres. `Default` gives the thesis's settings with the

@@ -51,3 +51,20 @@ pub enum SynthError {
         look_at: String,
     },
 }
+
+impl From<crate::geometry::ViewError> for SynthError {
+    fn from(e: crate::geometry::ViewError) -> Self {
+        use crate::geometry::ViewError as V;
+        match e {
+            V::EmptySurface {
+                vertices,
+                triangles,
+            } => SynthError::EmptySurface {
+                vertices,
+                triangles,
+            },
+            V::InvalidSurface(m) => SynthError::InvalidSurface(m),
+            V::InvalidCamera(m) => SynthError::InvalidCamera(m),
+        }
+    }
+}

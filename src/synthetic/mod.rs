@@ -20,17 +20,15 @@
 //! assert!(cloud.visible_area < 0.5 * cloud.surface_area);
 //! ```
 
-pub mod camera;
 pub mod error;
 pub mod point_cloud;
 pub mod rng;
-pub mod visibility;
 
 #[cfg(test)]
 mod tests;
 
-pub use camera::{Camera, DEFAULT_FOV_DEG};
+/// The camera and the visibility test live in [`crate::geometry`] (registration uses them too).
+pub use crate::geometry::{Camera, VisibleSurface, DEFAULT_FOV_DEG};
 pub use error::SynthError;
 pub use point_cloud::{synthesize_cloud, CloudSpec, SyntheticCloud, MAX_SAMPLES, OUTLIER_MARGIN};
 pub use rng::Rng;
-pub use visibility::VisibleSurface;

@@ -4,10 +4,10 @@
 
 use nalgebra::{Matrix3, Point3, Rotation3, Vector3};
 
-use super::camera::Camera;
 use super::error::SynthError;
 use super::rng::Rng;
-use super::visibility::{check_surface, VisibleSurface};
+use crate::geometry::visibility::{check_surface, VisibleSurface};
+use crate::geometry::Camera;
 use crate::mesh::TriSurface;
 
 /// Square metres per square centimetre.

@@ -3,7 +3,7 @@
 
 use nalgebra::{Isometry3, Point3, Rotation3, Translation3, UnitQuaternion, UnitVector3, Vector3};
 
-use super::error::SynthError;
+use super::view_error::ViewError;
 
 /// Default full cone angle of the field of view, degrees.
 pub const DEFAULT_FOV_DEG: f64 = 70.0;
@@ -36,7 +36,7 @@ impl Camera {
         look_at: Point3<f64>,
         up: Vector3<f64>,
         fov_deg: f64,
-    ) -> Result<Self, SynthError> {
+    ) -> Result<Self, ViewError> {
         let camera = Self {
             position,
             look_at,
@@ -49,7 +49,7 @@ impl Camera {
 
     /// A validated camera with the default field of view ([`DEFAULT_FOV_DEG`]) and an up hint
     /// chosen automatically: world +z, or world +y when the view is (nearly) vertical.
-    pub fn looking_at(position: Point3<f64>, look_at: Point3<f64>) -> Result<Self, SynthError> {
+    pub fn looking_at(position: Point3<f64>, look_at: Point3<f64>) -> Result<Self, ViewError> {
         let d = look_at - position;
         let up = if d.norm() > 0.0 && d.normalize().z.abs() > 0.9 {
             Vector3::y()
@@ -60,14 +60,14 @@ impl Camera {
     }
 
     /// The same camera with a different full cone angle (degrees), validated.
-    pub fn with_fov(self, fov_deg: f64) -> Result<Self, SynthError> {
+    pub fn with_fov(self, fov_deg: f64) -> Result<Self, ViewError> {
         Self::new(self.position, self.look_at, self.up, fov_deg)
     }
 
     /// Checks that every value is finite, `position ≠ look_at`, `up` is non-zero and not
     /// parallel to the view direction, and `0 < fov_deg < 180`.
-    pub fn validate(&self) -> Result<(), SynthError> {
-        let bad = |m: String| Err(SynthError::InvalidCamera(m));
+    pub fn validate(&self) -> Result<(), ViewError> {
+        let bad = |m: String| Err(ViewError::InvalidCamera(m));
         let finite = self.position.iter().all(|v| v.is_finite())
             && self.look_at.iter().all(|v| v.is_finite())
             && self.up.iter().all(|v| v.is_finite());
@@ -155,7 +155,7 @@ mod tests {
     fn validation_rejects_degenerate_cameras() {
         let p = Point3::new(0.0, 0.0, 1.0);
         let o = Point3::origin();
-        let err = |c: Result<Camera, SynthError>| c.unwrap_err().to_string();
+        let err = |c: Result<Camera, ViewError>| c.unwrap_err().to_string();
         assert!(err(Camera::new(p, p, Vector3::y(), 70.0)).contains("coincide"));
         assert!(err(Camera::new(p, o, Vector3::z(), 70.0)).contains("parallel"));
         assert!(err(Camera::new(p, o, Vector3::zeros(), 70.0)).contains("zero"));

@@ -12,7 +12,7 @@ use parry3d::shape::TriMesh;
 use rayon::prelude::*;
 
 use super::camera::Camera;
-use super::error::SynthError;
+use super::view_error::ViewError;
 use crate::mesh::TriSurface;
 
 /// Relative part of the visibility tolerance (times the bounding-box diagonal).
@@ -42,9 +42,9 @@ impl std::fmt::Debug for VisibleSurface {
 }
 
 /// Checks that `surface` is non-empty, finite and has in-range indices.
-pub(crate) fn check_surface(surface: &TriSurface) -> Result<(), SynthError> {
+pub(crate) fn check_surface(surface: &TriSurface) -> Result<(), ViewError> {
     if surface.triangles.is_empty() || surface.vertices.is_empty() {
-        return Err(SynthError::EmptySurface {
+        return Err(ViewError::EmptySurface {
             vertices: surface.vertices.len(),
             triangles: surface.triangles.len(),
         });
@@ -54,14 +54,14 @@ pub(crate) fn check_surface(surface: &TriSurface) -> Result<(), SynthError> {
         .iter()
         .position(|v| !v.iter().all(|c| c.is_finite()))
     {
-        return Err(SynthError::InvalidSurface(format!(
+        return Err(ViewError::InvalidSurface(format!(
             "vertex {i} has a non-finite coordinate {:?}",
             surface.vertices[i].coords.as_slice()
         )));
     }
     let n = surface.vertices.len();
     if n > u32::MAX as usize {
-        return Err(SynthError::InvalidSurface(format!(
+        return Err(ViewError::InvalidSurface(format!(
             "{n} vertices is more than the ray caster's 32-bit indices allow"
         )));
     }
@@ -71,7 +71,7 @@ pub(crate) fn check_surface(surface: &TriSurface) -> Result<(), SynthError> {
         .enumerate()
         .find(|(_, tri)| tri.iter().any(|&i| i >= n))
     {
-        return Err(SynthError::InvalidSurface(format!(
+        return Err(ViewError::InvalidSurface(format!(
             "triangle {t} {tri:?} indexes past the {n} vertices"
         )));
     }
@@ -81,7 +81,7 @@ pub(crate) fn check_surface(surface: &TriSurface) -> Result<(), SynthError> {
 impl VisibleSurface {
     /// Builds the ray-casting structure for `surface` (metres). Fails on an empty surface,
     /// out-of-range indices or non-finite coordinates.
-    pub fn new(surface: &TriSurface) -> Result<Self, SynthError> {
+    pub fn new(surface: &TriSurface) -> Result<Self, ViewError> {
         check_surface(surface)?;
         let (lo, hi) = surface.bounding_box().expect("non-empty surface");
         let centre = nalgebra::center(&lo, &hi);
@@ -97,7 +97,7 @@ impl VisibleSurface {
             .map(|t| [t[0] as u32, t[1] as u32, t[2] as u32])
             .collect();
         let mesh = TriMesh::new(verts, idx)
-            .map_err(|e| SynthError::InvalidSurface(format!("ray-casting mesh: {e:?}")))?;
+            .map_err(|e| ViewError::InvalidSurface(format!("ray-casting mesh: {e:?}")))?;
         Ok(Self {
             mesh,
             centre,
