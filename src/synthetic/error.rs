@@ -4,21 +4,9 @@
 /// Messages quote the offending values.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SynthError {
-    /// The surface has no triangles (or no vertices).
-    #[error("the surface is empty ({vertices} vertices, {triangles} triangles)")]
-    EmptySurface {
-        /// Number of vertices.
-        vertices: usize,
-        /// Number of triangles.
-        triangles: usize,
-    },
-    /// The surface cannot be used (out-of-range index, non-finite coordinate, ...).
-    #[error("invalid surface: {0}")]
-    InvalidSurface(String),
-    /// The camera is unusable (position equal to `look_at`, `up` parallel to the view, bad
-    /// field of view, non-finite values).
-    #[error("invalid camera: {0}")]
-    InvalidCamera(String),
+    /// The surface or the camera cannot be used (see [`crate::geometry::ViewError`]).
+    #[error(transparent)]
+    View(#[from] crate::geometry::ViewError),
     /// A [`crate::synthetic::CloudSpec`] parameter is out of its range.
     #[error("invalid cloud specification: {0}")]
     InvalidSpec(String),
@@ -50,21 +38,4 @@ pub enum SynthError {
         /// Camera target, formatted.
         look_at: String,
     },
-}
-
-impl From<crate::geometry::ViewError> for SynthError {
-    fn from(e: crate::geometry::ViewError) -> Self {
-        use crate::geometry::ViewError as V;
-        match e {
-            V::EmptySurface {
-                vertices,
-                triangles,
-            } => SynthError::EmptySurface {
-                vertices,
-                triangles,
-            },
-            V::InvalidSurface(m) => SynthError::InvalidSurface(m),
-            V::InvalidCamera(m) => SynthError::InvalidCamera(m),
-        }
-    }
 }

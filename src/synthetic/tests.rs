@@ -485,7 +485,13 @@ fn invalid_inputs_are_rejected_with_clear_messages() {
 
     let empty = TriSurface::default();
     let e = synthesize_cloud(&empty, &cam, &d).unwrap_err();
-    assert!(matches!(e, SynthError::EmptySurface { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            SynthError::View(crate::geometry::ViewError::EmptySurface { .. })
+        ),
+        "{e}"
+    );
     assert!(e.to_string().contains("empty"));
     assert!(VisibleSurface::new(&empty).is_err());
     let mut broken = s.clone();
