@@ -11,12 +11,14 @@
 //! - [`registration`]: rigid ICP (and, to come, the non-rigid stage);
 //! - [`phantom`]: the bundled liver phantom (surface, vessel targets, tumour, ligament);
 //! - [`synthetic`]: a virtual camera producing partial, noisy point clouds (tests, benchmarks);
+//! - [`evaluation`]: results and truth formats, target registration error;
 //! - [`cli`]: the command line.
 //!
 //! Lower layers never import higher ones. Inside the mechanics everything is SI (m, N, Pa, J).
 #![warn(missing_docs)]
 
 pub mod cli;
+pub mod evaluation;
 pub mod geometry;
 pub mod grid;
 pub mod linalg;

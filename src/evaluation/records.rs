@@ -1,0 +1,83 @@
+//! The line formats of `results.jsonl` (written by `livereg register`) and of truth files
+//! (read by `livereg eval`), as in contracts.md ("`register` output"). Lengths are in the
+//! scene's units.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+/// Rigid part of a frame's registration: `p_cloud = rotation · p_model + translation`
+/// (model frame to camera/cloud frame), translation in scene units.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RigidRecord {
+    /// Row-major 3×3 rotation matrix.
+    pub rotation: [[f64; 3]; 3],
+    /// Translation, scene units.
+    pub translation: [f64; 3],
+}
+
+/// Per-frame diagnostics. The first three fields are the contract's; the others are this
+/// project's additions and are omitted when empty.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct DiagnosticsRecord {
+    /// Non-rigid ICP iterations of the frame.
+    pub icp_iterations: usize,
+    /// Newton iterations of the frame.
+    pub newton_iterations: usize,
+    /// RMS distance between the model's kept surface points and the cloud, scene units.
+    pub surface_rms: f64,
+    /// Rigid ICP iterations.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub rigid_iterations: usize,
+    /// Cloud points received.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub cloud_points: usize,
+    /// Model surface points paired with the cloud in the last ICP iteration.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub sources: usize,
+    /// Milliseconds per stage (`rigid`, `non_rigid`, …).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub timings_ms: BTreeMap<String, f64>,
+    /// Flags raised on this frame (`time_budget`, `icp_not_converged`, `failed`, …).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub flags: Vec<String>,
+    /// Why the frame failed, when it did (the structures are then the last good state's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// Warnings of the solver (for example a bisection limit reached), with their cause.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
+}
+
+/// One line of `results.jsonl`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ResultRecord {
+    /// Frame index from 0.
+    pub frame: usize,
+    /// Name of the frame's input (file name, or channel/sequence in a recording).
+    pub source: String,
+    /// Wall time of the frame's registration, ms.
+    pub wall_ms: f64,
+    /// Whether the registration converged.
+    pub converged: bool,
+    /// Rigid model→cloud transform.
+    pub rigid: RigidRecord,
+    /// Diagnostics.
+    pub diagnostics: DiagnosticsRecord,
+    /// For every structure of the scene, the deformed position of each point, in file
+    /// order, in the cloud's frame, scene units.
+    pub structures: BTreeMap<String, Vec<[f64; 3]>>,
+}
+
+/// One line of a truth file: `frame` and `structures` are required, the rest is ignored.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TruthRecord {
+    /// Frame index from 0.
+    pub frame: usize,
+    /// For every structure, the true position of each point, scene units.
+    pub structures: BTreeMap<String, Vec<[f64; 3]>>,
+}
