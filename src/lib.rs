@@ -8,7 +8,8 @@
 //! - [`mechanics`]: materials, the hexahedral cell, assembly, loads, penalties, Newton;
 //! - [`scene`]: the scene file; [`simulation`]: a scene turned into a solved model;
 //! - [`scenarios`]: reference problems from the source texts (tests, benchmarks);
-//! - [`registration`]: rigid ICP (and, to come, the non-rigid stage);
+//! - [`registration`]: rigid ICP and the biomechanical non-rigid ICP;
+//! - [`session`]: a model registered frame after frame (warm start, time budget, recovery);
 //! - [`phantom`]: the bundled liver phantom (surface, vessel targets, tumour, ligament);
 //! - [`synthetic`]: a virtual camera producing partial, noisy point clouds (tests, benchmarks);
 //! - [`evaluation`]: results and truth formats, target registration error;
@@ -28,5 +29,6 @@ pub mod phantom;
 pub mod registration;
 pub mod scenarios;
 pub mod scene;
+pub mod session;
 pub mod simulation;
 pub mod synthetic;

@@ -1,6 +1,15 @@
 //! Outputs for evaluation: the `results.jsonl` and truth line formats, and target
 //! registration error (TRE) per frame, per structure and in summary.
 
+pub mod error;
+pub mod jsonl;
 pub mod records;
+pub mod tre;
 
+pub use error::EvalError;
+pub use jsonl::{read_jsonl, read_results, read_truth, JsonlWriter};
 pub use records::{DiagnosticsRecord, ResultRecord, RigidRecord, TruthRecord};
+pub use tre::{evaluate, percentile, EvalReport, FrameReport, StructureFrameTre, Summary};
+
+#[cfg(test)]
+mod tests;

@@ -6,6 +6,8 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
+use crate::session::FrameResult;
+
 /// Rigid part of a frame's registration: `p_cloud = rotation · p_model + translation`
 /// (model frame to camera/cloud frame), translation in scene units.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -80,4 +82,55 @@ pub struct TruthRecord {
     pub frame: usize,
     /// For every structure, the true position of each point, scene units.
     pub structures: BTreeMap<String, Vec<[f64; 3]>>,
+}
+
+impl ResultRecord {
+    /// The line of `results.jsonl` for a session's frame result; `length_scale` is metres per
+    /// scene unit (the rigid translation is converted to scene units).
+    pub fn from_frame(r: &FrameResult, length_scale: f64) -> Self {
+        let m = r.model_to_cloud.rotation.matrix();
+        let t = r.model_to_cloud.translation / length_scale;
+        let mut timings_ms = BTreeMap::new();
+        for (name, v) in [
+            ("prepare", r.times.prepare_ms),
+            ("rigid", r.times.rigid_ms),
+            ("visibility", r.times.visibility_ms),
+            ("pairing", r.times.pairing_ms),
+            ("newton", r.times.newton_ms),
+            ("output", r.times.output_ms),
+        ] {
+            timings_ms.insert(name.to_string(), v);
+        }
+        ResultRecord {
+            frame: r.frame,
+            source: r.source.clone(),
+            wall_ms: r.wall_ms,
+            converged: r.converged,
+            rigid: RigidRecord {
+                rotation: [
+                    [m[(0, 0)], m[(0, 1)], m[(0, 2)]],
+                    [m[(1, 0)], m[(1, 1)], m[(1, 2)]],
+                    [m[(2, 0)], m[(2, 1)], m[(2, 2)]],
+                ],
+                translation: [t.x, t.y, t.z],
+            },
+            diagnostics: DiagnosticsRecord {
+                icp_iterations: r.icp_iterations,
+                newton_iterations: r.newton_iterations,
+                surface_rms: r.surface_rms,
+                rigid_iterations: r.rigid_iterations,
+                cloud_points: r.cloud_points.0,
+                sources: r.sources,
+                timings_ms,
+                flags: r.flags.clone(),
+                error: r.error.as_ref().map(|e| e.to_string()),
+                warnings: r.warnings.clone(),
+            },
+            structures: r
+                .structures
+                .iter()
+                .map(|(name, pts)| (name.clone(), pts.iter().map(|p| [p.x, p.y, p.z]).collect()))
+                .collect(),
+        }
+    }
 }

@@ -26,6 +26,18 @@ pub fn sample_surface_in_box(
     region: &Aabb,
     spacing: f64,
 ) -> Vec<SurfaceSample> {
+    samples_by_triangle(surface, region, spacing)
+        .into_iter()
+        .map(|(_, s)| s)
+        .collect()
+}
+
+/// [`sample_surface_in_box`] with the triangle each sample lies on.
+fn samples_by_triangle(
+    surface: &TriSurface,
+    region: &Aabb,
+    spacing: f64,
+) -> Vec<(usize, SurfaceSample)> {
     let mut out = Vec::new();
     for t in 0..surface.triangles.len() {
         let [a, b, c] = surface.corners(t);
@@ -42,10 +54,10 @@ pub fn sample_surface_in_box(
             for j in 0..(m - i) {
                 // Upward sub-triangle (i, j), and the downward one beside it.
                 let p = a + eu * (i as f64 + 1.0 / 3.0) + ev * (j as f64 + 1.0 / 3.0);
-                push_if_inside(&mut out, region, p, area);
+                push_if_inside(&mut out, region, t, p, area);
                 if i + j + 1 < m {
                     let q = a + eu * (i as f64 + 2.0 / 3.0) + ev * (j as f64 + 2.0 / 3.0);
-                    push_if_inside(&mut out, region, q, area);
+                    push_if_inside(&mut out, region, t, q, area);
                 }
             }
         }
@@ -53,9 +65,15 @@ pub fn sample_surface_in_box(
     out
 }
 
-fn push_if_inside(out: &mut Vec<SurfaceSample>, region: &Aabb, p: Point3<f64>, area: f64) {
+fn push_if_inside(
+    out: &mut Vec<(usize, SurfaceSample)>,
+    region: &Aabb,
+    triangle: usize,
+    p: Point3<f64>,
+    area: f64,
+) {
     if (0..3).all(|d| p[d] >= region.min[d] && p[d] <= region.max[d]) {
-        out.push(SurfaceSample { point: p, area });
+        out.push((triangle, SurfaceSample { point: p, area }));
     }
 }
 
@@ -72,6 +90,46 @@ pub fn traction_forces(
     let points: Vec<Point3<f64>> = samples.iter().map(|s| s.point).collect();
     let emb = Embedding::new(grid, &points)?;
     let f: Vec<Vector3<f64>> = samples.iter().map(|s| value * s.area).collect();
+    emb.spread_forces(&f, forces);
+    Ok(samples.len())
+}
+
+/// Grid forces (N, 3 per node) of a dead pressure `pressure` (Pa) on the part of `surface`
+/// inside `region` (the whole surface when `None`): every rest-area sample of area `A` on a
+/// triangle with outward unit normal `n` carries the force `−p n A` (a positive pressure pushes
+/// the surface inwards; `surface` must be outward-oriented), moved to the grid through H like
+/// [`traction_forces`]. The load is dead: normals and areas are those of the rest surface.
+/// Returns the number of surface samples loaded.
+///
+/// On a closed surface a uniform pressure has zero resultant force and moment (up to
+/// round-off); on an open patch the resultant is `−p` times the patch's vector area.
+pub fn pressure_forces(
+    grid: &WeightedCellGrid,
+    surface: &TriSurface,
+    region: Option<&Aabb>,
+    pressure: f64,
+    forces: &mut [f64],
+) -> Result<usize, EmbeddingError> {
+    let everywhere = Aabb {
+        min: Point3::from(Vector3::repeat(f64::NEG_INFINITY)),
+        max: Point3::from(Vector3::repeat(f64::INFINITY)),
+    };
+    let region = region.unwrap_or(&everywhere);
+    let samples = samples_by_triangle(surface, region, 0.25 * grid.grid.cell_size);
+    let points: Vec<Point3<f64>> = samples.iter().map(|(_, s)| s.point).collect();
+    let emb = Embedding::new(grid, &points)?;
+    let f: Vec<Vector3<f64>> = samples
+        .iter()
+        .map(|(t, s)| {
+            let n = surface.scaled_normal(*t);
+            let len = n.norm();
+            if len > 0.0 {
+                n * (-pressure * s.area / len)
+            } else {
+                Vector3::zeros()
+            }
+        })
+        .collect();
     emb.spread_forces(&f, forces);
     Ok(samples.len())
 }
@@ -169,6 +227,84 @@ mod tests {
         traction_forces(&g, &s, &region, t, &mut f).unwrap();
         let area = 0.5 * 32.0 * 0.05f64.powi(2) * (std::f64::consts::TAU / 32.0).sin();
         assert!((total(&f) - t * area).norm() < 1e-12 * (t * area).norm());
+    }
+
+    /// Σ_a X_a × f_a over the grid nodes: the moment about the origin.
+    fn moment(g: &WeightedCellGrid, forces: &[f64]) -> Vector3<f64> {
+        g.node_positions()
+            .iter()
+            .zip(forces.chunks(3))
+            .fold(Vector3::zeros(), |acc, (x, f)| {
+                acc + x.coords.cross(&Vector3::new(f[0], f[1], f[2]))
+            })
+    }
+
+    #[test]
+    fn uniform_pressure_on_a_closed_surface_has_no_resultant() {
+        // Off-centre sphere, so that the moment about the origin is not zero by symmetry alone.
+        let s = icosphere(Point3::new(0.013, -0.007, 0.021), 0.05, 3);
+        let g = WeightedCellGrid::build(
+            &s,
+            &GridOptions {
+                cell_size: 0.015,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let p = 1500.0;
+        let mut f = vec![0.0; 3 * g.node_count()];
+        let n = pressure_forces(&g, &s, None, p, &mut f).unwrap();
+        assert!(n > s.triangles.len());
+        // Scale of the individual forces: p × area, and p × area × lever arm.
+        let area = 4.0 * std::f64::consts::PI * 0.05f64.powi(2);
+        let magnitude: f64 = f.iter().map(|v| v.abs()).sum();
+        assert!(magnitude > 0.1 * p * area, "the nodes do carry forces");
+        assert!(total(&f).norm() < 1e-12 * p * area, "{:?}", total(&f));
+        assert!(
+            moment(&g, &f).norm() < 1e-12 * p * area * 0.1,
+            "{:?}",
+            moment(&g, &f)
+        );
+        // Positive pressure pushes inwards: the nodes above the centre are pushed down.
+        let centre = Point3::new(0.013, -0.007, 0.021);
+        let down: f64 = g
+            .node_positions()
+            .iter()
+            .zip(f.chunks(3))
+            .filter(|(x, _)| x.z > centre.z + 0.03)
+            .map(|(_, v)| v[2])
+            .sum();
+        assert!(down < 0.0);
+    }
+
+    #[test]
+    fn pressure_on_an_open_patch_totals_minus_p_times_vector_area() {
+        // Half of a cylinder's side wall (x > 0, caps excluded): its vector area is that of
+        // the chain from angle −90° to +90° swept along the axis, 2 R H along +x, whatever the
+        // number of segments.
+        let (r, z0, h) = (0.05, -0.03, 0.12);
+        let s = cylinder_surface(r, z0, h, 32, 6);
+        let g = WeightedCellGrid::build(
+            &s,
+            &GridOptions {
+                cell_size: 0.02,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let region = Aabb {
+            min: Point3::new(1e-9, -1.0, z0 + 1e-6),
+            max: Point3::new(1.0, 1.0, z0 + h - 1e-6),
+        };
+        let p = -800.0; // suction: pulls outwards
+        let mut f = vec![0.0; 3 * g.node_count()];
+        pressure_forces(&g, &s, Some(&region), p, &mut f).unwrap();
+        let expected = Vector3::new(-p * 2.0 * r * h, 0.0, 0.0);
+        assert!(
+            (total(&f) - expected).norm() < 1e-12 * expected.norm(),
+            "{:?} vs {expected:?}",
+            total(&f)
+        );
     }
 
     #[test]

@@ -104,6 +104,10 @@ pub struct ImproveReport {
     pub relative_residual: f64,
     /// Whether equilibrium was reached.
     pub converged: bool,
+    /// Steps whose tangent was indefinite and had to be shifted (Levenberg–Marquardt).
+    pub shifted_steps: usize,
+    /// Step lengths the line search accepted, in order.
+    pub steps: Vec<f64>,
     /// A failure other than the iteration cap (inversion no step avoided, linear solve), with
     /// its message; the state is still the last valid one.
     pub failure: Option<(Outcome, String)>,
@@ -158,6 +162,16 @@ pub struct NewtonSolver {
     tangent: Option<SymmetricCsc>,
     /// Grid (dims, node count) the linear solver's nested-dissection ordering was made for.
     ordered_for: Option<([usize; 3], usize)>,
+    /// Most Newton steps one factorisation may serve in [`NewtonSolver::improve`] (1: a new
+    /// factorisation every step, plain Newton).
+    factor_reuse: usize,
+    /// Steps served by the current factorisation (`None`: no usable factorisation).
+    factor_age: Option<usize>,
+    /// Factorisations done since the solver was made.
+    factorizations: usize,
+    /// Diagonal shift τ that last made an indefinite tangent factorisable (0: none needed);
+    /// the next indefinite tangent starts its search one decade below it.
+    last_shift: f64,
 }
 
 impl NewtonSolver {
@@ -168,7 +182,35 @@ impl NewtonSolver {
             settings,
             tangent: None,
             ordered_for: None,
+            factor_reuse: 1,
+            factor_age: None,
+            factorizations: 0,
+            last_shift: 0.0,
         }
+    }
+
+    /// Lets one factorisation of the tangent serve up to `max_uses` steps of
+    /// [`NewtonSolver::improve`], across calls (modified Newton): a step with a kept
+    /// factorisation costs one residual evaluation and two triangular solves instead of a
+    /// tangent assembly and a factorisation. The kept matrix is symmetric positive definite,
+    /// so its step is still a descent direction of the energy and the line search still
+    /// guarantees a decrease; a step the line search has to shorten below ½ drops the
+    /// factorisation. `max_uses ≤ 1` restores plain Newton. [`NewtonSolver::solve`] always
+    /// refactorises.
+    pub fn with_factor_reuse(mut self, max_uses: usize) -> Self {
+        self.factor_reuse = max_uses.max(1);
+        self
+    }
+
+    /// Forgets the kept factorisation (the next step refactorises), for example when the
+    /// problem changed beyond what a stale tangent can follow.
+    pub fn invalidate_factorization(&mut self) {
+        self.factor_age = None;
+    }
+
+    /// Factorisations of the tangent done so far (each costs far more than a step).
+    pub fn factorizations(&self) -> usize {
+        self.factorizations
     }
 
     /// Solves from the state `u0` (m; load factor 0 is assumed to hold there) up to full load.
@@ -254,20 +296,27 @@ impl NewtonSolver {
             max_iterations,
             &mut iterations,
             &mut history,
+            self.factor_reuse,
         );
         let last = history.last().map_or(0.0, |h| h.relative_residual);
+        let shifted_steps = history.iter().filter(|h| h.regularization > 0.0).count();
+        let steps = history.iter().map(|h| h.step).collect();
         match result {
             Ok(rel) => ImproveReport {
                 iterations,
                 relative_residual: rel,
                 converged: true,
                 failure: None,
+                shifted_steps,
+                steps,
             },
             Err(f) => ImproveReport {
                 iterations,
                 relative_residual: last,
                 converged: false,
                 failure: (f.outcome != Outcome::IterationCap).then_some((f.outcome, f.message)),
+                shifted_steps,
+                steps,
             },
         }
     }
@@ -280,6 +329,7 @@ impl NewtonSolver {
             self.linear = SparseSolver::new(self.settings.linear_solver)
                 .with_node_coordinates(problem.grid.node_coords.clone());
             self.tangent = None;
+            self.factor_age = None;
             self.ordered_for = Some(key);
         }
     }
@@ -328,11 +378,14 @@ impl NewtonSolver {
         history: &mut Vec<IterationRecord>,
     ) -> Result<f64, StepFailure> {
         let cap = self.settings.max_iterations;
-        self.iterate(problem, u, load, cap, iterations, history)
+        self.factor_age = None;
+        self.iterate(problem, u, load, cap, iterations, history, 1)
     }
 
     /// At most `max_iterations` Newton iterations at load factor `load` from `u` (updated in
     /// place; every accepted step keeps it valid). `Ok(relative residual)` when converged.
+    /// A factorisation serves at most `max_uses` steps (1: plain Newton).
+    #[allow(clippy::too_many_arguments)]
     fn iterate(
         &mut self,
         problem: &mut StaticProblem,
@@ -341,6 +394,7 @@ impl NewtonSolver {
         max_iterations: usize,
         iterations: &mut usize,
         history: &mut Vec<IterationRecord>,
+        max_uses: usize,
     ) -> Result<f64, StepFailure> {
         let s = self.settings;
         let n = problem.dofs();
@@ -352,7 +406,14 @@ impl NewtonSolver {
         let result = (|| {
             let mut reference = 0.0;
             for it in 0..max_iterations {
-                let e = problem.evaluate(u, load, Need::Tangent, Some(&mut r), Some(&mut k))?;
+                let reuse = self.factor_age.is_some_and(|a| a < max_uses);
+                // A kept factorisation keeps `k` as the matrix it factorised (the direct solver
+                // refines against it), so only the residual is evaluated.
+                let e = if reuse {
+                    problem.evaluate(u, load, Need::Force, Some(&mut r), None)?
+                } else {
+                    problem.evaluate(u, load, Need::Tangent, Some(&mut r), Some(&mut k))?
+                };
                 let rn = norm(&r);
                 if !rn.is_finite() || !e.potential.is_finite() {
                     return Err(StepFailure {
@@ -374,7 +435,14 @@ impl NewtonSolver {
                     });
                 }
                 *iterations += 1;
-                let regularization = self.factorize_descent(&mut k)?;
+                let regularization = if reuse {
+                    0.0
+                } else {
+                    self.factor_age = None;
+                    let tau = self.factorize_descent(&mut k)?;
+                    self.factor_age = Some(0);
+                    tau
+                };
                 for v in r.iter_mut() {
                     *v = -*v;
                 }
@@ -383,9 +451,21 @@ impl NewtonSolver {
                     *v = -*v;
                 }
                 let alpha = if s.line_search {
-                    self.line_search(problem, u, &du, &r, e.potential, rn, load, &mut trial)?
+                    match self.line_search(problem, u, &du, &r, e.potential, rn, load, &mut trial) {
+                        Ok(a) => a,
+                        // A kept factorisation may simply be too stale: retry with a fresh one.
+                        Err(_) if reuse => {
+                            self.factor_age = None;
+                            continue;
+                        }
+                        Err(f) => return Err(f),
+                    }
                 } else {
                     1.0
+                };
+                self.factor_age = match self.factor_age {
+                    Some(a) if alpha >= 0.5 => Some(a + 1),
+                    _ => None,
                 };
                 history.push(IterationRecord {
                     load,
@@ -420,22 +500,28 @@ impl NewtonSolver {
     /// descent direction. Near equilibrium the tangent is positive definite and the iteration is
     /// plain Newton, with its quadratic convergence. Returns the shift τ used (0 when none).
     fn factorize_descent(&mut self, k: &mut SymmetricCsc) -> Result<f64, LinalgError> {
+        self.factorizations += 1;
         self.linear.factorize(k)?;
         if !self.linear.fell_back_to_indefinite() || self.settings.linear_solver == SolverKind::Ldlt
         {
+            self.last_shift /= 10.0;
             return Ok(0.0);
         }
         let diag: Vec<usize> = (0..k.n)
             .map(|i| k.position(i, i).expect("diagonal stored"))
             .collect();
         let original: Vec<f64> = diag.iter().map(|&p| k.values[p]).collect();
-        let mut tau = 1e-3;
+        // Start one decade below the shift that worked last time (neighbouring states of one
+        // solve tend to need similar shifts): fewer refactorisations.
+        let mut tau = (self.last_shift / 10.0).clamp(1e-3, 1e2);
         for _ in 0..7 {
             for (&p, &d) in diag.iter().zip(&original) {
                 k.values[p] = d + tau * d.abs();
             }
+            self.factorizations += 1;
             self.linear.factorize(k)?;
             if !self.linear.fell_back_to_indefinite() {
+                self.last_shift = tau;
                 return Ok(tau);
             }
             tau *= 10.0;

@@ -27,6 +27,7 @@
 //! assert!(result.model_to_cloud.rotation_angle_to(&truth) < 0.01);
 //! ```
 
+pub mod correspondences;
 pub mod kabsch;
 pub mod model_target;
 pub mod non_rigid_icp;
@@ -38,8 +39,12 @@ mod test_support;
 #[cfg(test)]
 mod tests;
 
+pub use correspondences::{Correspondences, IndexedPoints, PairingRule};
 pub use kabsch::kabsch;
 pub use model_target::ModelTarget;
-pub use non_rigid_icp::{register_non_rigid, NonRigidError, NonRigidReport, NonRigidSettings};
+pub use non_rigid_icp::{
+    register_non_rigid, NonRigidError, NonRigidIcp, NonRigidReport, NonRigidSettings,
+    NonRigidTimings,
+};
 pub use rigid_icp::{IcpError, IcpMetric, IcpResult, RigidIcp};
 pub use rigid_transform::RigidTransform;

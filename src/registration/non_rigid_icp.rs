@@ -2,12 +2,14 @@
 //! visible surface towards the intra-operative cloud while the hyperelastic grid decides how
 //! the whole volume follows.
 
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
-use nalgebra::{Point3, Vector3};
+use std::time::Instant;
 
+use nalgebra::Point3;
+
+use super::correspondences::{pair, IndexedPoints, PairingRule, RIM_NEIGHBOURS, RIM_RATIO};
 use crate::geometry::{Camera, VisibleSurface};
 use crate::grid::Embedding;
-use crate::mechanics::{NewtonSolver, PenaltySprings};
+use crate::mechanics::{NewtonSettings, NewtonSolver, PenaltySprings};
 use crate::mesh::TriSurface;
 use crate::simulation::SceneModel;
 
@@ -21,19 +23,30 @@ pub struct NonRigidSettings {
     pub penalty_start: Option<f64>,
     /// Last penalty stiffness k₁ (stiff: match detail). `None`: 2 E h.
     pub penalty_end: Option<f64>,
-    /// Steps of the exponential ramp from k₀ to k₁.
+    /// Steps of the exponential ramp from k₀ to k₁ (1: k₁ only).
     pub penalty_steps: usize,
     /// ICP iterations allowed per penalty step.
     pub max_icp_iterations: usize,
     /// Newton iterations per ICP iteration.
     pub newton_iterations: usize,
-    /// A penalty step ends when no imposed displacement changes by more than this, m.
+    /// A penalty step ends when no imposed target moves by more than this between ICP
+    /// iterations, m.
     pub tolerance: f64,
     /// Pairs farther apart than mean + this × standard deviation are outliers (thesis: 2).
     pub outlier_sigma: f64,
     /// Pairs farther apart than this (m) are dropped as well: with a partial cloud, visible
     /// model points beyond the seen patch would otherwise be dragged onto its rim. `None`: no cap.
     pub max_pair_distance: Option<f64>,
+    /// Drop model points whose nearest cloud point lies on the rim of the cloud's patch
+    /// ([`IndexedPoints::rim_mask`]): the unseen surface is not dragged onto the rim.
+    pub reject_rim: bool,
+    /// Visibility (ray casts on the deformed surface) is recomputed every this many ICP
+    /// iterations, counted across calls (frames); 1: at every iteration. In between, the last
+    /// visible set is reused (the surface moves little between iterations and frames).
+    pub visibility_interval: usize,
+    /// Most Newton steps one factorisation of the tangent may serve (modified Newton, see
+    /// [`NewtonSolver::with_factor_reuse`]); 1 refactorises at every step.
+    pub factor_reuse: usize,
 }
 
 impl Default for NonRigidSettings {
@@ -48,7 +61,57 @@ impl Default for NonRigidSettings {
             tolerance: 2e-4,
             outlier_sigma: 2.0,
             max_pair_distance: None,
+            reject_rim: true,
+            visibility_interval: 1,
+            factor_reuse: 1,
         }
+    }
+}
+
+impl NonRigidSettings {
+    /// Settings for a frame that starts from the previous frame's result: the shape is
+    /// already close, so one stiff penalty step with a few cheap (modified-Newton) iterations.
+    pub fn warm() -> Self {
+        Self {
+            penalty_steps: 1,
+            max_icp_iterations: 8,
+            newton_iterations: 2,
+            visibility_interval: 16,
+            factor_reuse: 8,
+            ..Self::default()
+        }
+    }
+
+    /// Checks ranges; the message names the setting.
+    pub fn validate(&self) -> Result<(), NonRigidError> {
+        let bad = |m: String| Err(NonRigidError::InvalidSetting(m));
+        if !(0.0..=1.0).contains(&self.alpha) {
+            return bad(format!("alpha {} is outside [0, 1]", self.alpha));
+        }
+        for (name, v) in [
+            ("penalty_start", self.penalty_start),
+            ("penalty_end", self.penalty_end),
+            ("max_pair_distance", self.max_pair_distance),
+        ] {
+            if let Some(v) = v {
+                if !(v.is_finite() && v > 0.0) {
+                    return bad(format!("{name} {v} must be finite and > 0"));
+                }
+            }
+        }
+        if !(self.tolerance.is_finite() && self.tolerance >= 0.0) {
+            return bad(format!(
+                "tolerance {} must be finite and >= 0",
+                self.tolerance
+            ));
+        }
+        if !(self.outlier_sigma.is_finite() && self.outlier_sigma > 0.0) {
+            return bad(format!(
+                "outlier_sigma {} must be finite and > 0",
+                self.outlier_sigma
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -69,6 +132,20 @@ pub enum NonRigidError {
     /// The visibility test could not be built.
     #[error("visibility: {0}")]
     Visibility(String),
+    /// A setting is out of range.
+    #[error("non-rigid settings: {0}")]
+    InvalidSetting(String),
+}
+
+/// Milliseconds spent in each part of a non-rigid registration.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct NonRigidTimings {
+    /// Ray-cast visibility.
+    pub visibility_ms: f64,
+    /// Nearest neighbours, pruning and blending.
+    pub pairing_ms: f64,
+    /// Newton iterations (assembly, factorisation, solves, line search).
+    pub newton_ms: f64,
 }
 
 /// What a non-rigid registration did.
@@ -78,43 +155,240 @@ pub struct NonRigidReport {
     pub icp_iterations: usize,
     /// Newton iterations over all ICP iterations.
     pub newton_iterations: usize,
+    /// Tangent factorisations.
+    pub factorizations: usize,
     /// RMS distance (m) between the kept source points and their nearest cloud points at the
-    /// end.
+    /// last pairing.
     pub surface_rms: f64,
     /// Source points used in the last iteration.
     pub sources: usize,
     /// Whether every penalty step converged within its iteration budget.
     pub converged: bool,
+    /// Whether the deadline stopped the iterations (the state is the last valid one).
+    pub deadline_reached: bool,
     /// Failures the Newton solver reported (the state stays the last valid one).
     pub warnings: Vec<String>,
+    /// Where the time went.
+    pub timings: NonRigidTimings,
 }
 
-fn tree_of(points: &[Point3<f64>]) -> ImmutableKdTree<f64, 3> {
-    let coords: Vec<[f64; 3]> = points.iter().map(|p| [p.x, p.y, p.z]).collect();
-    ImmutableKdTree::new_from_slice(&coords).expect("non-empty finite points")
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
 }
 
-fn nearest(tree: &ImmutableKdTree<f64, 3>, p: &Point3<f64>) -> (usize, f64) {
-    let nn = tree
-        .query(&[p.x, p.y, p.z])
-        .nearest_one::<SquaredEuclidean<f64>>()
-        .execute();
-    (nn.item as usize, nn.distance.sqrt())
+/// The non-rigid stage with the state worth keeping between frames: the Newton solver (its
+/// fill-reducing ordering, symbolic analysis and, with factor reuse, its last factorisation).
+pub struct NonRigidIcp {
+    /// Settings used by [`NonRigidIcp::register`].
+    pub settings: NonRigidSettings,
+    newton: NewtonSolver,
+    reuse: usize,
+    /// Candidate source vertices of the last visibility test, ICP iterations since, and the
+    /// camera it was made for.
+    visible: Option<(Vec<usize>, usize, Option<Camera>)>,
 }
 
-/// Mean + `sigma` × standard deviation of `d`.
-fn rejection_threshold(d: &[f64], sigma: f64) -> f64 {
-    let n = d.len().max(1) as f64;
-    let mean = d.iter().sum::<f64>() / n;
-    let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n;
-    mean + sigma * var.sqrt()
+impl NonRigidIcp {
+    /// A registration stage with `settings`, solving with `newton` (its linear solver kind
+    /// and line search; iteration counts come from `settings`).
+    pub fn new(settings: NonRigidSettings, newton: NewtonSettings) -> Self {
+        Self {
+            settings,
+            newton: NewtonSolver::new(newton).with_factor_reuse(settings.factor_reuse),
+            reuse: settings.factor_reuse,
+            visible: None,
+        }
+    }
+
+    /// Forgets the kept factorisation (call after a reset or a failed frame).
+    pub fn invalidate(&mut self) {
+        self.newton.invalidate_factorization();
+        self.visible = None;
+    }
+
+    /// Registers `model` (its fixed regions stay held) to `cloud` (m, already rigidly aligned
+    /// to the model's frame), starting from grid displacements `u` (m; warm start), updated in
+    /// place and always a valid state. Source points are the surface vertices visible from
+    /// `camera` on the current deformed surface (parry3d ray casts); without a camera every
+    /// vertex is a candidate and the outlier rule removes those far from the cloud (the
+    /// documented fallback). Stops at `deadline` (checked before each ICP iteration) with the
+    /// state reached so far and `deadline_reached` set.
+    pub fn register(
+        &mut self,
+        model: &mut SceneModel,
+        cloud: &[Point3<f64>],
+        camera: Option<&Camera>,
+        u: &mut [f64],
+        deadline: Option<Instant>,
+    ) -> Result<NonRigidReport, NonRigidError> {
+        let settings = self.settings;
+        settings.validate()?;
+        if self.reuse != settings.factor_reuse {
+            self.reuse = settings.factor_reuse;
+            self.newton =
+                NewtonSolver::new(self.newton.settings).with_factor_reuse(settings.factor_reuse);
+        }
+        if cloud.is_empty() {
+            return Err(NonRigidError::EmptyCloud);
+        }
+        if let Some(i) = cloud
+            .iter()
+            .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+        {
+            return Err(NonRigidError::NonFinite(i));
+        }
+        let cloud = IndexedPoints::new(cloud.to_vec()).ok_or(NonRigidError::EmptyCloud)?;
+        let t = Instant::now();
+        let rim = settings
+            .reject_rim
+            .then(|| cloud.rim_mask(RIM_NEIGHBOURS, RIM_RATIO));
+        let rim_ms = ms(t);
+        let rule = PairingRule {
+            alpha: settings.alpha,
+            outlier_sigma: settings.outlier_sigma,
+            max_pair_distance: settings.max_pair_distance,
+        };
+        let fixed_sets = model.problem.springs.len();
+        let h = model.problem.grid.grid.cell_size;
+        let young = young_modulus(&model.problem.material);
+        let k0 = settings.penalty_start.unwrap_or(0.02 * young * h);
+        let k1 = settings.penalty_end.unwrap_or(2.0 * young * h);
+        let steps = settings.penalty_steps.max(1);
+        let factorizations_before = self.newton.factorizations();
+        let mut report = NonRigidReport {
+            icp_iterations: 0,
+            newton_iterations: 0,
+            factorizations: 0,
+            surface_rms: 0.0,
+            sources: 0,
+            converged: true,
+            deadline_reached: false,
+            warnings: Vec::new(),
+            timings: NonRigidTimings {
+                pairing_ms: rim_ms,
+                ..NonRigidTimings::default()
+            },
+        };
+        let emb = &model.surface_embedding;
+        let interval = settings.visibility_interval.max(1);
+        let result = (|| {
+            'steps: for step in 0..steps {
+                let k = if steps == 1 {
+                    k1
+                } else {
+                    k0 * (k1 / k0).powf(step as f64 / (steps - 1) as f64)
+                };
+                let mut previous: Option<Vec<(usize, Point3<f64>)>> = None;
+                let mut step_converged = false;
+                for _ in 0..settings.max_icp_iterations {
+                    if deadline.is_some_and(|d| Instant::now() >= d) && report.icp_iterations > 0 {
+                        report.deadline_reached = true;
+                        report.converged = false;
+                        break 'steps;
+                    }
+                    report.icp_iterations += 1;
+                    let x = emb.positions(u);
+                    let stale = match &mut self.visible {
+                        Some((v, age, cam))
+                            if *age < interval
+                                && cam.as_ref() == camera
+                                && v.iter().all(|&i| i < x.len()) =>
+                        {
+                            *age += 1;
+                            false
+                        }
+                        _ => true,
+                    };
+                    if stale {
+                        let t = Instant::now();
+                        let candidates = match camera {
+                            Some(cam) => {
+                                let deformed =
+                                    TriSurface::new(x.clone(), model.surface.triangles.clone());
+                                let vis = VisibleSurface::new(&deformed)
+                                    .map_err(|e| NonRigidError::Visibility(e.to_string()))?;
+                                let mask = vis.visible_vertices(cam);
+                                (0..x.len()).filter(|&i| mask[i]).collect()
+                            }
+                            None => (0..x.len()).collect(),
+                        };
+                        self.visible = Some((candidates, 1, camera.copied()));
+                        report.timings.visibility_ms += ms(t);
+                    }
+                    let candidates = &self.visible.as_ref().expect("set above").0;
+                    let t = Instant::now();
+                    let pairs = pair(&x, candidates, &cloud, rim.as_deref(), &rule)
+                        .ok_or(NonRigidError::NoCorrespondence)?;
+                    report.sources = pairs.sources.len();
+                    report.surface_rms = pairs.rms;
+                    // Convergence: the imposed targets stopped moving.
+                    let converged = previous.as_ref().is_some_and(|prev| {
+                        let prev: std::collections::HashMap<usize, Point3<f64>> =
+                            prev.iter().copied().collect();
+                        pairs
+                            .sources
+                            .iter()
+                            .zip(&pairs.targets)
+                            .map(|(i, t)| prev.get(i).map_or(f64::INFINITY, |p| (t - p).norm()))
+                            .fold(0.0, f64::max)
+                            <= settings.tolerance
+                    });
+                    report.timings.pairing_ms += ms(t);
+                    if converged {
+                        step_converged = true;
+                        break;
+                    }
+                    // Springs towards the targets, expressed as displacements from rest.
+                    let t = Instant::now();
+                    let pull = PenaltySprings {
+                        embedding: Embedding {
+                            points: pairs.sources.iter().map(|&i| emb.points[i]).collect(),
+                            rest: pairs.sources.iter().map(|&i| emb.rest[i]).collect(),
+                        },
+                        target: pairs
+                            .sources
+                            .iter()
+                            .zip(&pairs.targets)
+                            .map(|(&i, p)| p - emb.rest[i])
+                            .collect(),
+                        stiffness: vec![k; pairs.sources.len()],
+                        follows_load: false,
+                    };
+                    model.problem.springs.truncate(fixed_sets);
+                    model.problem.springs.push(pull);
+                    let r = self
+                        .newton
+                        .improve(&mut model.problem, u, settings.newton_iterations);
+                    report.newton_iterations += r.iterations;
+                    if std::env::var_os("LIVEREG_TRACE").is_some() {
+                        eprintln!(
+                            "step {step} k {k:.3e}: rel {:.2e} shifted {} steps {:?} sources {}",
+                            r.relative_residual,
+                            r.shifted_steps,
+                            r.steps,
+                            pairs.sources.len()
+                        );
+                    }
+                    if let Some((outcome, msg)) = r.failure {
+                        report.warnings.push(format!("{}: {msg}", outcome.name()));
+                        // A stale factorisation is the first suspect.
+                        self.newton.invalidate_factorization();
+                    }
+                    report.timings.newton_ms += ms(t);
+                    previous = Some(pairs.sources.iter().copied().zip(pairs.targets).collect());
+                }
+                report.converged &= step_converged;
+            }
+            Ok(())
+        })();
+        model.problem.springs.truncate(fixed_sets);
+        report.factorizations = self.newton.factorizations() - factorizations_before;
+        result.map(|()| report)
+    }
 }
 
-/// Registers `model` (its fixed regions stay held) to `cloud` (m, already rigidly aligned to
-/// the model's frame), starting from grid displacements `u` (m; warm start) which are updated
-/// in place. Source points are the surface vertices visible from `camera` on the current
-/// deformed surface (parry3d ray casts); without a camera every vertex is a candidate and the
-/// outlier rule removes those far from the cloud (documented fallback).
+/// Registers `model` to `cloud` from `u` (updated in place) with a fresh [`NonRigidIcp`]: the
+/// one-shot form of [`NonRigidIcp::register`] (no deadline, Newton settings from the scene).
 pub fn register_non_rigid(
     model: &mut SceneModel,
     cloud: &[Point3<f64>],
@@ -122,149 +396,10 @@ pub fn register_non_rigid(
     u: &mut [f64],
     settings: &NonRigidSettings,
 ) -> Result<NonRigidReport, NonRigidError> {
-    if cloud.is_empty() {
-        return Err(NonRigidError::EmptyCloud);
-    }
-    if let Some(i) = cloud
-        .iter()
-        .position(|p| !p.coords.iter().all(|c| c.is_finite()))
-    {
-        return Err(NonRigidError::NonFinite(i));
-    }
-    let cloud_tree = tree_of(cloud);
-    let fixed_sets = model.problem.springs.len();
-    let h = model.problem.grid.grid.cell_size;
-    let young = model.problem.material.mu * 2.0 * (1.0 + poisson(&model.problem.material));
-    let k0 = settings.penalty_start.unwrap_or(0.02 * young * h);
-    let k1 = settings.penalty_end.unwrap_or(2.0 * young * h);
-    let steps = settings.penalty_steps.max(1);
-    let mut newton = NewtonSolver::new(model.newton);
-    let mut report = NonRigidReport {
-        icp_iterations: 0,
-        newton_iterations: 0,
-        surface_rms: 0.0,
-        sources: 0,
-        converged: true,
-        warnings: Vec::new(),
-    };
-    let emb = model.surface_embedding.clone();
-    let triangles = model.surface.triangles.clone();
-    for step in 0..steps {
-        let k = if steps == 1 {
-            k1
-        } else {
-            k0 * (k1 / k0).powf(step as f64 / (steps - 1) as f64)
-        };
-        let mut previous: Option<Vec<(usize, Point3<f64>)>> = None;
-        let mut step_converged = false;
-        for _ in 0..settings.max_icp_iterations {
-            report.icp_iterations += 1;
-            let x = emb.positions(u);
-            let candidates: Vec<usize> = match camera {
-                Some(cam) => {
-                    let deformed = TriSurface::new(x.clone(), triangles.clone());
-                    let vis = VisibleSurface::new(&deformed)
-                        .map_err(|e| NonRigidError::Visibility(e.to_string()))?;
-                    let mask = vis.visible_vertices(cam);
-                    (0..x.len()).filter(|&i| mask[i]).collect()
-                }
-                None => (0..x.len()).collect(),
-            };
-            // Source → target pairs, pruned by the thesis's rule.
-            let pairs: Vec<(usize, usize, f64)> = candidates
-                .iter()
-                .map(|&i| {
-                    let (j, d) = nearest(&cloud_tree, &x[i]);
-                    (i, j, d)
-                })
-                .collect();
-            let dists: Vec<f64> = pairs.iter().map(|p| p.2).collect();
-            let limit = rejection_threshold(&dists, settings.outlier_sigma)
-                .min(settings.max_pair_distance.unwrap_or(f64::INFINITY));
-            let kept: Vec<(usize, usize, f64)> =
-                pairs.into_iter().filter(|p| p.2 <= limit).collect();
-            if kept.len() < 3 {
-                return Err(NonRigidError::NoCorrespondence);
-            }
-            // Target → source: V(i), the cloud points whose nearest kept source is i.
-            let sources: Vec<Point3<f64>> = kept.iter().map(|p| x[p.0]).collect();
-            let source_tree = tree_of(&sources);
-            let back: Vec<(usize, f64)> = cloud.iter().map(|q| nearest(&source_tree, q)).collect();
-            let back_limit = rejection_threshold(
-                &back.iter().map(|b| b.1).collect::<Vec<_>>(),
-                settings.outlier_sigma,
-            );
-            let mut sum = vec![Vector3::zeros(); kept.len()];
-            let mut count = vec![0usize; kept.len()];
-            for (j, &(s, d)) in back.iter().enumerate() {
-                if d <= back_limit {
-                    sum[s] += cloud[j] - sources[s];
-                    count[s] += 1;
-                }
-            }
-            // Imposed displacement of each source (eq. 5.4).
-            let imposed: Vec<(usize, Vector3<f64>)> = kept
-                .iter()
-                .enumerate()
-                .map(|(s, &(i, j, _))| {
-                    let own = cloud[j] - x[i];
-                    let d = if count[s] > 0 {
-                        own * settings.alpha + (sum[s] / count[s] as f64) * (1.0 - settings.alpha)
-                    } else {
-                        own
-                    };
-                    (i, d)
-                })
-                .collect();
-            report.sources = imposed.len();
-            report.surface_rms =
-                (kept.iter().map(|p| p.2 * p.2).sum::<f64>() / kept.len() as f64).sqrt();
-            // Convergence: imposed displacements stopped changing.
-            if let Some(prev) = &previous {
-                let prev_map: std::collections::HashMap<usize, Point3<f64>> =
-                    prev.iter().copied().collect();
-                let change = imposed
-                    .iter()
-                    .map(|(i, d)| {
-                        prev_map
-                            .get(i)
-                            .map_or(f64::INFINITY, |p| ((x[*i] + d) - p).norm())
-                    })
-                    .fold(0.0, f64::max);
-                if change <= settings.tolerance {
-                    step_converged = true;
-                    break;
-                }
-            }
-            // Springs from the current positions' targets, expressed as displacements from rest.
-            let points = imposed.iter().map(|&(i, _)| emb.points[i]).collect();
-            let rest = imposed.iter().map(|&(i, _)| emb.rest[i]).collect();
-            let target = imposed
-                .iter()
-                .map(|&(i, d)| x[i] + d - emb.rest[i])
-                .collect();
-            let pull = PenaltySprings {
-                embedding: Embedding { points, rest },
-                target,
-                stiffness: vec![k; imposed.len()],
-                follows_load: false,
-            };
-            model.problem.springs.truncate(fixed_sets);
-            model.problem.springs.push(pull);
-            let r = newton.improve(&mut model.problem, u, settings.newton_iterations);
-            report.newton_iterations += r.iterations;
-            if let Some((outcome, msg)) = r.failure {
-                report.warnings.push(format!("{}: {msg}", outcome.name()));
-            }
-            previous = Some(imposed.iter().map(|&(i, d)| (i, x[i] + d)).collect());
-        }
-        report.converged &= step_converged;
-    }
-    model.problem.springs.truncate(fixed_sets);
-    Ok(report)
+    NonRigidIcp::new(*settings, model.newton).register(model, cloud, camera, u, None)
 }
 
-/// Poisson's ratio from the Lamé parameters.
-fn poisson(m: &crate::mechanics::Material) -> f64 {
-    m.lambda / (2.0 * (m.lambda + m.mu))
+/// Young's modulus (Pa) from the Lamé parameters.
+fn young_modulus(m: &crate::mechanics::Material) -> f64 {
+    m.mu * (3.0 * m.lambda + 2.0 * m.mu) / (m.lambda + m.mu)
 }

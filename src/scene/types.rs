@@ -426,6 +426,17 @@ pub struct RegistrationSpec {
     /// ICP iterations allowed per stage (default 30), ≥ 1.
     #[serde(default = "defaults::max_icp_iterations")]
     pub max_icp_iterations: u32,
+    /// Model–cloud pairs farther apart than this (scene units) are dropped in the non-rigid
+    /// stage (`None`: only the mean + 2σ rule); > 0. Useful with small visible patches.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_pair_distance: Option<f64>,
+    /// Wall-clock budget of one frame, ms: when exceeded the best state so far is returned,
+    /// flagged `time_budget` (`None`: no budget); > 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub time_budget_ms: Option<f64>,
+    /// Clouds with more points are thinned to at most this many (default 20 000); ≥ 3.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_cloud_points: Option<u32>,
 }
 
 impl Default for RegistrationSpec {
@@ -438,6 +449,9 @@ impl Default for RegistrationSpec {
             penalty_end: None,
             penalty_steps: defaults::penalty_steps(),
             max_icp_iterations: defaults::max_icp_iterations(),
+            max_pair_distance: None,
+            time_budget_ms: None,
+            max_cloud_points: None,
         }
     }
 }

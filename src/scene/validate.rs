@@ -313,6 +313,20 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
         }
         c.at_least_one("registration.penalty_steps", r.penalty_steps);
         c.at_least_one("registration.max_icp_iterations", r.max_icp_iterations);
+        if let Some(d) = r.max_pair_distance {
+            c.positive("registration.max_pair_distance", d, " scene units");
+        }
+        if let Some(b) = r.time_budget_ms {
+            c.positive("registration.time_budget_ms", b, " ms");
+        }
+        if let Some(n) = r.max_cloud_points {
+            if n < 3 {
+                c.fail(
+                    "registration.max_cloud_points",
+                    format!("must be >= 3, got {n}"),
+                );
+            }
+        }
         if let Some(cam) = &r.camera {
             let ok = c.vec3("registration.camera.position", &cam.position)
                 & c.vec3("registration.camera.look_at", &cam.look_at);

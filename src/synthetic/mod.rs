@@ -23,6 +23,7 @@
 pub mod error;
 pub mod point_cloud;
 pub mod rng;
+pub mod sequence;
 
 #[cfg(test)]
 mod tests;
@@ -32,3 +33,7 @@ pub use crate::geometry::{Camera, VisibleSurface, DEFAULT_FOV_DEG};
 pub use error::SynthError;
 pub use point_cloud::{synthesize_cloud, CloudSpec, SyntheticCloud, MAX_SAMPLES, OUTLIER_MARGIN};
 pub use rng::Rng;
+pub use sequence::{
+    frame_seed, generate_sequence, load_fraction, write_sequence, ScenarioKind, ScenarioLoad,
+    SequenceError, SequenceSpec, SyntheticFrame, SyntheticSequence, TruthModel,
+};

@@ -1,0 +1,297 @@
+//! Correspondences of non-rigid ICP (thesis alg. 3, eq. 5.4): each model source point is
+//! paired with its nearest cloud point and with the cloud points that chose it, pairs are
+//! pruned by the thesis's mean + kσ rule, and the two directions are blended into one imposed
+//! displacement per source. Lengths in metres.
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::{Point3, Vector3};
+
+/// A point set with a k-d tree for nearest-neighbour queries.
+pub struct IndexedPoints {
+    /// The points, metres.
+    pub points: Vec<Point3<f64>>,
+    tree: ImmutableKdTree<f64, 3>,
+}
+
+impl IndexedPoints {
+    /// Indexes `points` (all finite; `None` when empty or when the tree cannot be built).
+    pub fn new(points: Vec<Point3<f64>>) -> Option<Self> {
+        if points.is_empty() {
+            return None;
+        }
+        let coords: Vec<[f64; 3]> = points.iter().map(|p| [p.x, p.y, p.z]).collect();
+        let tree = ImmutableKdTree::new_from_slice(&coords).ok()?;
+        Some(Self { points, tree })
+    }
+
+    /// Index of the point nearest to `p` and its distance, metres.
+    pub fn nearest(&self, p: &Point3<f64>) -> (usize, f64) {
+        let nn = self
+            .tree
+            .query(&[p.x, p.y, p.z])
+            .nearest_one::<SquaredEuclidean<f64>>()
+            .execute();
+        (nn.item as usize, nn.distance.sqrt())
+    }
+
+    /// Indices and distances (metres) of the `k` points nearest to `p`, nearest first
+    /// (`p` itself included when it is one of the points).
+    pub fn nearest_k(&self, p: &Point3<f64>, k: usize) -> Vec<(usize, f64)> {
+        let Some(k) = std::num::NonZeroUsize::new(k.min(self.points.len())) else {
+            return Vec::new();
+        };
+        self.tree
+            .query(&[p.x, p.y, p.z])
+            .nearest_n::<SquaredEuclidean<f64>>(k)
+            .execute()
+            .into_iter()
+            .map(|nn| (nn.item as usize, nn.distance.sqrt()))
+            .collect()
+    }
+
+    /// Which points lie on the rim of the sampled patch: a point whose `k` nearest neighbours
+    /// have their centroid farther from it than `ratio` × their mean distance lies with its
+    /// neighbours on one side, i.e. on the patch's border (inside a uniformly sampled patch
+    /// the centroid offset is a small fraction of the neighbour distance). Non-rigid ICP drops
+    /// model points whose nearest cloud point is on the rim (Amberg et al. 2007): with a
+    /// partial cloud they belong to the unseen part, and pairing them with the rim would drag
+    /// the unseen surface onto it.
+    pub fn rim_mask(&self, k: usize, ratio: f64) -> Vec<bool> {
+        self.points
+            .iter()
+            .map(|p| {
+                let nn = self.nearest_k(p, k + 1);
+                let others: Vec<&(usize, f64)> = nn.iter().filter(|n| n.1 > 0.0).collect();
+                if others.len() < 3 {
+                    return true;
+                }
+                let m = others.len() as f64;
+                let centroid = others
+                    .iter()
+                    .fold(Vector3::zeros(), |acc, n| acc + self.points[n.0].coords)
+                    / m;
+                let mean_d = others.iter().map(|n| n.1).sum::<f64>() / m;
+                (centroid - p.coords).norm() > ratio * mean_d
+            })
+            .collect()
+    }
+
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// Whether there are no points (never true for a built index).
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+}
+
+/// How correspondences are formed and pruned.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PairingRule {
+    /// Blending α of eq. 5.4: weight of the source's own nearest cloud point; `1 − α` goes to
+    /// the mean of the cloud points whose nearest source it is.
+    pub alpha: f64,
+    /// Pairs farther than mean + this × standard deviation (of the pair distances of the same
+    /// direction) are outliers; the thesis uses 2.
+    pub outlier_sigma: f64,
+    /// Pairs farther than this, metres, are dropped too (`None`: no cap).
+    pub max_pair_distance: Option<f64>,
+}
+
+/// Neighbours examined by [`IndexedPoints::rim_mask`] in non-rigid ICP.
+pub const RIM_NEIGHBOURS: usize = 12;
+/// Centroid offset ratio of [`IndexedPoints::rim_mask`] in non-rigid ICP.
+pub const RIM_RATIO: f64 = 0.4;
+
+/// The imposed displacements of one ICP iteration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Correspondences {
+    /// Model surface vertex of each kept source.
+    pub sources: Vec<usize>,
+    /// Where each kept source is to go (current position + imposed displacement), metres.
+    pub targets: Vec<Point3<f64>>,
+    /// RMS of the kept source → nearest-cloud-point distances, metres.
+    pub rms: f64,
+    /// Cloud points that paired back with a kept source.
+    pub cloud_used: usize,
+}
+
+/// Mean + `sigma` × standard deviation of `d` (population).
+pub fn rejection_threshold(d: &[f64], sigma: f64) -> f64 {
+    let n = d.len().max(1) as f64;
+    let mean = d.iter().sum::<f64>() / n;
+    let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n;
+    mean + sigma * var.sqrt()
+}
+
+/// Pairs the candidate vertices `candidates` (indices into `x`, current positions in metres)
+/// with `cloud` both ways and blends the directions by eq. 5.4:
+/// `d(i) = α [c(N(i)) − x(i)] + (1 − α) mean_{j ∈ V(i)} [c(j) − x(i)]`, with `N(i)` the nearest
+/// cloud point of source `i` and `V(i)` the cloud points whose nearest kept source is `i`
+/// (`d(i) = c(N(i)) − x(i)` when `V(i)` is empty). `None` when fewer than 3 sources survive.
+/// Sources whose nearest cloud point is flagged in `rim` (when given) are dropped first.
+pub fn pair(
+    x: &[Point3<f64>],
+    candidates: &[usize],
+    cloud: &IndexedPoints,
+    rim: Option<&[bool]>,
+    rule: &PairingRule,
+) -> Option<Correspondences> {
+    let forward: Vec<(usize, usize, f64)> = candidates
+        .iter()
+        .map(|&i| {
+            let (j, d) = cloud.nearest(&x[i]);
+            (i, j, d)
+        })
+        .filter(|&(_, j, _)| !rim.is_some_and(|r| r[j]))
+        .collect();
+    let dists: Vec<f64> = forward.iter().map(|p| p.2).collect();
+    let limit = rejection_threshold(&dists, rule.outlier_sigma)
+        .min(rule.max_pair_distance.unwrap_or(f64::INFINITY));
+    let kept: Vec<(usize, usize, f64)> = forward.into_iter().filter(|p| p.2 <= limit).collect();
+    if kept.len() < 3 {
+        return None;
+    }
+    let sources = IndexedPoints::new(kept.iter().map(|p| x[p.0]).collect())?;
+    let back: Vec<(usize, f64)> = cloud.points.iter().map(|q| sources.nearest(q)).collect();
+    let back_dists: Vec<f64> = back.iter().map(|b| b.1).collect();
+    let back_limit = rejection_threshold(&back_dists, rule.outlier_sigma)
+        .min(rule.max_pair_distance.unwrap_or(f64::INFINITY));
+    let mut sum = vec![Vector3::zeros(); kept.len()];
+    let mut count = vec![0usize; kept.len()];
+    let mut cloud_used = 0;
+    for (j, &(s, d)) in back.iter().enumerate() {
+        if d <= back_limit {
+            sum[s] += cloud.points[j] - sources.points[s];
+            count[s] += 1;
+            cloud_used += 1;
+        }
+    }
+    let targets = kept
+        .iter()
+        .enumerate()
+        .map(|(s, &(i, j, _))| {
+            let own = cloud.points[j] - x[i];
+            let d = if count[s] > 0 {
+                own * rule.alpha + (sum[s] / count[s] as f64) * (1.0 - rule.alpha)
+            } else {
+                own
+            };
+            x[i] + d
+        })
+        .collect();
+    let rms = (kept.iter().map(|p| p.2 * p.2).sum::<f64>() / kept.len() as f64).sqrt();
+    Some(Correspondences {
+        sources: kept.iter().map(|p| p.0).collect(),
+        targets,
+        rms,
+        cloud_used,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rule(alpha: f64) -> PairingRule {
+        PairingRule {
+            alpha,
+            outlier_sigma: 2.0,
+            max_pair_distance: None,
+        }
+    }
+
+    #[test]
+    fn threshold_is_mean_plus_k_sigma() {
+        // mean 2.5, population sd sqrt(1.25)
+        let t = rejection_threshold(&[1.0, 2.0, 3.0, 4.0], 2.0);
+        assert!((t - (2.5 + 2.0 * 1.25f64.sqrt())).abs() < 1e-15);
+    }
+
+    #[test]
+    fn a_shifted_copy_imposes_the_shift() {
+        // Sources on a grid, the cloud the same grid moved by a shift smaller than the spacing:
+        // both directions agree, so every imposed displacement is the shift for any α.
+        let x: Vec<Point3<f64>> = (0..25)
+            .map(|k| Point3::new((k % 5) as f64, (k / 5) as f64, 0.0))
+            .collect();
+        let shift = Vector3::new(0.1, -0.2, 0.05);
+        let cloud = IndexedPoints::new(x.iter().map(|p| p + shift).collect()).unwrap();
+        let all: Vec<usize> = (0..x.len()).collect();
+        for alpha in [0.0, 0.75, 1.0] {
+            let c = pair(&x, &all, &cloud, None, &rule(alpha)).unwrap();
+            assert_eq!(c.sources.len(), 25);
+            for (&i, t) in c.sources.iter().zip(&c.targets) {
+                assert!((t - (x[i] + shift)).norm() < 1e-12);
+            }
+            assert!((c.rms - shift.norm()).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn far_pairs_are_rejected_and_blending_weights_both_directions() {
+        // 20 sources on a line with the cloud right above them, plus one far source.
+        let mut x: Vec<Point3<f64>> = (0..20).map(|k| Point3::new(k as f64, 0.0, 0.0)).collect();
+        x.push(Point3::new(10.0, 50.0, 0.0));
+        let mut c: Vec<Point3<f64>> = (0..20).map(|k| Point3::new(k as f64, 0.0, 0.1)).collect();
+        // An extra cloud point that chooses source 0 from the side: V(0) = {it, own}.
+        c.push(Point3::new(-0.3, 0.0, 0.1));
+        let cloud = IndexedPoints::new(c).unwrap();
+        let all: Vec<usize> = (0..x.len()).collect();
+        let p = pair(&x, &all, &cloud, None, &rule(0.75)).unwrap();
+        assert!(!p.sources.contains(&20), "the far source is an outlier");
+        // Blending, with pruning loose enough to keep the side point.
+        let loose = PairingRule {
+            outlier_sigma: 1e3,
+            ..rule(0.75)
+        };
+        let p = pair(&x, &all[..20], &cloud, None, &loose).unwrap();
+        let s0 = p.sources.iter().position(|&i| i == 0).unwrap();
+        // own: (0,0,0.1); back mean: ((0,0,0.1) + (-0.3,0,0.1)) / 2 = (-0.15, 0, 0.1)
+        let expect = Point3::new(0.25 * -0.15, 0.0, 0.1);
+        assert!((p.targets[s0] - expect).norm() < 1e-12, "{}", p.targets[s0]);
+        // a cap below the true distance removes everything
+        let capped = PairingRule {
+            max_pair_distance: Some(0.05),
+            ..rule(0.75)
+        };
+        assert!(pair(&x, &all, &cloud, None, &capped).is_none());
+    }
+
+    #[test]
+    fn rim_of_a_jittered_square_patch_is_its_border() {
+        // 30 × 30 samples of a plane with spacing 1 and ±0.2 jitter (a deterministic hash).
+        let n = 30;
+        let jitter = |i: usize, a: u64| {
+            let h = (i as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ a;
+            ((h >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 0.4
+        };
+        let pts: Vec<Point3<f64>> = (0..n * n)
+            .map(|k| {
+                let (i, j) = (k % n, k / n);
+                Point3::new(
+                    i as f64 + jitter(k, 1),
+                    j as f64 + jitter(k, 7),
+                    jitter(k, 13) * 0.5,
+                )
+            })
+            .collect();
+        let cloud = IndexedPoints::new(pts).unwrap();
+        let rim = cloud.rim_mask(RIM_NEIGHBOURS, RIM_RATIO);
+        let border = |k: usize| {
+            let (i, j) = (k % n, k / n);
+            i == 0 || j == 0 || i == n - 1 || j == n - 1
+        };
+        let deep = |k: usize| {
+            let (i, j) = (k % n, k / n);
+            (3..n - 3).contains(&i) && (3..n - 3).contains(&j)
+        };
+        let border_hit = (0..n * n).filter(|&k| border(k) && rim[k]).count();
+        let border_all = (0..n * n).filter(|&k| border(k)).count();
+        let deep_false = (0..n * n).filter(|&k| deep(k) && rim[k]).count();
+        assert_eq!(border_hit, border_all, "every border sample is on the rim");
+        assert_eq!(deep_false, 0, "no sample 3 rows inside is on the rim");
+    }
+}

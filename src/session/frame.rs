@@ -1,0 +1,137 @@
+//! One intra-operative frame in, one registration result out.
+
+use nalgebra::Point3;
+
+use crate::geometry::Camera;
+use crate::registration::RigidTransform;
+
+/// An intra-operative point cloud, in the scene's units and the camera's (cloud's) frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Frame {
+    /// Name of the input (file name, sequence number), carried into the result.
+    pub source: String,
+    /// The points, scene units.
+    pub points: Vec<Point3<f64>>,
+    /// Pose of the camera that saw the points, in the cloud's frame and scene units, when
+    /// known; otherwise the scene's camera (model frame) is used, or none.
+    pub camera: Option<Camera>,
+}
+
+/// Why a frame was rejected. The session is unchanged by a rejected frame.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum FrameError {
+    /// The frame could not be read or decoded (the message names the file or field).
+    #[error("{0}")]
+    Input(String),
+    /// No points.
+    #[error("the frame holds no points")]
+    Empty,
+    /// A point with a NaN or infinite coordinate.
+    #[error("point {index} has a non-finite coordinate ({x}, {y}, {z})")]
+    NonFinite {
+        /// Index in the frame.
+        index: usize,
+        /// Its coordinates as received.
+        x: f64,
+        /// See `x`.
+        y: f64,
+        /// See `x`.
+        z: f64,
+    },
+    /// The rigid stage failed.
+    #[error("rigid registration: {0}")]
+    Rigid(String),
+    /// The cloud does not fit the model even rigidly.
+    #[error(
+        "the cloud does not match the model: rigid RMS {rms_mm:.1} mm exceeds {limit_mm:.1} mm"
+    )]
+    NoMatch {
+        /// RMS distance after rigid ICP, mm.
+        rms_mm: f64,
+        /// The limit, mm.
+        limit_mm: f64,
+    },
+    /// The non-rigid stage failed.
+    #[error("non-rigid registration: {0}")]
+    NonRigid(String),
+    /// The solver produced a non-finite state (never returned; the last good one is kept).
+    #[error("the solver produced a non-finite displacement")]
+    NonFiniteState,
+}
+
+impl FrameError {
+    /// Short cause for diagnostics and metrics (`input`, `empty`, `non-finite`, `rigid`, `no-match`,
+    /// `non-rigid`, `non-finite-state`).
+    pub fn cause(&self) -> &'static str {
+        match self {
+            FrameError::Input(_) => "input",
+            FrameError::Empty => "empty",
+            FrameError::NonFinite { .. } => "non-finite",
+            FrameError::Rigid(_) => "rigid",
+            FrameError::NoMatch { .. } => "no-match",
+            FrameError::NonRigid(_) => "non-rigid",
+            FrameError::NonFiniteState => "non-finite-state",
+        }
+    }
+}
+
+/// Milliseconds per stage of a frame.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StageTimes {
+    /// Input checks and thinning.
+    pub prepare_ms: f64,
+    /// Rigid ICP (including the tracking target's rebuild).
+    pub rigid_ms: f64,
+    /// Ray-cast visibility inside the non-rigid stage.
+    pub visibility_ms: f64,
+    /// Pairing inside the non-rigid stage.
+    pub pairing_ms: f64,
+    /// Newton iterations inside the non-rigid stage.
+    pub newton_ms: f64,
+    /// Deformed surface and structures.
+    pub output_ms: f64,
+}
+
+/// The registration of one frame. Positions are in the scene's units and the cloud's frame
+/// (what an AR display overlays on its video).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameResult {
+    /// Index of the frame in the session (counting rejected frames too).
+    pub frame: usize,
+    /// The frame's `source`.
+    pub source: String,
+    /// Wall time of the frame, ms.
+    pub wall_ms: f64,
+    /// Whether both stages converged within their iteration caps and the time budget.
+    pub converged: bool,
+    /// Model → cloud rigid transform (translation in metres).
+    pub model_to_cloud: RigidTransform,
+    /// Rigid ICP iterations.
+    pub rigid_iterations: usize,
+    /// Non-rigid ICP iterations.
+    pub icp_iterations: usize,
+    /// Newton iterations.
+    pub newton_iterations: usize,
+    /// Tangent factorisations.
+    pub factorizations: usize,
+    /// RMS distance between the model's paired surface points and the cloud, scene units.
+    pub surface_rms: f64,
+    /// Points received, and used after thinning.
+    pub cloud_points: (usize, usize),
+    /// Model surface points paired in the last ICP iteration.
+    pub sources: usize,
+    /// Whether this frame started from the previous frame's state.
+    pub warm: bool,
+    /// Flags: `time_budget`, `decimated`, `icp_not_converged`, `failed`.
+    pub flags: Vec<String>,
+    /// Solver warnings with their cause.
+    pub warnings: Vec<String>,
+    /// Why the frame failed; then the positions below are the last good state's.
+    pub error: Option<FrameError>,
+    /// Deformed surface vertices, scene units, cloud frame.
+    pub surface: Vec<Point3<f64>>,
+    /// Every structure of the scene: name and deformed points, scene units, cloud frame.
+    pub structures: Vec<(String, Vec<Point3<f64>>)>,
+    /// Where the time went.
+    pub times: StageTimes,
+}

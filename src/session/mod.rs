@@ -1,0 +1,18 @@
+//! Registration sessions: the model's state carried from frame to frame.
+//!
+//! A [`Session`] owns one patient's [`SceneModel`](crate::simulation::SceneModel) and registers
+//! a stream of intra-operative clouds ([`Frame`]) to it: rigid ICP (tracking from the last
+//! pose), then non-rigid ICP warm-started from the last good displacement field, within an
+//! optional per-frame time budget. A frame that fails leaves the session exactly as it was, and
+//! its [`FrameResult`] carries the last good state, flagged, with the cause.
+
+pub mod frame;
+pub mod registration_session;
+pub mod settings;
+
+#[cfg(test)]
+mod tests;
+
+pub use frame::{Frame, FrameError, FrameResult, StageTimes};
+pub use registration_session::Session;
+pub use settings::SessionSettings;

@@ -1,0 +1,429 @@
+//! [`Session`]: one patient's model registered to a stream of frames.
+
+use std::time::{Duration, Instant};
+
+use nalgebra::Point3;
+
+use super::frame::{Frame, FrameError, FrameResult, StageTimes};
+use super::settings::SessionSettings;
+use crate::geometry::Camera;
+use crate::mesh::TriSurface;
+use crate::registration::{ModelTarget, NonRigidIcp, RigidIcp, RigidTransform};
+use crate::scene::{LoadedScene, RigidMode};
+use crate::simulation::{ModelError, SceneModel};
+
+/// The last state a frame ended in successfully.
+#[derive(Debug, Clone)]
+struct GoodState {
+    /// Grid displacements, m.
+    u: Vec<f64>,
+    /// Model → cloud pose.
+    model_to_cloud: RigidTransform,
+    /// Whether a frame has succeeded since the start or the last reset.
+    registered: bool,
+}
+
+/// Registers a stream of frames to one model, carrying the state from frame to frame.
+///
+/// Per frame: checks (empty, non-finite → rejected; too many points → thinned and flagged);
+/// rigid ICP of the cloud to the model's *current deformed* surface, starting from the last
+/// pose (tracking), rejected when its RMS exceeds [`SessionSettings::max_rigid_rms`]; non-rigid
+/// ICP from the last good displacement (cold settings on the first frame, warm after), stopped
+/// by the time budget if set. The state is committed only when the frame succeeds and the
+/// displacement is finite, so a failed frame never corrupts the session.
+pub struct Session {
+    /// The model (SI units).
+    pub model: SceneModel,
+    /// Settings.
+    pub settings: SessionSettings,
+    /// The scene's camera in the model frame, metres.
+    scene_camera: Option<Camera>,
+    non_rigid_cold: NonRigidIcp,
+    non_rigid_warm: NonRigidIcp,
+    good: GoodState,
+    frames: usize,
+}
+
+impl Session {
+    /// A session for a loaded scene, with settings from its `[registration]` section.
+    pub fn from_scene(loaded: &LoadedScene) -> Result<Self, ModelError> {
+        let model = SceneModel::build(loaded)?;
+        let settings = SessionSettings::from_scene(&loaded.scene, loaded.length_scale());
+        let scale = loaded.length_scale();
+        let scene_camera = match loaded
+            .scene
+            .registration
+            .as_ref()
+            .and_then(|r| r.camera.as_ref())
+        {
+            Some(c) => {
+                let p = |v: [f64; 3]| Point3::new(v[0], v[1], v[2]) * scale;
+                let cam = match c.up {
+                    None => Camera::looking_at(p(c.position), p(c.look_at)),
+                    Some(up) => Camera::new(
+                        p(c.position),
+                        p(c.look_at),
+                        nalgebra::Vector3::from(up),
+                        crate::geometry::camera::DEFAULT_FOV_DEG,
+                    ),
+                }
+                .map_err(|e| ModelError::Invalid(format!("registration.camera: {e}")))?;
+                Some(cam)
+            }
+            None => None,
+        };
+        Ok(Self::new(model, settings, scene_camera))
+    }
+
+    /// A session for `model` with `settings` and the camera (model frame, metres) used when a
+    /// frame brings none.
+    pub fn new(model: SceneModel, settings: SessionSettings, camera: Option<Camera>) -> Self {
+        let u = vec![0.0; model.problem.dofs()];
+        Self {
+            non_rigid_cold: NonRigidIcp::new(settings.cold, model.newton),
+            non_rigid_warm: NonRigidIcp::new(settings.warm, model.newton),
+            model,
+            settings,
+            scene_camera: camera,
+            good: GoodState {
+                u,
+                model_to_cloud: RigidTransform::identity(),
+                registered: false,
+            },
+            frames: 0,
+        }
+    }
+
+    /// Forgets every frame: back to the rest shape and the identity pose; the next frame is
+    /// registered cold.
+    pub fn reset(&mut self) {
+        self.good = GoodState {
+            u: vec![0.0; self.model.problem.dofs()],
+            model_to_cloud: RigidTransform::identity(),
+            registered: false,
+        };
+        self.non_rigid_cold.invalidate();
+        self.non_rigid_warm.invalidate();
+    }
+
+    /// Frames seen so far (including rejected ones).
+    pub fn frames_seen(&self) -> usize {
+        self.frames
+    }
+
+    /// Grid displacements of the last good state, m.
+    pub fn displacement(&self) -> &[f64] {
+        &self.good.u
+    }
+
+    /// Model → cloud pose of the last good state.
+    pub fn pose(&self) -> RigidTransform {
+        self.good.model_to_cloud
+    }
+
+    /// Whether the next frame starts from a registered state.
+    pub fn is_warm(&self) -> bool {
+        self.good.registered
+    }
+
+    /// Registers one frame. Never panics on any input: a rejected frame gives a result with
+    /// `error` set, flagged `failed`, carrying the last good state.
+    pub fn register(&mut self, frame: &Frame) -> FrameResult {
+        let start = Instant::now();
+        let mut times = StageTimes::default();
+        let mut flags = Vec::new();
+        let outcome = self.try_register(frame, start, &mut times, &mut flags);
+        self.finish(
+            &frame.source,
+            frame.points.len(),
+            start,
+            times,
+            flags,
+            outcome,
+        )
+    }
+
+    /// Counts a frame that could not even be read (`error`, typically [`FrameError::Input`])
+    /// and returns its flagged result carrying the last good state; the session is unchanged.
+    pub fn reject(&mut self, source: &str, error: FrameError) -> FrameResult {
+        let start = Instant::now();
+        self.finish(
+            source,
+            0,
+            start,
+            StageTimes::default(),
+            Vec::new(),
+            Err(error),
+        )
+    }
+
+    fn finish(
+        &mut self,
+        source: &str,
+        received: usize,
+        start: Instant,
+        times: StageTimes,
+        flags: Vec<String>,
+        outcome: Result<Done, FrameError>,
+    ) -> FrameResult {
+        let index = self.frames;
+        self.frames += 1;
+        let warm = self.good.registered;
+        let t = Instant::now();
+        let scale = self.model.length_scale;
+        let mut result = FrameResult {
+            frame: index,
+            source: source.to_string(),
+            wall_ms: 0.0,
+            converged: false,
+            model_to_cloud: self.good.model_to_cloud,
+            rigid_iterations: 0,
+            icp_iterations: 0,
+            newton_iterations: 0,
+            factorizations: 0,
+            surface_rms: 0.0,
+            cloud_points: (received, 0),
+            sources: 0,
+            warm,
+            flags,
+            warnings: Vec::new(),
+            error: None,
+            surface: Vec::new(),
+            structures: Vec::new(),
+            times,
+        };
+        match outcome {
+            Ok(done) => {
+                self.good = GoodState {
+                    u: done.u,
+                    model_to_cloud: done.model_to_cloud,
+                    registered: true,
+                };
+                result.model_to_cloud = done.model_to_cloud;
+                result.converged = done.converged;
+                result.rigid_iterations = done.rigid_iterations;
+                result.icp_iterations = done.icp_iterations;
+                result.newton_iterations = done.newton_iterations;
+                result.factorizations = done.factorizations;
+                result.surface_rms = done.surface_rms / scale;
+                result.cloud_points.1 = done.used_points;
+                result.sources = done.sources;
+                result.warnings = done.warnings;
+                if !done.converged && !result.flags.iter().any(|f| f == "time_budget") {
+                    result.flags.push("icp_not_converged".into());
+                }
+            }
+            Err(e) => {
+                result.flags.push("failed".into());
+                result.error = Some(e);
+            }
+        }
+        // Positions of the (new or kept) good state, in the cloud frame and scene units.
+        let pose = self.good.model_to_cloud;
+        let out = |p: &Point3<f64>| pose.apply(p) / scale;
+        result.surface = self
+            .model
+            .surface_embedding
+            .positions(&self.good.u)
+            .iter()
+            .map(out)
+            .collect();
+        result.structures = self
+            .model
+            .structures
+            .iter()
+            .map(|s| {
+                (
+                    s.name.clone(),
+                    s.embedding
+                        .positions(&self.good.u)
+                        .iter()
+                        .map(out)
+                        .collect(),
+                )
+            })
+            .collect();
+        result.times.output_ms = ms(t);
+        result.wall_ms = ms(start);
+        result
+    }
+
+    fn try_register(
+        &mut self,
+        frame: &Frame,
+        start: Instant,
+        times: &mut StageTimes,
+        flags: &mut Vec<String>,
+    ) -> Result<Done, FrameError> {
+        let t = Instant::now();
+        let scale = self.model.length_scale;
+        if frame.points.is_empty() {
+            return Err(FrameError::Empty);
+        }
+        if let Some(index) = frame
+            .points
+            .iter()
+            .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+        {
+            let p = frame.points[index];
+            return Err(FrameError::NonFinite {
+                index,
+                x: p.x,
+                y: p.y,
+                z: p.z,
+            });
+        }
+        let stride = frame
+            .points
+            .len()
+            .div_ceil(self.settings.max_cloud_points.max(3));
+        if stride > 1 {
+            flags.push("decimated".into());
+        }
+        let cloud: Vec<Point3<f64>> = frame
+            .points
+            .iter()
+            .step_by(stride)
+            .map(|p| p * scale)
+            .collect();
+        if cloud.len() < 3 {
+            return Err(FrameError::Rigid(format!(
+                "{} points; at least 3 are needed",
+                cloud.len()
+            )));
+        }
+        times.prepare_ms = ms(t);
+
+        // Rigid stage: track the pose against the current deformed surface.
+        let t = Instant::now();
+        let u0 = &self.good.u;
+        // With no rigid stage the fit of the identity is still checked (0 iterations).
+        let deformed = TriSurface::new(
+            self.model.surface_embedding.positions(u0),
+            self.model.surface.triangles.clone(),
+        );
+        let target = ModelTarget::new(&deformed, self.settings.target_spacing)
+            .map_err(|e| FrameError::Rigid(e.to_string()))?;
+        let (icp, initial) = match self.settings.rigid_mode {
+            RigidMode::Identity => (
+                RigidIcp {
+                    max_iterations: 0,
+                    ..self.settings.rigid.clone()
+                },
+                RigidTransform::identity(),
+            ),
+            RigidMode::Icp => (
+                self.settings.rigid.clone(),
+                self.good.model_to_cloud.inverse(),
+            ),
+        };
+        let r = icp
+            .register(&target, &cloud, Some(initial))
+            .map_err(|e| FrameError::Rigid(e.to_string()))?;
+        if r.rms > self.settings.max_rigid_rms {
+            return Err(FrameError::NoMatch {
+                rms_mm: r.rms * 1e3,
+                limit_mm: self.settings.max_rigid_rms * 1e3,
+            });
+        }
+        let (model_to_cloud, rigid_iterations) = (r.model_to_cloud, r.iterations);
+        times.rigid_ms = ms(t);
+
+        if !self.settings.non_rigid {
+            return Ok(Done {
+                u: self.good.u.clone(),
+                model_to_cloud,
+                converged: true,
+                rigid_iterations,
+                icp_iterations: 0,
+                newton_iterations: 0,
+                factorizations: 0,
+                surface_rms: 0.0,
+                used_points: cloud.len(),
+                sources: 0,
+                warnings: Vec::new(),
+            });
+        }
+
+        // Non-rigid stage in the model frame.
+        let cloud_to_model = model_to_cloud.inverse();
+        let aligned: Vec<Point3<f64>> = cloud.iter().map(|p| cloud_to_model.apply(p)).collect();
+        let camera = match &frame.camera {
+            Some(c) => Some(camera_to_model(c, scale, &cloud_to_model)?),
+            None => self.scene_camera,
+        };
+        let deadline = self
+            .settings
+            .time_budget_ms
+            .map(|b| start + Duration::from_secs_f64(b.max(0.0) * 1e-3));
+        let mut u = self.good.u.clone();
+        let icp = if self.good.registered {
+            self.non_rigid_warm.settings = self.settings.warm;
+            &mut self.non_rigid_warm
+        } else {
+            self.non_rigid_cold.settings = self.settings.cold;
+            &mut self.non_rigid_cold
+        };
+        let report = icp
+            .register(&mut self.model, &aligned, camera.as_ref(), &mut u, deadline)
+            .map_err(|e| FrameError::NonRigid(e.to_string()))?;
+        times.visibility_ms = report.timings.visibility_ms;
+        times.pairing_ms = report.timings.pairing_ms;
+        times.newton_ms = report.timings.newton_ms;
+        if !u.iter().all(|v| v.is_finite()) {
+            icp.invalidate();
+            return Err(FrameError::NonFiniteState);
+        }
+        if report.deadline_reached {
+            flags.push("time_budget".into());
+        }
+        Ok(Done {
+            u,
+            model_to_cloud,
+            converged: report.converged,
+            rigid_iterations,
+            icp_iterations: report.icp_iterations,
+            newton_iterations: report.newton_iterations,
+            factorizations: report.factorizations,
+            surface_rms: report.surface_rms,
+            used_points: cloud.len(),
+            sources: report.sources,
+            warnings: report.warnings,
+        })
+    }
+}
+
+/// A successful frame's new state and counters.
+struct Done {
+    u: Vec<f64>,
+    model_to_cloud: RigidTransform,
+    converged: bool,
+    rigid_iterations: usize,
+    icp_iterations: usize,
+    newton_iterations: usize,
+    factorizations: usize,
+    surface_rms: f64,
+    used_points: usize,
+    sources: usize,
+    warnings: Vec<String>,
+}
+
+/// The frame's camera (cloud frame, scene units) moved into the model frame, metres.
+fn camera_to_model(
+    c: &Camera,
+    scale: f64,
+    cloud_to_model: &RigidTransform,
+) -> Result<Camera, FrameError> {
+    let cam = Camera::new(
+        cloud_to_model.apply(&(c.position * scale)),
+        cloud_to_model.apply(&(c.look_at * scale)),
+        cloud_to_model.apply_vector(&c.up),
+        c.fov_deg,
+    )
+    .map_err(|e| FrameError::Rigid(format!("camera: {e}")))?;
+    Ok(cam)
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}

@@ -1,0 +1,76 @@
+//! What a session does per frame, and its limits.
+
+use crate::registration::{NonRigidSettings, RigidIcp};
+use crate::scene::{RigidMode, Scene};
+
+/// Settings of a [`Session`](super::Session). Lengths in metres.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SessionSettings {
+    /// Rigid stage: ICP (tracking from the last frame's pose) or none (the clouds are in the
+    /// model's frame).
+    pub rigid_mode: RigidMode,
+    /// Rigid ICP settings.
+    pub rigid: RigidIcp,
+    /// Spacing of the surface samples rigid ICP pairs with, metres.
+    pub target_spacing: f64,
+    /// A frame whose rigid fit leaves an RMS above this (metres) is rejected as not showing
+    /// this liver (the default 2 cm is far above noise and deformation residuals).
+    pub max_rigid_rms: f64,
+    /// Whether the non-rigid stage runs (`false`: rigid only, the model keeps its rest shape;
+    /// the baseline that TRE evaluations compare against).
+    pub non_rigid: bool,
+    /// Non-rigid settings of the first frame (and of the first after a reset or a failure):
+    /// the full penalty ramp.
+    pub cold: NonRigidSettings,
+    /// Non-rigid settings of a frame that starts from the previous frame's result.
+    pub warm: NonRigidSettings,
+    /// Wall-clock budget of one frame, ms: when exceeded, the best state so far is returned
+    /// and flagged `time_budget`. `None`: no budget.
+    pub time_budget_ms: Option<f64>,
+    /// Clouds with more points are thinned (every k-th point) to at most this many, and the
+    /// frame is flagged `decimated`.
+    pub max_cloud_points: usize,
+}
+
+/// Default of [`SessionSettings::max_cloud_points`].
+pub const DEFAULT_MAX_CLOUD_POINTS: usize = 20_000;
+
+impl Default for SessionSettings {
+    fn default() -> Self {
+        Self {
+            rigid_mode: RigidMode::Icp,
+            rigid: RigidIcp::default(),
+            target_spacing: 0.003,
+            max_rigid_rms: 0.02,
+            non_rigid: true,
+            cold: NonRigidSettings::default(),
+            warm: NonRigidSettings::warm(),
+            time_budget_ms: None,
+            max_cloud_points: DEFAULT_MAX_CLOUD_POINTS,
+        }
+    }
+}
+
+impl SessionSettings {
+    /// Settings from a scene's `[registration]` section (defaults when absent); `scale` is
+    /// metres per scene unit.
+    pub fn from_scene(scene: &Scene, scale: f64) -> Self {
+        let mut s = Self::default();
+        if let Some(r) = &scene.registration {
+            s.rigid_mode = r.rigid;
+            for n in [&mut s.cold, &mut s.warm] {
+                n.alpha = r.alpha;
+                n.penalty_end = r.penalty_end;
+                n.max_pair_distance = r.max_pair_distance.map(|d| d * scale);
+            }
+            s.cold.penalty_start = r.penalty_start;
+            s.cold.penalty_steps = r.penalty_steps as usize;
+            s.cold.max_icp_iterations = r.max_icp_iterations as usize;
+            s.time_budget_ms = r.time_budget_ms;
+            if let Some(n) = r.max_cloud_points {
+                s.max_cloud_points = n as usize;
+            }
+        }
+        s
+    }
+}

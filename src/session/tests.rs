@@ -1,0 +1,222 @@
+//! Session behaviour: warm start, failed frames that leave no trace, thinning, the time
+//! budget, reset, and no drift on a still scene. A small ellipsoid (10 × 7.5 × 5 cm, in mm)
+//! clamped at one end keeps these fast; accuracy is tested on the phantom in `tests/`.
+
+use std::path::PathBuf;
+
+use nalgebra::{Point3, Vector3};
+
+use super::*;
+use crate::mesh::primitives::icosphere;
+use crate::mesh::{write_obj, write_points, TriSurface};
+use crate::scene::load_scene;
+
+/// A clamped ellipsoid scene in mm; returns the scene path and the rest surface (mm).
+fn scene(tag: &str, rigid: &str) -> (PathBuf, TriSurface) {
+    let dir = std::env::temp_dir().join(format!("livereg-session-{}-{tag}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut s = icosphere(Point3::origin(), 1.0, 3);
+    for v in &mut s.vertices {
+        *v = Point3::new(50.0 * v.x, 37.5 * v.y, 25.0 * v.z);
+    }
+    write_obj(&dir.join("body.obj"), &s).unwrap();
+    let targets = [
+        Point3::new(-20.0, 0.0, 0.0),
+        Point3::new(0.0, 5.0, 0.0),
+        Point3::new(25.0, -5.0, 5.0),
+        Point3::new(35.0, 0.0, -3.0),
+    ];
+    write_points(&dir.join("targets.xyz"), &targets).unwrap();
+    std::fs::write(
+        dir.join("scene.toml"),
+        format!(
+            r#"units = "mm"
+[model]
+surface = "body.obj"
+[[model.structures]]
+name = "targets"
+points = "targets.xyz"
+[grid]
+cell_size = 20.0
+subdivisions = 2
+[material]
+law = "neo-hookean"
+young_modulus = 4500.0
+poisson_ratio = 0.45
+[[boundary.fixed]]
+box = [[-60.0, -60.0, -60.0], [-35.0, 60.0, 60.0]]
+[registration]
+rigid = "{rigid}"
+"#
+        ),
+    )
+    .unwrap();
+    (dir.join("scene.toml"), s)
+}
+
+/// The rest surface bent upwards away from the clamp: dz = a ((x + 35)/85)² for x > −35, mm.
+fn bent(s: &TriSurface, a: f64) -> Vec<Point3<f64>> {
+    s.vertices
+        .iter()
+        .map(|p| {
+            let t = ((p.x + 35.0) / 85.0).max(0.0);
+            p + Vector3::new(0.0, 0.0, a * t * t)
+        })
+        .collect()
+}
+
+fn frame(points: Vec<Point3<f64>>, name: &str) -> Frame {
+    Frame {
+        source: name.into(),
+        points,
+        camera: None,
+    }
+}
+
+fn session(path: &std::path::Path) -> Session {
+    Session::from_scene(&load_scene(path).unwrap()).unwrap()
+}
+
+fn max_change(a: &FrameResult, b: &FrameResult) -> f64 {
+    a.structures[0]
+        .1
+        .iter()
+        .zip(&b.structures[0].1)
+        .map(|(p, q)| (p - q).norm())
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn bad_frames_leave_the_session_as_it_was() {
+    let (path, rest) = scene("bad", "none");
+    let mut s = session(&path);
+    let good = s.register(&frame(bent(&rest, 8.0), "good"));
+    assert!(good.error.is_none(), "{:?}", good.error);
+    assert!(!good.warm && s.is_warm());
+    let tip = good.structures[0].1[3];
+    assert!(tip.z > 1.0, "the tip target follows the bend: {tip}");
+    let u = s.displacement().to_vec();
+
+    let mut nan = bent(&rest, 8.0);
+    nan[17].y = f64::NAN;
+    let far: Vec<Point3<f64>> = rest
+        .vertices
+        .iter()
+        .map(|p| p + Vector3::new(0.0, 0.0, 900.0))
+        .collect();
+    let cases = [
+        (frame(Vec::new(), "empty"), "empty"),
+        (frame(nan, "nan"), "non-finite"),
+        (frame(far, "far"), "no-match"),
+    ];
+    for (f, cause) in &cases {
+        let r = s.register(f);
+        let e = r
+            .error
+            .as_ref()
+            .unwrap_or_else(|| panic!("{} accepted", f.source));
+        assert_eq!(e.cause(), *cause, "{}: {e}", f.source);
+        assert!(r.flags.contains(&"failed".to_string()));
+        assert!(!r.converged);
+        assert_eq!(
+            r.structures, good.structures,
+            "{}: last good state",
+            f.source
+        );
+        assert_eq!(s.displacement(), &u[..], "{}: state unchanged", f.source);
+    }
+    let r = s.reject(
+        "broken.xyz",
+        FrameError::Input("broken.xyz:3: bad number".into()),
+    );
+    assert!(r.error.unwrap().to_string().contains("broken.xyz:3"));
+    assert_eq!(s.frames_seen(), 5);
+    // The next good frame is warm, from the kept state.
+    let next = s.register(&frame(bent(&rest, 8.0), "again"));
+    assert!(next.error.is_none() && next.warm);
+    assert!(
+        max_change(&next, &good) < 0.5,
+        "{}",
+        max_change(&next, &good)
+    );
+}
+
+#[test]
+fn a_still_scene_does_not_drift_and_reset_goes_cold() {
+    let (path, rest) = scene("still", "none");
+    let mut s = session(&path);
+    let cloud = bent(&rest, 10.0);
+    let results: Vec<FrameResult> = (0..12)
+        .map(|k| s.register(&frame(cloud.clone(), &format!("{k}"))))
+        .collect();
+    for r in &results {
+        assert!(r.error.is_none(), "{:?}", r.error);
+        assert!(r.structures[0]
+            .1
+            .iter()
+            .all(|p| p.coords.iter().all(|c| c.is_finite())));
+    }
+    let changes: Vec<f64> = results
+        .windows(2)
+        .map(|w| max_change(&w[0], &w[1]))
+        .collect();
+    println!("frame-to-frame target change (mm): {changes:.4?}");
+    // Converging, then still: the last frames move the targets by under 0.05 mm.
+    assert!(
+        changes[changes.len() - 3..].iter().all(|&c| c < 0.05),
+        "{changes:?}"
+    );
+    // Bounded work per warm frame.
+    for r in &results[1..] {
+        assert!(
+            r.icp_iterations <= s.settings.warm.max_icp_iterations * s.settings.warm.penalty_steps
+        );
+    }
+    s.reset();
+    assert!(!s.is_warm());
+    assert!(s.displacement().iter().all(|&v| v == 0.0));
+    let r = s.register(&frame(cloud, "after reset"));
+    assert!(!r.warm && r.error.is_none());
+}
+
+#[test]
+fn huge_clouds_are_thinned_and_the_budget_stops_a_frame_with_a_valid_state() {
+    let (path, rest) = scene("budget", "none");
+    let mut s = session(&path);
+    s.settings.max_cloud_points = 500;
+    s.settings.time_budget_ms = Some(1e-3);
+    let cloud = bent(&rest, 8.0);
+    let big: Vec<Point3<f64>> = (0..4).flat_map(|_| cloud.iter().copied()).collect();
+    let r = s.register(&frame(big.clone(), "big"));
+    assert!(r.error.is_none(), "{:?}", r.error);
+    assert!(r.flags.contains(&"decimated".to_string()), "{:?}", r.flags);
+    assert!(
+        r.flags.contains(&"time_budget".to_string()),
+        "{:?}",
+        r.flags
+    );
+    assert!(r.cloud_points.0 == big.len() && r.cloud_points.1 <= 500);
+    assert_eq!(
+        r.icp_iterations, 1,
+        "one iteration, then the budget stops it"
+    );
+    assert!(!r.converged);
+    assert!(s.displacement().iter().all(|v| v.is_finite()));
+}
+
+#[test]
+fn rigid_tracking_recovers_a_shift_of_the_camera_frame() {
+    let (path, rest) = scene("rigid", "icp");
+    let mut s = session(&path);
+    s.settings.non_rigid = false;
+    let shift = Vector3::new(6.0, -4.0, 3.0);
+    let cloud: Vec<Point3<f64>> = rest.vertices.iter().map(|p| p + shift).collect();
+    let r = s.register(&frame(cloud, "shifted"));
+    assert!(r.error.is_none(), "{:?}", r.error);
+    let t = r.model_to_cloud.translation * 1e3; // mm
+    assert!((t - shift).norm() < 0.05, "{t}");
+    assert!(r.model_to_cloud.rotation_angle() < 1e-3);
+    // Results are in the cloud frame: the targets moved with the shift.
+    let moved = r.structures[0].1[0] - Point3::new(-20.0, 0.0, 0.0);
+    assert!((moved - shift).norm() < 0.05, "{moved}");
+}
