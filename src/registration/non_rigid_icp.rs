@@ -74,8 +74,8 @@ impl NonRigidSettings {
     pub fn warm() -> Self {
         Self {
             penalty_steps: 1,
-            max_icp_iterations: 8,
-            newton_iterations: 2,
+            max_icp_iterations: 5,
+            newton_iterations: 1,
             visibility_interval: 16,
             factor_reuse: 8,
             ..Self::default()
@@ -360,15 +360,6 @@ impl NonRigidIcp {
                         .newton
                         .improve(&mut model.problem, u, settings.newton_iterations);
                     report.newton_iterations += r.iterations;
-                    if std::env::var_os("LIVEREG_TRACE").is_some() {
-                        eprintln!(
-                            "step {step} k {k:.3e}: rel {:.2e} shifted {} steps {:?} sources {}",
-                            r.relative_residual,
-                            r.shifted_steps,
-                            r.steps,
-                            pairs.sources.len()
-                        );
-                    }
                     if let Some((outcome, msg)) = r.failure {
                         report.warnings.push(format!("{}: {msg}", outcome.name()));
                         // A stale factorisation is the first suspect.

@@ -40,7 +40,7 @@ impl Default for SessionSettings {
         Self {
             rigid_mode: RigidMode::Icp,
             rigid: RigidIcp::default(),
-            target_spacing: 0.003,
+            target_spacing: 0.005,
             max_rigid_rms: 0.02,
             non_rigid: true,
             cold: NonRigidSettings::default(),

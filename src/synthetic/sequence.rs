@@ -39,7 +39,7 @@ use crate::evaluation::{RigidRecord, TruthRecord};
 use crate::geometry::{Aabb, Camera, ViewError, DEFAULT_FOV_DEG};
 use crate::grid::{EmbeddingError, IntegrationMode, WeightedCellGrid};
 use crate::mechanics::loads::{body_forces, pressure_forces, traction_forces};
-use crate::mechanics::{LawKind, NewtonSolver};
+use crate::mechanics::{LawKind, NewtonSolver, PenaltySprings};
 use crate::mesh::TriSurface;
 use crate::registration::RigidTransform;
 use crate::scene::{LoadedScene, MAX_SUBDIVISIONS};
@@ -53,6 +53,18 @@ pub const DEFAULT_RAMP_FRACTION: f64 = 2.0 / 3.0;
 
 /// Edge of the tool's loaded patch, metres (3 cm).
 pub const TOOL_PATCH_SIZE: f64 = 0.03;
+
+/// Depth of the elastic bed of the truth ([`TruthModel::bed_stiffness`]) as a share of the
+/// surface's posterior→anterior extent.
+pub const BED_DEPTH_FRACTION: f64 = 0.35;
+
+/// Default stiffness of the truth's elastic bed, N/m³: 4500 Pa / 1.5 cm, a layer of tissue as
+/// soft as the liver and 1.5 cm thick.
+pub const DEFAULT_BED_STIFFNESS: f64 = 3.0e5;
+
+/// Relative residual at which a truth increment whose Newton iterations stall (at round-off,
+/// above the scene's `residual_tolerance`) is still accepted as converged.
+pub const TRUTH_STALL_TOLERANCE: f64 = 1e-6;
 
 /// An intra-operative deformation scenario.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -107,9 +119,9 @@ impl ScenarioKind {
     /// pressure, a 30° tilt, 1000 Pa of tool traction (see `docs/registration.md`).
     pub fn default_magnitude(self) -> f64 {
         match self {
-            ScenarioKind::Pneumoperitoneum => 1000.0,
-            ScenarioKind::GravityPose => 30.0,
-            ScenarioKind::ToolPush => 1000.0,
+            ScenarioKind::Pneumoperitoneum => 50.0,
+            ScenarioKind::GravityPose => 6.0,
+            ScenarioKind::ToolPush => 250.0,
         }
     }
 }
@@ -137,6 +149,13 @@ pub struct TruthModel {
     pub poisson_ratio: f64,
     /// Young's modulus, Pa; `None` (default): the scene's.
     pub young_modulus: Option<f64>,
+    /// Stiffness of an elastic bed under the posterior part of the surface (the part with
+    /// `y ≤ lo.y + `[`BED_DEPTH_FRACTION`]` · e.y` of its bounding box), N/m³ (pascals per
+    /// metre of displacement, in every direction): the organs the liver rests on in a supine
+    /// patient (diaphragm, retroperitoneum), which the registration model does not have.
+    /// Without it the phantom, held only by its ligament box, swings almost rigidly under any
+    /// load. Default [`DEFAULT_BED_STIFFNESS`]; 0: no bed.
+    pub bed_stiffness: f64,
 }
 
 impl Default for TruthModel {
@@ -148,14 +167,15 @@ impl Default for TruthModel {
             law: LawKind::NeoHookean,
             poisson_ratio: 0.49,
             young_modulus: None,
+            bed_stiffness: DEFAULT_BED_STIFFNESS,
         }
     }
 }
 
 impl TruthModel {
     /// Whether this truth would be discretised exactly like `scene`'s own model (same cell
-    /// size, subdivisions, integration, law, ν and E): then a registration would be graded
-    /// against itself.
+    /// size, subdivisions, integration, law, ν and E, and no elastic bed): then a registration
+    /// would be graded against itself.
     pub fn same_as_scene(&self, scene: &LoadedScene) -> bool {
         let s = &scene.scene;
         let h = s.grid.cell_size * scene.length_scale();
@@ -167,6 +187,7 @@ impl TruthModel {
             && self
                 .young_modulus
                 .is_none_or(|e| e == s.material.young_modulus)
+            && self.bed_stiffness == 0.0
     }
 
     /// `scene` with its grid and material replaced by this truth model's.
@@ -292,6 +313,12 @@ impl SequenceSpec {
                 return bad(format!("truth young_modulus {e} Pa must be finite and > 0"));
             }
         }
+        if !(t.bed_stiffness.is_finite() && t.bed_stiffness >= 0.0) {
+            return bad(format!(
+                "truth bed_stiffness {} N/m³ must be finite and >= 0",
+                t.bed_stiffness
+            ));
+        }
         self.cloud.validate()?;
         Ok(())
     }
@@ -416,8 +443,8 @@ impl ScenarioLoad {
     ///   `magnitude` degrees (head up: gravity gains a component towards inferior), body force
     ///   `ρ (g_new − g_old)`;
     /// * tool-push: `magnitude` Pa towards +z (superior) on a 3 cm box (1 cm tall) centred on
-    ///   the surface vertex nearest to `(lo.x + 0.85 e.x, lo.y + 0.5 e.y, lo.z)` — the
-    ///   inferior face of the thin left lobe.
+    ///   the surface vertex nearest to `(lo.x + 0.8 e.x, lo.y + 0.75 e.y, lo.z)` — the
+    ///   inferior face of the thin left lobe, near its anterior edge.
     pub fn for_surface(
         kind: ScenarioKind,
         magnitude: f64,
@@ -446,7 +473,7 @@ impl ScenarioLoad {
                 }
             }
             ScenarioKind::ToolPush => {
-                let aim = Point3::new(lo.x + 0.85 * e.x, lo.y + 0.5 * e.y, lo.z);
+                let aim = Point3::new(lo.x + 0.8 * e.x, lo.y + 0.75 * e.y, lo.z);
                 let centre = surface
                     .vertices
                     .iter()
@@ -595,6 +622,20 @@ impl SyntheticSequence {
     }
 }
 
+/// The part of `surface` (metres, patient frame) under the truth's elastic bed: `y ≤ lo.y +`
+/// [`BED_DEPTH_FRACTION`]` · e.y` with `lo`, `e` the bounding box's corner and extent.
+pub fn bed_region(surface: &TriSurface) -> Aabb {
+    let (lo, hi) = surface
+        .bounding_box()
+        .unwrap_or((Point3::origin(), Point3::origin()));
+    let e = hi - lo;
+    let big = 1.0 + e.norm();
+    Aabb::new(
+        Point3::new(lo.x - big, lo.y - big, lo.z - big),
+        Point3::new(hi.x + big, lo.y + BED_DEPTH_FRACTION * e.y, hi.z + big),
+    )
+}
+
 /// The scene's camera (`[registration] camera`), in metres, model frame.
 pub fn scene_camera(scene: &LoadedScene) -> Result<Camera, SequenceError> {
     let cam = scene
@@ -619,8 +660,9 @@ pub fn scene_camera(scene: &LoadedScene) -> Result<Camera, SequenceError> {
 /// Solves the truth from the equilibrium `u` at load fraction `from` to `to` (loads
 /// `s · f_full`) by Newton continuation: one [`NewtonSolver::improve`] per increment, starting
 /// with the whole step, halving a failed increment (from the last converged state) at most
-/// `max_bisections` times in a row and doubling again after a success. Returns the Newton
-/// iterations, or why it failed.
+/// `max_bisections` times in a row and doubling again after a success. An increment converges
+/// when `improve` does, or when its iterations stall without failure below
+/// [`TRUTH_STALL_TOLERANCE`] (round-off). Returns the Newton iterations, or why it failed.
 fn continue_load(
     solver: &mut NewtonSolver,
     model: &mut SceneModel,
@@ -645,7 +687,9 @@ fn continue_load(
         let mut trial = u.clone();
         let r = solver.improve(&mut model.problem, &mut trial, settings.max_iterations);
         iterations += r.iterations;
-        if r.converged {
+        let stalled_at_roundoff =
+            r.failure.is_none() && r.relative_residual <= TRUTH_STALL_TOLERANCE;
+        if r.converged || stalled_at_roundoff {
             *u = trial;
             current = target;
             consecutive = 0;
@@ -696,6 +740,21 @@ pub fn generate_sequence(
     let density = truth_scene.scene.material.density;
     let load = ScenarioLoad::for_surface(spec.kind, spec.magnitude, &model.surface, density);
     let f_full = load.forces(&model.problem.grid, &model.surface)?;
+    if spec.truth.bed_stiffness > 0.0 {
+        let region = bed_region(&model.surface);
+        let bed = PenaltySprings::fixed_surface_region(
+            &model.problem.grid,
+            &model.surface,
+            &region,
+            spec.truth.bed_stiffness,
+        )
+        .map_err(|source| SequenceError::Embedding {
+            what: "elastic bed".into(),
+            source,
+        })?
+        .ok_or_else(|| SequenceError::EmptyRegion("the elastic bed holds no surface".into()))?;
+        model.problem.springs.push(bed);
+    }
     let mut solver = NewtonSolver::new(model.newton);
     let to_camera = spec.model_to_camera();
     let camera_in_camera_frame = Camera::new(

@@ -29,6 +29,9 @@ fn explore() {
         if let Ok(h) = std::env::var("SUB") {
             spec.truth.subdivisions = h.parse().unwrap();
         }
+        if let Ok(h) = std::env::var("BED") {
+            spec.truth.bed_stiffness = h.parse().unwrap();
+        }
         if let Ok(h) = std::env::var("FRAMES") {
             spec.frames = h.parse().unwrap();
         }
@@ -75,6 +78,46 @@ fn explore() {
                         / t.len() as f64
                 })
                 .collect();
+            let all_rest: Vec<Point3<f64>> = seq
+                .rest_structures
+                .iter()
+                .flat_map(|(_, r)| r.iter().copied())
+                .collect();
+            let all_truth: Vec<Point3<f64>> = f
+                .truth_structures
+                .iter()
+                .flat_map(|(_, r)| r.iter().copied())
+                .collect();
+            let best = crate::registration::kabsch(&all_rest, &all_truth, None).unwrap();
+            let best_tre = all_rest
+                .iter()
+                .zip(&all_truth)
+                .map(|(a, b)| (best.apply(a) - b).norm())
+                .sum::<f64>()
+                / all_rest.len() as f64;
+            let best_s =
+                crate::registration::kabsch(&seq.rest_surface, &f.truth_surface, None).unwrap();
+            let best_s_tre = seq.rest_structures[0]
+                .1
+                .iter()
+                .zip(&f.truth_structures[0].1)
+                .map(|(a, b)| (best_s.apply(a) - b).norm())
+                .sum::<f64>()
+                / seq.rest_structures[0].1.len() as f64;
+            let vis: Vec<usize> = (0..f.truth_surface.len())
+                .filter(|&i| inl.iter().any(|p| (p - f.truth_surface[i]).norm() < 4e-3))
+                .collect();
+            let rs: Vec<Point3<f64>> = vis.iter().map(|&i| seq.rest_surface[i]).collect();
+            let ts: Vec<Point3<f64>> = vis.iter().map(|&i| f.truth_surface[i]).collect();
+            let best_v = crate::registration::kabsch(&rs, &ts, None).unwrap();
+            let vis_tre = all_rest
+                .iter()
+                .zip(&all_truth)
+                .map(|(a, b)| (best_v.apply(a) - b).norm())
+                .sum::<f64>()
+                / all_rest.len() as f64;
+            println!("  frame {k}: {} visible vertices; structure TRE after rigid fit of the visible vertices {:.2} mm", vis.len(), vis_tre * 1e3);
+            println!("  frame {k}: best rigid TRE on structures {:.2} mm, vessel TRE after surface-vertex rigid fit {:.2} mm", best_tre * 1e3, best_s_tre * 1e3);
             println!(
                 "  frame {k}: s {:.3} max disp {:.1} mm, {} it {:.0} ms, {} pts ({} out), inlier dist truth {:.2} mm rest {:.2} mm (>3mm {:.0}%), struct disp {:?} mm",
                 f.load_fraction,
@@ -122,30 +165,34 @@ fn explore_solve() {
     let load = ScenarioLoad::for_surface(kind, spec.magnitude, &model.surface, 1060.0);
     let f = load.forces(&model.problem.grid, &model.surface).unwrap();
     model.problem.external = f;
-    let mut settings = model.newton;
-    if let Ok(h) = std::env::var("STEPS") {
-        settings.load_steps = h.parse().unwrap();
+    let f_full = model.problem.external.clone();
+    let mut solver = NewtonSolver::new(model.newton);
+    let mut u = vec![0.0; model.problem.dofs()];
+    let steps: usize = std::env::var("STEPS").map_or(5, |s| s.parse().unwrap());
+    for k in 1..=steps {
+        let s = k as f64 / steps as f64;
+        model.problem.external = f_full.iter().map(|f| f * s).collect();
+        for it in 0..40 {
+            let t = Instant::now();
+            let r = solver.improve(&mut model.problem, &mut u, 1);
+            println!(
+                "  load {s:.2} it {it}: rel {:.3e} conv {} fail {:?} {:.0} ms",
+                r.relative_residual,
+                r.converged,
+                r.failure,
+                t.elapsed().as_secs_f64() * 1e3
+            );
+            if r.converged {
+                break;
+            }
+        }
     }
-    let mut solver = NewtonSolver::new(settings);
-    let u0 = vec![0.0; model.problem.dofs()];
-    let r = solver.solve(&mut model.problem, &u0);
-    for h in &r.history {
-        println!("  {:?}", h);
-    }
+    let r_u = u;
     let max = model
         .surface_embedding
-        .interpolate(&r.u)
+        .interpolate(&r_u)
         .iter()
         .map(|d| d.norm())
         .fold(0.0, f64::max);
-    println!(
-        "{:?} {:?} load {} its {} bisections {} {:.0} ms max disp {:.1} mm",
-        r.outcome,
-        r.message,
-        r.load_reached,
-        r.newton_iterations,
-        r.bisections,
-        r.wall_ms,
-        max * 1e3
-    );
+    println!("max disp {:.1} mm", max * 1e3);
 }
