@@ -3,16 +3,20 @@
 //! cloud by the scene's virtual camera, with the true positions of the internal structures.
 //!
 //! * Scenarios ([`ScenarioKind`]): a pneumoperitoneum-like pressure on the anterior-superior
-//!   (diaphragm-side) surface, the change of gravity when the patient is tilted, and a tool
+//!   (diaphragm-side) dome, the change of gravity when the patient is tilted, and a tool
 //!   lifting the thin left lobe. The load grows with a smooth ramp ([`load_fraction`]) that
 //!   reaches its full value at about 2/3 of the sequence and then holds, so that the last
 //!   frames show a liver that has stopped moving.
 //! * The ground truth is solved with a DIFFERENT discretisation and law than the scene's
 //!   registration model ([`TruthModel`]: by default a 10 mm finite-cell grid with 2 octree
 //!   levels and ν = 0.49, where the phantom's registration model uses 15 mm weighted cells and
-//!   ν = 0.45), so that tests do not grade the model against itself. Frames are solved by
-//!   continuation: each frame's Newton solve ([`NewtonSolver::improve`]) starts from the
-//!   previous frame's equilibrium; a solve that does not converge is an error.
+//!   ν = 0.45), so that tests do not grade the model against itself. It also rests on an
+//!   elastic bed under its posterior third (the organs behind it; the registration model
+//!   has only the ligament box): held by the ligaments alone, the soft phantom swings almost
+//!   rigidly, and a rigid registration would then leave nothing for the non-rigid stage.
+//!   Frames are solved by continuation: each frame's Newton solve
+//!   ([`NewtonSolver::improve`]) starts from the previous frame's equilibrium; a solve that
+//!   does not converge is an error.
 //! * The clouds ([`synthesize_cloud`]) use one [`CloudSpec`] with a per-frame seed
 //!   ([`frame_seed`]); its `rigid_offset` is the constant model→camera transform.
 //!
@@ -70,12 +74,13 @@ pub const TRUTH_STALL_TOLERANCE: f64 = 1e-6;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ScenarioKind {
-    /// Insufflation-like dead pressure (Pa) on the anterior-superior (diaphragm-side) part of
-    /// the surface, pushing it inwards; the ligaments hold.
+    /// Insufflation-like dead pressure (Pa) on the anterior-superior (diaphragm-side) dome of
+    /// the right lobe, pushing it inwards against the ligaments and the elastic bed.
     Pneumoperitoneum,
     /// The patient tilted from supine (gravity towards posterior, −y) into reverse
     /// Trendelenburg (head up) by an angle (degrees): the body force `ρ (g_new − g_old)` acts
-    /// on the liver, which is at rest (stress-free) under `g_old`; the ligaments hold.
+    /// on the liver, which is at rest (stress-free) under `g_old`; the ligaments and the
+    /// elastic bed hold.
     GravityPose,
     /// A tool lifting the thin left lobe: a dead traction (Pa, towards superior) on a 3 cm
     /// patch of its inferior face.
@@ -114,14 +119,15 @@ impl ScenarioKind {
         }
     }
 
-    /// The full-load magnitude tuned on the bundled phantom (E = 4500 Pa) so that the largest
-    /// surface displacement of the default truth at full load is 1.5–3.5 cm: 1000 Pa of
-    /// pressure, a 30° tilt, 1000 Pa of tool traction (see `docs/registration.md`).
+    /// The full-load magnitude tuned on the bundled phantom (E = 4500 Pa, held by its
+    /// ligament box and the truth's elastic bed) so that the largest surface displacement of
+    /// the default truth at full load is 1.5–3.5 cm: 200 Pa of pressure (→ 24.7 mm), a 25°
+    /// tilt (→ about 30 mm), 400 Pa of tool traction (→ 31.7 mm).
     pub fn default_magnitude(self) -> f64 {
         match self {
-            ScenarioKind::Pneumoperitoneum => 50.0,
-            ScenarioKind::GravityPose => 6.0,
-            ScenarioKind::ToolPush => 250.0,
+            ScenarioKind::Pneumoperitoneum => 200.0,
+            ScenarioKind::GravityPose => 25.0,
+            ScenarioKind::ToolPush => 400.0,
         }
     }
 }
@@ -319,8 +325,9 @@ impl SequenceSpec {
                 t.bed_stiffness
             ));
         }
-        self.cloud.validate()?;
-        Ok(())
+        self.cloud
+            .validate()
+            .map_err(|e| SequenceError::InvalidSpec(format!("cloud: {e}")))
     }
 
     /// The model→camera transform (the cloud spec's `rigid_offset`, identity when unset).
@@ -377,18 +384,6 @@ pub enum SequenceError {
     },
 }
 
-impl From<SynthError> for SequenceError {
-    fn from(e: SynthError) -> Self {
-        match e {
-            SynthError::InvalidSpec(m) => SequenceError::InvalidSpec(format!("cloud: {m}")),
-            other => SequenceError::Cloud {
-                frame: 0,
-                source: other,
-            },
-        }
-    }
-}
-
 /// Load fraction in `[0, 1]` of frame `frame` (from 0) of a `frames`-frame sequence whose
 /// load ramps over `ramp_fraction` of the frames: with `n = clamp(round(ramp_fraction ·
 /// frames), 1, frames)` and `t = min((frame + 1) / n, 1)`, the smooth step `3t² − 2t³`. It
@@ -437,8 +432,9 @@ impl ScenarioLoad {
     /// patient frame: x right → left, y posterior → anterior, z inferior → superior) of
     /// material density `density` (kg/m³). With `lo`, `e` the surface's bounding-box corner
     /// and extent:
-    /// * pneumoperitoneum: `magnitude` Pa on the surface with `y ≥ lo.y + 0.5 e.y` and
-    ///   `z ≥ lo.z + 0.5 e.z` (anterior-superior, diaphragm side);
+    /// * pneumoperitoneum: `magnitude` Pa on the surface with `y ≥ lo.y + 0.5 e.y`,
+    ///   `z ≥ lo.z + 0.5 e.z` and `x ≤ lo.x + 0.6 e.x` (the anterior-superior dome of the
+    ///   right lobe, diaphragm side);
     /// * gravity-pose: `g_old = (0, −9.81, 0)` (supine), `g_new` = `g_old` turned about +x by
     ///   `magnitude` degrees (head up: gravity gains a component towards inferior), body force
     ///   `ρ (g_new − g_old)`;
@@ -460,7 +456,7 @@ impl ScenarioLoad {
             ScenarioKind::Pneumoperitoneum => ScenarioLoad::Pressure {
                 region: Aabb::new(
                     Point3::new(lo.x - big, lo.y + 0.5 * e.y, lo.z + 0.5 * e.z),
-                    Point3::new(hi.x + big, hi.y + big, hi.z + big),
+                    Point3::new(lo.x + 0.6 * e.x, hi.y + big, hi.z + big),
                 ),
                 pressure: magnitude,
             },
@@ -636,6 +632,25 @@ pub fn bed_region(surface: &TriSurface) -> Aabb {
     )
 }
 
+/// Adds to `model` the elastic bed of [`TruthModel::bed_stiffness`]: springs of `stiffness`
+/// N/m³ per unit rest area holding the surface inside [`bed_region`] at rest.
+pub fn add_elastic_bed(model: &mut SceneModel, stiffness: f64) -> Result<(), SequenceError> {
+    let region = bed_region(&model.surface);
+    let bed = PenaltySprings::fixed_surface_region(
+        &model.problem.grid,
+        &model.surface,
+        &region,
+        stiffness,
+    )
+    .map_err(|source| SequenceError::Embedding {
+        what: "elastic bed".into(),
+        source,
+    })?
+    .ok_or_else(|| SequenceError::EmptyRegion("the elastic bed holds no surface".into()))?;
+    model.problem.springs.push(bed);
+    Ok(())
+}
+
 /// The scene's camera (`[registration] camera`), in metres, model frame.
 pub fn scene_camera(scene: &LoadedScene) -> Result<Camera, SequenceError> {
     let cam = scene
@@ -741,19 +756,7 @@ pub fn generate_sequence(
     let load = ScenarioLoad::for_surface(spec.kind, spec.magnitude, &model.surface, density);
     let f_full = load.forces(&model.problem.grid, &model.surface)?;
     if spec.truth.bed_stiffness > 0.0 {
-        let region = bed_region(&model.surface);
-        let bed = PenaltySprings::fixed_surface_region(
-            &model.problem.grid,
-            &model.surface,
-            &region,
-            spec.truth.bed_stiffness,
-        )
-        .map_err(|source| SequenceError::Embedding {
-            what: "elastic bed".into(),
-            source,
-        })?
-        .ok_or_else(|| SequenceError::EmptyRegion("the elastic bed holds no surface".into()))?;
-        model.problem.springs.push(bed);
+        add_elastic_bed(&mut model, spec.truth.bed_stiffness)?;
     }
     let mut solver = NewtonSolver::new(model.newton);
     let to_camera = spec.model_to_camera();
