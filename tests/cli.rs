@@ -2,19 +2,9 @@
 //! a non-zero exit and a one-line message naming the file and the problem (never a panic).
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
-fn livereg(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_livereg"))
-        .args(args)
-        .output()
-        .expect("binary runs");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+mod common;
+use common::livereg;
 
 /// A fresh directory under the system temp dir.
 fn scratch(name: &str) -> PathBuf {

@@ -3,23 +3,13 @@
 //! against a truth with a known offset.
 
 use std::path::PathBuf;
-use std::process::Command;
 
 use livereg::mesh::primitives::icosphere;
 use livereg::mesh::{write_obj, write_points};
 use nalgebra::{Point3, Vector3};
 
-fn livereg(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_livereg"))
-        .args(args)
-        .output()
-        .expect("binary runs");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+mod common;
+use common::livereg;
 
 /// A clamped ellipsoid scene in mm with 3 targets and 4 frames bending it progressively; the
 /// third frame file is broken on line 2.

@@ -9,6 +9,7 @@ use serde::Serialize;
 
 use super::register::{frame_files, register_files, session_for, summarize};
 use crate::evaluation::{evaluate, read_truth, DiagnosticsRecord, ResultRecord, RigidRecord};
+use crate::registration::RigidTransform;
 use crate::scene::load_scene;
 use crate::synthetic::{generate_sequence, write_sequence, ScenarioKind, SequenceSpec};
 
@@ -96,10 +97,7 @@ pub fn run(out: &Path, frames: usize, only: &[String]) -> Result<Vec<ScenarioSum
                 source: "rest".into(),
                 wall_ms: 0.0,
                 converged: true,
-                rigid: RigidRecord {
-                    rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-                    translation: [0.0; 3],
-                },
+                rigid: RigidRecord::from_transform(&RigidTransform::identity(), scale),
                 diagnostics: DiagnosticsRecord::default(),
                 structures: seq
                     .rest_structures

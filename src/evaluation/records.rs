@@ -6,6 +6,7 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
+use crate::registration::RigidTransform;
 use crate::session::FrameResult;
 
 /// Rigid part of a frame's registration: `p_cloud = rotation · p_model + translation`
@@ -16,6 +17,23 @@ pub struct RigidRecord {
     pub rotation: [[f64; 3]; 3],
     /// Translation, scene units.
     pub translation: [f64; 3],
+}
+
+impl RigidRecord {
+    /// The record of `t` (translation in metres) in scene units (`length_scale` metres per
+    /// unit).
+    pub fn from_transform(t: &RigidTransform, length_scale: f64) -> Self {
+        let m = t.rotation.matrix();
+        let v = t.translation / length_scale;
+        RigidRecord {
+            rotation: [
+                [m[(0, 0)], m[(0, 1)], m[(0, 2)]],
+                [m[(1, 0)], m[(1, 1)], m[(1, 2)]],
+                [m[(2, 0)], m[(2, 1)], m[(2, 2)]],
+            ],
+            translation: [v.x, v.y, v.z],
+        }
+    }
 }
 
 /// Per-frame diagnostics. The first three fields are the contract's; the others are this
@@ -88,8 +106,6 @@ impl ResultRecord {
     /// The line of `results.jsonl` for a session's frame result; `length_scale` is metres per
     /// scene unit (the rigid translation is converted to scene units).
     pub fn from_frame(r: &FrameResult, length_scale: f64) -> Self {
-        let m = r.model_to_cloud.rotation.matrix();
-        let t = r.model_to_cloud.translation / length_scale;
         let mut timings_ms = BTreeMap::new();
         for (name, v) in [
             ("prepare", r.times.prepare_ms),
@@ -106,14 +122,7 @@ impl ResultRecord {
             source: r.source.clone(),
             wall_ms: r.wall_ms,
             converged: r.converged,
-            rigid: RigidRecord {
-                rotation: [
-                    [m[(0, 0)], m[(0, 1)], m[(0, 2)]],
-                    [m[(1, 0)], m[(1, 1)], m[(1, 2)]],
-                    [m[(2, 0)], m[(2, 1)], m[(2, 2)]],
-                ],
-                translation: [t.x, t.y, t.z],
-            },
+            rigid: RigidRecord::from_transform(&r.model_to_cloud, length_scale),
             diagnostics: DiagnosticsRecord {
                 icp_iterations: r.icp_iterations,
                 newton_iterations: r.newton_iterations,

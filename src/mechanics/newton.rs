@@ -198,8 +198,14 @@ impl NewtonSolver {
     /// factorisation. `max_uses ≤ 1` restores plain Newton. [`NewtonSolver::solve`] always
     /// refactorises.
     pub fn with_factor_reuse(mut self, max_uses: usize) -> Self {
-        self.factor_reuse = max_uses.max(1);
+        self.set_factor_reuse(max_uses);
         self
+    }
+
+    /// [`NewtonSolver::with_factor_reuse`] on a solver in use (its ordering, symbolic analysis
+    /// and current factorisation are kept).
+    pub fn set_factor_reuse(&mut self, max_uses: usize) {
+        self.factor_reuse = max_uses.max(1);
     }
 
     /// Forgets the kept factorisation (the next step refactorises), for example when the

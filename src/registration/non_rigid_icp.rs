@@ -182,7 +182,6 @@ pub struct NonRigidIcp {
     /// Settings used by [`NonRigidIcp::register`].
     pub settings: NonRigidSettings,
     newton: NewtonSolver,
-    reuse: usize,
     /// Candidate source vertices of the last visibility test, ICP iterations since, and the
     /// camera it was made for.
     visible: Option<(Vec<usize>, usize, Option<Camera>)>,
@@ -195,7 +194,6 @@ impl NonRigidIcp {
         Self {
             settings,
             newton: NewtonSolver::new(newton).with_factor_reuse(settings.factor_reuse),
-            reuse: settings.factor_reuse,
             visible: None,
         }
     }
@@ -223,11 +221,7 @@ impl NonRigidIcp {
     ) -> Result<NonRigidReport, NonRigidError> {
         let settings = self.settings;
         settings.validate()?;
-        if self.reuse != settings.factor_reuse {
-            self.reuse = settings.factor_reuse;
-            self.newton =
-                NewtonSolver::new(self.newton.settings).with_factor_reuse(settings.factor_reuse);
-        }
+        self.newton.set_factor_reuse(settings.factor_reuse);
         if cloud.is_empty() {
             return Err(NonRigidError::EmptyCloud);
         }

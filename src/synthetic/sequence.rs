@@ -926,19 +926,7 @@ pub fn write_sequence(
     write_file(&dir.join(TRUTH_FILE), truth.as_bytes())?;
 
     let spec = &seq.spec;
-    let m = seq.model_to_camera.rotation.matrix();
-    let rigid = RigidRecord {
-        rotation: [
-            [m[(0, 0)], m[(0, 1)], m[(0, 2)]],
-            [m[(1, 0)], m[(1, 1)], m[(1, 2)]],
-            [m[(2, 0)], m[(2, 1)], m[(2, 2)]],
-        ],
-        translation: seq
-            .model_to_camera
-            .translation
-            .map(|t| t / length_scale)
-            .into(),
-    };
+    let rigid = RigidRecord::from_transform(&seq.model_to_camera, length_scale);
     let cam = &seq.camera;
     let t = &spec.truth;
     let info = serde_json::json!({

@@ -95,3 +95,17 @@ impl Rng {
         (0..n).map(|_| s * self.next()).collect()
     }
 }
+
+/// Runs the `livereg` binary built for this test run with `args`; returns the exit code (−1
+/// when killed by a signal), stdout and stderr.
+pub fn livereg(args: &[&str]) -> (i32, String, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_livereg"))
+        .args(args)
+        .output()
+        .expect("binary runs");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
