@@ -13,6 +13,8 @@
 //! - [`phantom`]: the bundled liver phantom (surface, vessel targets, tumour, ligament);
 //! - [`synthetic`]: a virtual camera producing partial, noisy point clouds (tests, benchmarks);
 //! - [`evaluation`]: results and truth formats, target registration error;
+//! - [`recording`]: MCAP recordings of sessions and their replay;
+//! - `visualisation` (feature `rerun`): 3D logging to rerun;
 //! - [`cli`]: the command line.
 //!
 //! Lower layers never import higher ones. Inside the mechanics everything is SI (m, N, Pa, J).
@@ -26,9 +28,12 @@ pub mod linalg;
 pub mod mechanics;
 pub mod mesh;
 pub mod phantom;
+pub mod recording;
 pub mod registration;
 pub mod scenarios;
 pub mod scene;
 pub mod session;
 pub mod simulation;
 pub mod synthetic;
+#[cfg(feature = "rerun")]
+pub mod visualisation;

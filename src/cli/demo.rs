@@ -1,13 +1,18 @@
 //! `livereg demo [--out DIR]`: the bundled phantom end to end. For each scenario it simulates
 //! a ground-truth sequence (finer finite-cell grid, ν = 0.49: not the registration model),
 //! registers it rigidly only and with the biomechanical stage, and reports TRE without
-//! registration, after rigid and after non-rigid, and ms per frame.
+//! registration, after rigid and after non-rigid, and ms per frame. The full pipeline's run of
+//! each scenario is recorded (`DIR/<scenario>/recording.mcap`) and, with `--rerun`, visualised.
 
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use super::register::{frame_files, register_files, session_for, summarize};
+use super::register::{
+    frame_files, recorder_for, register_files, register_inputs, session_for, summarize, FrameInput,
+    FrameObserver,
+};
+use super::RerunArgs;
 use crate::evaluation::{evaluate, read_truth, DiagnosticsRecord, ResultRecord, RigidRecord};
 use crate::registration::RigidTransform;
 use crate::scene::load_scene;
@@ -42,6 +47,19 @@ pub struct ScenarioSummary {
 
 /// Runs the demo into `out`; `only` restricts the scenarios (names), `frames` per scenario.
 pub fn run(out: &Path, frames: usize, only: &[String]) -> Result<Vec<ScenarioSummary>, String> {
+    run_with(out, frames, only, &RerunArgs::default())
+}
+
+/// [`run`] with rerun output as `rerun` asks (one stream; entities under each scenario's
+/// name).
+pub fn run_with(
+    out: &Path,
+    frames: usize,
+    only: &[String],
+    rerun: &RerunArgs,
+) -> Result<Vec<ScenarioSummary>, String> {
+    #[allow(unused_variables)]
+    let stream = rerun.stream("livereg-demo")?;
     if frames == 0 {
         return Err("--frames must be >= 1".into());
     }
@@ -83,7 +101,26 @@ pub fn run(out: &Path, frames: usize, only: &[String]) -> Result<Vec<ScenarioSum
         let rigid = register_files(&mut rigid_session, &files, &rigid_path, "rigid")?;
         let mut session = session_for(&loaded, None, false)?;
         let path = dir.join("results.jsonl");
-        let full = register_files(&mut session, &files, &path, kind.name())?;
+        let mut recorder = recorder_for(&dir.join("recording.mcap"), &loaded, "demo", None, false)?;
+        #[cfg(feature = "rerun")]
+        let mut visualiser = stream.as_ref().map(|s| {
+            crate::visualisation::Visualiser::new(
+                s.clone(),
+                kind.name(),
+                &session,
+                Some(truth.clone()),
+            )
+        });
+        let inputs: Vec<FrameInput> = files.iter().cloned().map(FrameInput::File).collect();
+        let full = {
+            let mut observers: Vec<&mut dyn FrameObserver> = vec![&mut recorder];
+            #[cfg(feature = "rerun")]
+            if let Some(v) = visualiser.as_mut() {
+                observers.push(v);
+            }
+            register_inputs(&mut session, &inputs, &path, kind.name(), &mut observers)?
+        };
+        recorder.finish().map_err(|e| e.to_string())?;
 
         let records = |rs: &[crate::session::FrameResult]| -> Vec<ResultRecord> {
             rs.iter()

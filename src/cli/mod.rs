@@ -9,7 +9,78 @@ pub mod demo;
 pub mod eval;
 pub mod progress;
 pub mod register;
+pub mod replay;
 pub mod simulate;
+
+/// `--rerun FILE.rrd` and `--rerun-connect URL`: 3D logging to rerun (feature `rerun`).
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct RerunArgs {
+    /// Write a rerun recording (.rrd) of the model, clouds, deformed surfaces, structures,
+    /// correspondences and per-frame metrics. Needs a build with `--features rerun`.
+    #[arg(long, value_name = "FILE.rrd")]
+    pub rerun: Option<PathBuf>,
+    /// Stream the same to a running rerun viewer (gRPC URL, e.g.
+    /// `rerun+http://127.0.0.1:9876/proxy`) instead. Needs a build with `--features rerun`.
+    #[arg(long, value_name = "URL", conflicts_with = "rerun")]
+    pub rerun_connect: Option<String>,
+}
+
+/// The visualiser type of this build ([`crate::visualisation::Visualiser`] with the `rerun`
+/// feature; an empty type without it).
+#[cfg(feature = "rerun")]
+pub type Visualiser = crate::visualisation::Visualiser;
+/// The visualiser type of this build (none: built without the `rerun` feature).
+#[cfg(not(feature = "rerun"))]
+#[derive(Debug)]
+pub enum Visualiser {}
+
+impl RerunArgs {
+    /// Whether rerun output was asked for.
+    pub fn is_set(&self) -> bool {
+        self.rerun.is_some() || self.rerun_connect.is_some()
+    }
+
+    /// The rerun stream asked for (`None` when neither flag is given).
+    #[cfg(feature = "rerun")]
+    pub fn stream(&self, app: &str) -> Result<Option<rerun::RecordingStream>, String> {
+        crate::visualisation::open_stream(app, self.rerun.as_deref(), self.rerun_connect.as_deref())
+    }
+
+    /// Without the `rerun` feature: an error naming how to enable it when a flag is given.
+    #[cfg(not(feature = "rerun"))]
+    pub fn stream(&self, _app: &str) -> Result<Option<std::convert::Infallible>, String> {
+        if self.is_set() {
+            return Err(
+                "--rerun / --rerun-connect need a build with rerun support: \
+                 cargo build --release --features rerun (see README, \"Visualisation\")"
+                    .into(),
+            );
+        }
+        Ok(None)
+    }
+
+    /// A visualiser of `session`'s model (entities under `prefix`), when a flag is given.
+    #[cfg(feature = "rerun")]
+    pub fn visualiser(
+        &self,
+        session: &crate::session::Session,
+        prefix: &str,
+    ) -> Result<Option<Visualiser>, String> {
+        Ok(self
+            .stream("livereg")?
+            .map(|s| Visualiser::new(s, prefix, session, None)))
+    }
+
+    /// Without the `rerun` feature: an error when a flag is given, else `None`.
+    #[cfg(not(feature = "rerun"))]
+    pub fn visualiser(
+        &self,
+        _session: &crate::session::Session,
+        _prefix: &str,
+    ) -> Result<Option<Visualiser>, String> {
+        self.stream("livereg").map(|_| None)
+    }
+}
 
 /// Biomechanical registration of a deforming liver for surgical augmented reality.
 #[derive(Debug, Parser)]
@@ -37,9 +108,16 @@ pub enum Command {
     Register {
         /// The scene file.
         scene: PathBuf,
-        /// A directory of point files (.xyz .txt .csv .ply), taken in lexical order of name.
+        /// A directory of point files (.xyz .txt .csv .ply), taken in lexical order of name,
+        /// or an MCAP recording (its recorded frames).
         #[arg(long)]
         frames: PathBuf,
+        /// Record the session (scene, model files, every frame and result) to this MCAP file.
+        #[arg(long, value_name = "FILE.mcap")]
+        record: Option<PathBuf>,
+        /// 3D visualisation.
+        #[command(flatten)]
+        rerun: RerunArgs,
         /// Output directory (created); default `./register-out`.
         #[arg(long, default_value = "register-out")]
         out: PathBuf,
@@ -76,7 +154,14 @@ pub enum Command {
         /// Only these scenarios (comma-separated: pneumoperitoneum, gravity-pose, tool-push).
         #[arg(long, value_delimiter = ',')]
         scenarios: Vec<String>,
+        /// 3D visualisation (with the truth's target errors).
+        #[command(flatten)]
+        rerun: RerunArgs,
     },
+    /// Re-runs a recorded session through this build and compares: the largest difference of
+    /// surface vertices and structures (mm) per frame and overall; exits non-zero beyond the
+    /// tolerance.
+    Replay(replay::ReplayArgs),
 }
 
 /// Runs the command line; errors are printed as one line on stderr with a non-zero exit code.
@@ -86,6 +171,8 @@ pub fn run(cli: Cli) -> ExitCode {
         Command::Register {
             scene,
             frames,
+            record,
+            rerun,
             out,
             budget_ms,
             rigid_only,
@@ -95,6 +182,8 @@ pub fn run(cli: Cli) -> ExitCode {
             out,
             budget_ms,
             rigid_only,
+            record,
+            rerun,
         })
         .map(|_| ()),
         Command::Eval {
@@ -106,7 +195,9 @@ pub fn run(cli: Cli) -> ExitCode {
             out,
             frames,
             scenarios,
-        } => demo::run(&out, frames, &scenarios).map(|_| ()),
+            rerun,
+        } => demo::run_with(&out, frames, &scenarios, &rerun).map(|_| ()),
+        Command::Replay(args) => replay::run(&args).map(|_| ()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,13 +1,16 @@
-//! `livereg register SCENE --frames PATH [--out DIR]`: a sequence of clouds registered frame
-//! after frame with warm start; one `results.jsonl` line per frame.
+//! `livereg register SCENE --frames PATH [--out DIR] [--record FILE.mcap]`: a sequence of
+//! clouds (a directory of point files, or the `/frames` of an MCAP recording) registered frame
+//! after frame with warm start; one `results.jsonl` line per frame, and optionally a recording.
 
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
 use super::progress::bar;
+use super::RerunArgs;
 use crate::evaluation::{percentile, JsonlWriter, ResultRecord};
 use crate::mesh::read_points;
+use crate::recording::{now_ns, FrameMessage, Recorder, Recording, RecordingMeta, SceneFiles};
 use crate::scene::{load_scene, LoadedScene};
 use crate::session::{Frame, FrameError, FrameResult, Session};
 
@@ -16,7 +19,7 @@ use crate::session::{Frame, FrameError, FrameResult, Session};
 pub struct RegisterArgs {
     /// Scene file.
     pub scene: PathBuf,
-    /// Directory of point files.
+    /// Directory of point files, or an MCAP recording.
     pub frames: PathBuf,
     /// Output directory.
     pub out: PathBuf,
@@ -24,6 +27,10 @@ pub struct RegisterArgs {
     pub budget_ms: Option<f64>,
     /// Rigid stage only.
     pub rigid_only: bool,
+    /// Record the session to this MCAP file.
+    pub record: Option<PathBuf>,
+    /// Log to rerun (needs the `rerun` feature).
+    pub rerun: RerunArgs,
 }
 
 /// What a `register` run did (printed as JSON on stdout).
@@ -43,17 +50,97 @@ pub struct RegisterSummary {
     pub results: PathBuf,
 }
 
-/// Point files of a frame directory (`.xyz .txt .csv .ply`), in lexical order of name.
-pub fn frame_files(dir: &Path) -> Result<Vec<PathBuf>, String> {
-    if dir
+/// One frame to register: a point file, or a frame of a recording.
+#[derive(Debug, Clone)]
+pub enum FrameInput {
+    /// A point file (read when its turn comes; unreadable → a failed frame).
+    File(PathBuf),
+    /// A recorded frame (its points and camera, or the reason it could not be read).
+    Recorded(Box<FrameMessage>),
+}
+
+/// Told about every frame as soon as it is registered (recorders, visualisers).
+pub trait FrameObserver {
+    /// Frame `index` of the run: `frame` as registered (`None` when its input could not be
+    /// read), received at `received_ns` (ns since the Unix epoch), and its result.
+    fn frame_done(
+        &mut self,
+        index: usize,
+        frame: Option<&Frame>,
+        received_ns: u64,
+        result: &FrameResult,
+    ) -> Result<(), String>;
+}
+
+impl FrameObserver for Recorder {
+    fn frame_done(
+        &mut self,
+        _index: usize,
+        frame: Option<&Frame>,
+        received_ns: u64,
+        result: &FrameResult,
+    ) -> Result<(), String> {
+        match frame {
+            Some(f) => self.record_frame(f, received_ns),
+            None => {
+                let why = result.error.as_ref().map(|e| e.to_string());
+                self.record_unreadable_frame(&result.source, &why.unwrap_or_default(), received_ns)
+            }
+        }
+        .and_then(|()| self.record_result(result))
+        .map_err(|e| e.to_string())
+    }
+}
+
+/// Whether `path` is an MCAP file (by extension, or by its magic bytes for another file).
+pub fn is_mcap(path: &Path) -> bool {
+    if path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("mcap"))
     {
+        return true;
+    }
+    path.is_file()
+        && std::fs::File::open(path)
+            .and_then(|mut f| {
+                let mut magic = [0u8; 8];
+                std::io::Read::read_exact(&mut f, &mut magic).map(|()| magic)
+            })
+            .is_ok_and(|m| m == mcap::MAGIC)
+}
+
+/// The frames of `path`: a directory's point files in lexical order, or every recorded frame
+/// of an MCAP recording (an unfinished recording gives the frames it holds, with a note on
+/// stderr).
+pub fn frame_inputs(path: &Path) -> Result<Vec<FrameInput>, String> {
+    if is_mcap(path) {
+        let rec = Recording::open(path).map_err(|e| e.to_string())?;
+        if !rec.finished {
+            eprintln!("livereg: {}", rec.describe());
+        }
+        if rec.frames.is_empty() {
+            return Err(format!("{}: the recording holds no frames", path.display()));
+        }
+        return Ok(rec
+            .frames
+            .into_iter()
+            .map(|m| FrameInput::Recorded(Box::new(m)))
+            .collect());
+    }
+    if path.is_file() {
         return Err(format!(
-            "{}: reading frames from MCAP recordings is not supported by this build yet; give a directory of point files",
-            dir.display()
+            "{}: --frames takes a directory of point files or an MCAP recording (.mcap)",
+            path.display()
         ));
     }
+    Ok(frame_files(path)?
+        .into_iter()
+        .map(FrameInput::File)
+        .collect())
+}
+
+/// Point files of a frame directory (`.xyz .txt .csv .ply`), in lexical order of name.
+pub fn frame_files(dir: &Path) -> Result<Vec<PathBuf>, String> {
     let entries = std::fs::read_dir(dir)
         .map_err(|e| format!("{}: cannot read the frame directory: {e}", dir.display()))?;
     let mut files: Vec<PathBuf> = entries
@@ -86,23 +173,51 @@ pub fn register_files(
     results: &Path,
     label: &str,
 ) -> Result<Vec<FrameResult>, String> {
+    let inputs: Vec<FrameInput> = files.iter().cloned().map(FrameInput::File).collect();
+    register_inputs(session, &inputs, results, label, &mut [])
+}
+
+/// Registers `inputs` in order with `session`; each result goes to every observer (a
+/// recorder first: a frame is in the recording before its `results.jsonl` line exists), then
+/// to `results` as soon as it is known. An input that cannot be read is a failed frame.
+pub fn register_inputs(
+    session: &mut Session,
+    inputs: &[FrameInput],
+    results: &Path,
+    label: &str,
+    observers: &mut [&mut dyn FrameObserver],
+) -> Result<Vec<FrameResult>, String> {
     let mut writer = JsonlWriter::create(results).map_err(|e| e.to_string())?;
     let scale = session.model.length_scale;
-    let pb = bar(files.len(), label);
-    let mut out = Vec::with_capacity(files.len());
-    for path in files {
-        let source = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let r = match read_points(path) {
-            Ok(points) => session.register(&Frame {
-                source,
-                points,
-                camera: None,
-            }),
-            Err(e) => session.reject(&source, FrameError::Input(e.to_string())),
+    let pb = bar(inputs.len(), label);
+    let mut out = Vec::with_capacity(inputs.len());
+    for (index, input) in inputs.iter().enumerate() {
+        let received = now_ns();
+        let frame = match input {
+            FrameInput::File(path) => {
+                let source = path
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                read_points(path)
+                    .map(|points| Frame {
+                        source: source.clone(),
+                        points,
+                        camera: None,
+                    })
+                    .map_err(|e| (source, e.to_string()))
+            }
+            FrameInput::Recorded(m) => m
+                .to_frame()
+                .ok_or_else(|| (m.source.clone(), m.input_error.clone().unwrap_or_default())),
         };
+        let r = match &frame {
+            Ok(f) => session.register(f),
+            Err((source, e)) => session.reject(source, FrameError::Input(e.clone())),
+        };
+        for o in observers.iter_mut() {
+            o.frame_done(index, frame.as_ref().ok(), received, &r)?;
+        }
         writer
             .write(&ResultRecord::from_frame(&r, scale))
             .map_err(|e| e.to_string())?;
@@ -155,15 +270,65 @@ pub fn session_for(
     Ok(session)
 }
 
+/// A recorder for a run of `command` on `loaded` into `path`.
+pub fn recorder_for(
+    path: &Path,
+    loaded: &LoadedScene,
+    command: &str,
+    budget_ms: Option<f64>,
+    rigid_only: bool,
+) -> Result<Recorder, String> {
+    let scene = SceneFiles::from_loaded(loaded).map_err(|e| e.to_string())?;
+    let meta = RecordingMeta {
+        command: command.into(),
+        budget_ms,
+        rigid_only,
+        ..Default::default()
+    };
+    Recorder::create(
+        path,
+        &scene,
+        &meta,
+        loaded.length_scale(),
+        loaded.scene.units.as_str(),
+    )
+    .map_err(|e| e.to_string())
+}
+
 /// Runs the command: prints the summary as JSON on stdout.
 pub fn run(args: &RegisterArgs) -> Result<RegisterSummary, String> {
     let loaded = load_scene(&args.scene).map_err(|e| e.to_string())?;
-    let files = frame_files(&args.frames)?;
+    let inputs = frame_inputs(&args.frames)?;
     let mut session = session_for(&loaded, args.budget_ms, args.rigid_only)?;
     std::fs::create_dir_all(&args.out)
         .map_err(|e| format!("{}: cannot create: {e}", args.out.display()))?;
     let path = args.out.join("results.jsonl");
-    let results = register_files(&mut session, &files, &path, "register")?;
+    let mut recorder = match &args.record {
+        Some(p) => Some(recorder_for(
+            p,
+            &loaded,
+            "register",
+            args.budget_ms,
+            args.rigid_only,
+        )?),
+        None => None,
+    };
+    #[allow(unused_mut, unused_variables)]
+    let mut visualiser = args.rerun.visualiser(&session, "")?;
+    let results = {
+        let mut observers: Vec<&mut dyn FrameObserver> = Vec::new();
+        if let Some(r) = recorder.as_mut() {
+            observers.push(r);
+        }
+        #[cfg(feature = "rerun")]
+        if let Some(v) = visualiser.as_mut() {
+            observers.push(v);
+        }
+        register_inputs(&mut session, &inputs, &path, "register", &mut observers)?
+    };
+    if let Some(r) = recorder {
+        r.finish().map_err(|e| e.to_string())?;
+    }
     let summary = summarize(&results, &path);
     println!(
         "{}",

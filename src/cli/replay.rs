@@ -1,0 +1,363 @@
+//! `livereg replay FILE.mcap`: re-runs a recorded session's frames through this build and
+//! compares the results with the recorded ones: per frame and overall, the largest distance
+//! between replayed and recorded surface vertices and structure points (mm). Exits non-zero
+//! beyond `--tolerance`. `--set KEY=VALUE` (on the recorded scene) or `--scene FILE` replays
+//! against a deliberately changed scene.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use nalgebra::Point3;
+use serde::Serialize;
+
+use super::progress::bar;
+use super::register::session_for;
+#[cfg(feature = "rerun")]
+use super::register::FrameObserver;
+use super::RerunArgs;
+use crate::evaluation::{JsonlWriter, ResultRecord};
+use crate::recording::{Recording, ResultMessage};
+use crate::scene::{load_scene, LoadedScene};
+use crate::session::{FrameError, FrameResult};
+
+/// How fast frames are fed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Speed {
+    /// At the pace they were received (by their recorded timestamps).
+    Realtime,
+    /// As fast as they register.
+    Max,
+}
+
+/// Arguments of `replay`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ReplayArgs {
+    /// The recording (`register --record`, `demo`, or a served session).
+    pub file: PathBuf,
+    /// Frame pacing.
+    #[arg(long, value_enum, default_value = "max")]
+    pub speed: Speed,
+    /// Largest accepted difference from the recorded results, mm (surface vertices and
+    /// structure points).
+    #[arg(long, default_value_t = 1e-6, value_name = "MM")]
+    pub tolerance: f64,
+    /// Directory for the replay's `results.jsonl` and `replay.json` (report).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Change a key of the recorded scene before replaying (repeatable), e.g.
+    /// `--set registration.alpha=0.5`; the value is read as TOML (else as a string).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Replay against this scene instead of the recorded one (same surface expected).
+    #[arg(long, value_name = "SCENE", conflicts_with = "set")]
+    pub scene: Option<PathBuf>,
+    /// Print the report as one JSON object instead of the table.
+    #[arg(long)]
+    pub json: bool,
+    /// 3D visualisation of the replayed frames.
+    #[command(flatten)]
+    pub rerun: RerunArgs,
+}
+
+/// The comparison of one frame.
+#[derive(Debug, Clone, Serialize)]
+pub struct FrameDiff {
+    /// Frame index.
+    pub frame: usize,
+    /// The frame's source.
+    pub source: String,
+    /// Largest distance between replayed and recorded surface vertices, mm (`None`: not
+    /// comparable, e.g. a different vertex count).
+    pub surface_mm: Option<f64>,
+    /// Largest distance between replayed and recorded structure points, mm (`None`: not
+    /// comparable).
+    pub structures_mm: Option<f64>,
+    /// Whether the frame failed in one run and not in the other.
+    pub status_changed: bool,
+    /// Recorded wall time, ms.
+    pub recorded_ms: f64,
+    /// Replayed wall time, ms.
+    pub replay_ms: f64,
+}
+
+impl FrameDiff {
+    /// The frame's largest difference, mm (infinite when not comparable or the status
+    /// changed).
+    pub fn max_mm(&self) -> f64 {
+        if self.status_changed {
+            return f64::INFINITY;
+        }
+        match (self.surface_mm, self.structures_mm) {
+            (Some(a), Some(b)) => a.max(b),
+            _ => f64::INFINITY,
+        }
+    }
+}
+
+/// The replay's report (printed, and written to `replay.json` with `--out`).
+#[derive(Debug, Clone, Serialize)]
+pub struct ReplayReport {
+    /// The recording.
+    pub file: PathBuf,
+    /// Whether the recording was finished (else: cut short, replayed as far as it goes).
+    pub finished: bool,
+    /// Frames replayed (recorded frames that have a recorded result).
+    pub frames: usize,
+    /// Largest surface difference over all frames, mm (`None`: some frame not comparable).
+    pub max_surface_mm: Option<f64>,
+    /// Largest structure difference over all frames, mm (`None`: some frame not comparable).
+    pub max_structures_mm: Option<f64>,
+    /// Frames whose failed/succeeded status changed.
+    pub status_changes: usize,
+    /// The tolerance, mm.
+    pub tolerance_mm: f64,
+    /// Whether every frame is within the tolerance.
+    pub within_tolerance: bool,
+    /// Whether every compared coordinate is bitwise identical.
+    pub identical: bool,
+    /// Sum of the recorded wall times, ms.
+    pub recorded_ms: f64,
+    /// Wall time of the replay's registrations, ms.
+    pub replay_ms: f64,
+    /// Per frame.
+    pub per_frame: Vec<FrameDiff>,
+}
+
+/// Runs the command: prints the report; an error (non-zero exit) beyond the tolerance.
+pub fn run(args: &ReplayArgs) -> Result<ReplayReport, String> {
+    if !(args.tolerance.is_finite() && args.tolerance >= 0.0) {
+        return Err(format!(
+            "--tolerance must be >= 0 mm, got {}",
+            args.tolerance
+        ));
+    }
+    let rec = Recording::open(&args.file).map_err(|e| e.to_string())?;
+    if !rec.finished {
+        eprintln!("livereg: {}", rec.describe());
+    }
+    if rec.complete_frames() == 0 {
+        return Err(format!(
+            "{}: no frame with a recorded result to replay",
+            args.file.display()
+        ));
+    }
+    let tmp = std::env::temp_dir().join(format!(
+        "livereg-replay-{}-{}",
+        std::process::id(),
+        crate::recording::now_ns()
+    ));
+    let loaded = scene_for(args, &rec, &tmp);
+    let budget = rec.session.budget_ms;
+    if budget.is_some() {
+        eprintln!(
+            "livereg: the recording ran with a {:.0} ms time budget: its results depend on timing",
+            budget.unwrap_or_default()
+        );
+    }
+    // The session reads the scene's files while it is built; the temporary copy goes after.
+    let session = loaded.and_then(|l| Ok((session_for(&l, budget, rec.session.rigid_only)?, l)));
+    let _ = std::fs::remove_dir_all(&tmp);
+    let (mut session, loaded) = session?;
+    let scale = loaded.length_scale();
+    let mm = scale * 1e3;
+    let mut writer = match &args.out {
+        Some(dir) => {
+            std::fs::create_dir_all(dir)
+                .map_err(|e| format!("{}: cannot create: {e}", dir.display()))?;
+            Some(JsonlWriter::create(dir.join("results.jsonl")).map_err(|e| e.to_string())?)
+        }
+        None => None,
+    };
+    #[allow(unused_mut, unused_variables)]
+    let mut visualiser = args.rerun.visualiser(&session, "replay")?;
+    let n = rec.complete_frames();
+    let pb = bar(n, "replay");
+    let start = Instant::now();
+    let t0 = rec.frames[0].timestamp_ns;
+    let mut per_frame = Vec::with_capacity(n);
+    let mut replay_ms = 0.0;
+    for (k, (fm, recorded)) in rec.frames.iter().zip(&rec.results).enumerate() {
+        if args.speed == Speed::Realtime {
+            let due = Duration::from_nanos(fm.timestamp_ns.saturating_sub(t0));
+            if let Some(wait) = due.checked_sub(start.elapsed()) {
+                std::thread::sleep(wait);
+            }
+        }
+        let frame = fm.to_frame();
+        let r = match &frame {
+            Some(f) => session.register(f),
+            None => session.reject(
+                &fm.source,
+                FrameError::Input(fm.input_error.clone().unwrap_or_default()),
+            ),
+        };
+        replay_ms += r.wall_ms;
+        #[cfg(feature = "rerun")]
+        if let Some(v) = visualiser.as_mut() {
+            v.frame_done(k, frame.as_ref(), fm.timestamp_ns, &r)?;
+        }
+        let _ = (&mut visualiser, k);
+        if let Some(w) = writer.as_mut() {
+            w.write(&ResultRecord::from_frame(&r, scale))
+                .map_err(|e| e.to_string())?;
+        }
+        let d = compare(&r, recorded, mm);
+        pb.set_message(format!("Δ {:.2e} mm", d.max_mm()));
+        pb.inc(1);
+        per_frame.push(d);
+    }
+    pb.finish_and_clear();
+    let fold = |f: fn(&FrameDiff) -> Option<f64>| {
+        per_frame
+            .iter()
+            .map(f)
+            .try_fold(0.0f64, |m, v| v.map(|v| m.max(v)))
+    };
+    let max_surface_mm = fold(|d| d.surface_mm);
+    let max_structures_mm = fold(|d| d.structures_mm);
+    let status_changes = per_frame.iter().filter(|d| d.status_changed).count();
+    let worst = per_frame.iter().map(FrameDiff::max_mm).fold(0.0, f64::max);
+    let report = ReplayReport {
+        file: args.file.clone(),
+        finished: rec.finished,
+        frames: n,
+        max_surface_mm,
+        max_structures_mm,
+        status_changes,
+        tolerance_mm: args.tolerance,
+        within_tolerance: worst <= args.tolerance,
+        identical: worst == 0.0,
+        recorded_ms: rec.results.iter().map(|r| r.record.wall_ms).sum(),
+        replay_ms,
+        per_frame,
+    };
+    if let Some(dir) = &args.out {
+        let p = dir.join("replay.json");
+        let text = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
+        std::fs::write(&p, text).map_err(|e| format!("{}: {e}", p.display()))?;
+    }
+    if args.json {
+        println!(
+            "{}",
+            serde_json::to_string(&report).map_err(|e| e.to_string())?
+        );
+    } else {
+        print!("{}", table(&report));
+    }
+    if !report.within_tolerance {
+        let at = report
+            .per_frame
+            .iter()
+            .max_by(|a, b| a.max_mm().total_cmp(&b.max_mm()))
+            .map(|d| d.frame)
+            .unwrap_or_default();
+        return Err(format!(
+            "the replay differs from the recording beyond the tolerance: largest difference {} (frame {at}), tolerance {:e} mm",
+            fmt_mm(Some(worst).filter(|w| w.is_finite())),
+            args.tolerance
+        ));
+    }
+    Ok(report)
+}
+
+/// The scene to replay against: `--scene`, or the recorded one (with `--set` changes)
+/// rebuilt in `tmp`.
+fn scene_for(args: &ReplayArgs, rec: &Recording, tmp: &Path) -> Result<LoadedScene, String> {
+    if let Some(s) = &args.scene {
+        return load_scene(s).map_err(|e| e.to_string());
+    }
+    let files = rec.scene_files().map_err(|e| e.to_string())?;
+    files
+        .materialize(tmp, &args.set)
+        .map_err(|e| format!("{}: {e}", args.file.display()))
+}
+
+/// Largest distance between two point lists given flat or as points, in scene units;
+/// `None` when their lengths differ.
+fn max_distance(a: &[Point3<f64>], b: impl ExactSizeIterator<Item = [f64; 3]>) -> Option<f64> {
+    if a.len() != b.len() {
+        return None;
+    }
+    Some(
+        a.iter()
+            .zip(b)
+            .map(|(p, q)| (p - Point3::from(q)).norm())
+            .fold(0.0, f64::max),
+    )
+}
+
+/// The comparison of a replayed result with the recorded one (`mm`: mm per scene unit).
+pub fn compare(r: &FrameResult, recorded: &ResultMessage, mm: f64) -> FrameDiff {
+    let surface = max_distance(
+        &r.surface,
+        recorded.surface.chunks_exact(3).map(|c| [c[0], c[1], c[2]]),
+    );
+    let mut structures = Some(0.0f64);
+    if r.structures.len() != recorded.record.structures.len() {
+        structures = None;
+    }
+    for (name, pts) in &r.structures {
+        let d = recorded
+            .record
+            .structures
+            .get(name)
+            .and_then(|old| max_distance(pts, old.iter().copied()));
+        structures = match (structures, d) {
+            (Some(a), Some(b)) => Some(a.max(b)),
+            _ => None,
+        };
+    }
+    FrameDiff {
+        frame: r.frame,
+        source: r.source.clone(),
+        surface_mm: surface.map(|d| d * mm),
+        structures_mm: structures.map(|d| d * mm),
+        status_changed: r.error.is_some() != recorded.record.diagnostics.error.is_some(),
+        recorded_ms: recorded.record.wall_ms,
+        replay_ms: r.wall_ms,
+    }
+}
+
+fn fmt_mm(v: Option<f64>) -> String {
+    match v {
+        Some(0.0) => "0 mm".into(),
+        Some(v) => format!("{v:.3e} mm"),
+        None => "not comparable".into(),
+    }
+}
+
+/// The report as a table: one row per frame, then the overall line.
+pub fn table(r: &ReplayReport) -> String {
+    let mut s = format!(
+        "{:>5} {:<20} {:>16} {:>16} {:>8} {:>11} {:>9}\n",
+        "frame", "source", "surface Δ", "structures Δ", "status", "recorded ms", "replay ms"
+    );
+    for d in &r.per_frame {
+        s.push_str(&format!(
+            "{:>5} {:<20} {:>16} {:>16} {:>8} {:>11.1} {:>9.1}\n",
+            d.frame,
+            d.source,
+            fmt_mm(d.surface_mm),
+            fmt_mm(d.structures_mm),
+            if d.status_changed { "CHANGED" } else { "same" },
+            d.recorded_ms,
+            d.replay_ms
+        ));
+    }
+    s.push_str(&format!(
+        "overall: {} frames, largest surface Δ {}, structures Δ {}, {} status changes; tolerance {:e} mm: {}\n",
+        r.frames,
+        fmt_mm(r.max_surface_mm),
+        fmt_mm(r.max_structures_mm),
+        r.status_changes,
+        r.tolerance_mm,
+        if r.identical {
+            "identical"
+        } else if r.within_tolerance {
+            "within tolerance"
+        } else {
+            "BEYOND TOLERANCE"
+        }
+    ));
+    s
+}
