@@ -12,8 +12,9 @@ use nalgebra::{Point3, Rotation3, Vector3};
 
 const R: f64 = 0.05;
 
-/// A sphere of radius 5 cm on 2 cm cells (every boundary cell is cut), with a held cap and
-/// springs pulling random embedded points to random targets.
+/// A sphere of radius 5 cm on 2 cm cells (every boundary cell is cut), with a held cap,
+/// springs pulling random embedded points to random targets, and point-to-plane springs
+/// (stiff along random normals only) on the same points.
 fn sphere_problem(
     law: LawKind,
     mode: IntegrationMode,
@@ -40,10 +41,25 @@ fn sphere_problem(
             .map(|_| Vector3::new(rng.next(), rng.next(), rng.next()) * 0.01)
             .collect(),
         stiffness: (0..20).map(|_| 50.0 * (1.5 + rng.next())).collect(),
-        embedding: emb,
+        embedding: emb.clone(),
         follows_load: true,
+        normals: None,
     };
-    p.springs = vec![held, pull];
+    // Point-to-plane springs on the same points: stiffness only along random unit normals.
+    let slide = PenaltySprings {
+        target: (0..20)
+            .map(|_| Vector3::new(rng.next(), rng.next(), rng.next()) * 0.01)
+            .collect(),
+        stiffness: (0..20).map(|_| 80.0 * (1.5 + rng.next())).collect(),
+        embedding: emb,
+        follows_load: false,
+        normals: Some(
+            (0..20)
+                .map(|_| Vector3::new(rng.next(), rng.next(), rng.next() + 0.1).normalize())
+                .collect(),
+        ),
+    };
+    p.springs = vec![held, pull, slide];
     let n = p.dofs();
     p.external = rng.vec(n, 1e-3);
     p

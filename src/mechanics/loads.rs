@@ -33,7 +33,7 @@ pub fn sample_surface_in_box(
 }
 
 /// [`sample_surface_in_box`] with the triangle each sample lies on.
-fn samples_by_triangle(
+pub fn samples_by_triangle(
     surface: &TriSurface,
     region: &Aabb,
     spacing: f64,

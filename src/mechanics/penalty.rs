@@ -4,7 +4,7 @@
 use nalgebra::{Point3, Vector3};
 
 use super::assembly::Assembler;
-use super::loads::sample_surface_in_box;
+use super::loads::samples_by_triangle;
 use crate::geometry::Aabb;
 use crate::grid::{embedding::interpolate_one, Embedding, EmbeddingError, WeightedCellGrid};
 use crate::linalg::SymmetricCsc;
@@ -15,6 +15,11 @@ use crate::mesh::TriSurface;
 /// load factor when `follows_load` (imposed displacements applied gradually), else 1.
 /// The force on the grid is `H S` with `S_j = k_j (u_j − s d_j)` (the printed ‖·‖ of eq. 4.19
 /// is a typo) and the stiffness `H (k I) Hᵀ` (eq. 4.21).
+///
+/// With `normals` given, spring `j` acts only along the unit vector `n_j` (a point-to-plane
+/// spring: the point may slide freely in the plane through its target): energy
+/// `½ k_j (n_j · (u_j − s d_j))²`, force `H (k_j n_j n_jᵀ (u_j − s d_j))`, stiffness
+/// `H (k_j n_j n_jᵀ) Hᵀ`.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct PenaltySprings {
     /// Where the points are in the grid.
@@ -25,6 +30,8 @@ pub struct PenaltySprings {
     pub stiffness: Vec<f64>,
     /// Whether the imposed displacements scale with the load factor.
     pub follows_load: bool,
+    /// Unit direction of each spring (point-to-plane springs); `None`: isotropic springs.
+    pub normals: Option<Vec<Vector3<f64>>>,
 }
 
 impl PenaltySprings {
@@ -36,6 +43,7 @@ impl PenaltySprings {
             target,
             stiffness,
             follows_load: false,
+            normals: None,
         }
     }
 
@@ -49,13 +57,52 @@ impl PenaltySprings {
         region: &Aabb,
         spring_density: f64,
     ) -> Result<Option<Self>, EmbeddingError> {
-        let samples = sample_surface_in_box(surface, region, 0.5 * grid.grid.cell_size);
+        Self::surface_region(grid, surface, region, spring_density, false)
+    }
+
+    /// An elastic support (Winkler foundation) under the part of `surface` inside `region`:
+    /// like [`PenaltySprings::fixed_surface_region`] (`spring_density` in N/m³, pascals per
+    /// metre of displacement), but when `sliding` each spring acts along the rest normal of
+    /// its triangle only, so the surface may slide along the support (an organ resting on
+    /// others) while it is held against pushing into or lifting off it.
+    pub fn support_surface_region(
+        grid: &WeightedCellGrid,
+        surface: &TriSurface,
+        region: &Aabb,
+        spring_density: f64,
+        sliding: bool,
+    ) -> Result<Option<Self>, EmbeddingError> {
+        Self::surface_region(grid, surface, region, spring_density, sliding)
+    }
+
+    fn surface_region(
+        grid: &WeightedCellGrid,
+        surface: &TriSurface,
+        region: &Aabb,
+        spring_density: f64,
+        sliding: bool,
+    ) -> Result<Option<Self>, EmbeddingError> {
+        let mut samples = samples_by_triangle(surface, region, 0.5 * grid.grid.cell_size);
+        // Degenerate triangles have no normal to slide along.
+        let normal = |t: usize| surface.scaled_normal(t).try_normalize(0.0);
+        if sliding {
+            samples.retain(|(t, _)| normal(*t).is_some());
+        }
         if samples.is_empty() {
             return Ok(None);
         }
-        let points: Vec<Point3<f64>> = samples.iter().map(|s| s.point).collect();
-        let stiffness = samples.iter().map(|s| spring_density * s.area).collect();
-        Ok(Some(Self::fixed(Embedding::new(grid, &points)?, stiffness)))
+        let points: Vec<Point3<f64>> = samples.iter().map(|s| s.1.point).collect();
+        let stiffness = samples.iter().map(|s| spring_density * s.1.area).collect();
+        let mut springs = Self::fixed(Embedding::new(grid, &points)?, stiffness);
+        if sliding {
+            springs.normals = Some(
+                samples
+                    .iter()
+                    .map(|(t, _)| normal(*t).expect("kept above"))
+                    .collect(),
+            );
+        }
+        Ok(Some(springs))
     }
 
     fn imposed(&self, j: usize, load: f64) -> Vector3<f64> {
@@ -78,9 +125,13 @@ impl PenaltySprings {
     ) -> f64 {
         let mut energy = 0.0;
         let mut force = force;
+        let normal = |j: usize| self.normals.as_ref().map(|n| n[j]);
         for (j, e) in self.embedding.points.iter().enumerate() {
             let k = self.stiffness[j];
-            let diff = interpolate_one(e, u) - self.imposed(j, load);
+            let mut diff = interpolate_one(e, u) - self.imposed(j, load);
+            if let Some(n) = normal(j) {
+                diff = n * n.dot(&diff);
+            }
             energy += 0.5 * k * diff.norm_squared();
             if let Some(f) = force.as_deref_mut() {
                 for (n, w) in e.nodes.iter().zip(e.weights) {
@@ -93,16 +144,101 @@ impl PenaltySprings {
         if let Some(t) = tangent {
             for (j, e) in self.embedding.points.iter().enumerate() {
                 let k = self.stiffness[j];
+                let n = normal(j);
                 for a in 0..8 {
                     for b in 0..=a {
                         let v = k * e.weights[a] * e.weights[b];
-                        for i in 0..3 {
-                            t.values[assembler.cell_slot(e.cell, a, b, i, i)] += v;
+                        match n {
+                            None => {
+                                for i in 0..3 {
+                                    t.values[assembler.cell_slot(e.cell, a, b, i, i)] += v;
+                                }
+                            }
+                            Some(n) => {
+                                for i in 0..3 {
+                                    let cols = if a == b { 0..=i } else { 0..=2 };
+                                    for c in cols {
+                                        t.values[assembler.cell_slot(e.cell, a, b, i, c)] +=
+                                            v * n[i] * n[c];
+                                    }
+                                }
+                            }
                         }
                     }
                 }
             }
         }
         energy
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::GridOptions;
+    use crate::mechanics::{LawKind, Material, Need, StaticProblem, VolumetricIntegration};
+    use crate::mesh::primitives::box_surface;
+
+    /// A 10 × 10 × 6 cm box on 2 cm cells (cut: the box is offset from the grid lines), with
+    /// a support of density `k` under its bottom face.
+    fn supported_box(k: f64, sliding: bool) -> StaticProblem {
+        let s = box_surface(
+            Point3::new(0.003, -0.004, 0.001),
+            Point3::new(0.103, 0.096, 0.061),
+            4,
+        );
+        let grid = WeightedCellGrid::build(
+            &s,
+            &GridOptions {
+                cell_size: 0.02,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let bottom = Aabb::new(Point3::new(-1.0, -1.0, -1.0), Point3::new(1.0, 1.0, 0.0015));
+        let support = PenaltySprings::support_surface_region(&grid, &s, &bottom, k, sliding)
+            .unwrap()
+            .expect("the bottom face is in the box");
+        let material = Material::from_young_poisson(LawKind::NeoHookean, 4500.0, 0.45).unwrap();
+        let mut p = StaticProblem::new(grid, material, VolumetricIntegration::Reduced);
+        p.springs.push(support);
+        p
+    }
+
+    /// Potential of a rigid translation `d` (the body stores no strain energy).
+    fn energy_of_translation(p: &mut StaticProblem, d: Vector3<f64>) -> f64 {
+        let u: Vec<f64> = (0..p.grid.node_count())
+            .flat_map(|_| [d.x, d.y, d.z])
+            .collect();
+        p.evaluate(&u, 1.0, Need::Energy, None, None)
+            .unwrap()
+            .potential
+    }
+
+    #[test]
+    fn a_support_stores_half_k_area_d_squared_and_a_sliding_one_only_across() {
+        // Winkler foundation under a 10 × 10 cm face: a rigid shift d stores ½ k A d² in every
+        // direction, or only for the normal part when the support slides.
+        let (k, area, d) = (1e5, 0.1 * 0.1, 1e-3);
+        let expect = 0.5 * k * area * d * d;
+        let mut fixed = supported_box(k, false);
+        let mut sliding = supported_box(k, true);
+        for dir in [Vector3::x(), Vector3::y(), Vector3::z()] {
+            let e = energy_of_translation(&mut fixed, dir * d);
+            assert!((e - expect).abs() < 1e-9 * expect, "{e} vs {expect}");
+        }
+        let across = energy_of_translation(&mut sliding, Vector3::z() * d);
+        assert!(
+            (across - expect).abs() < 1e-9 * expect,
+            "{across} vs {expect}"
+        );
+        for dir in [Vector3::x(), Vector3::y()] {
+            let along = energy_of_translation(&mut sliding, dir * d);
+            assert!(along.abs() < 1e-12 * expect, "sliding stores {along}");
+        }
+        // Tilted: only the normal component counts.
+        let tilted = Vector3::new(3.0, -2.0, 1.0).normalize() * d;
+        let e = energy_of_translation(&mut sliding, tilted);
+        assert!((e - expect * (tilted.z / d).powi(2)).abs() < 1e-9 * expect);
     }
 }

@@ -34,6 +34,31 @@ impl TriSurface {
         (b - a).cross(&(c - a))
     }
 
+    /// Unit outward normal at each vertex: the sum of the area-weighted normals of the
+    /// triangles around it, normalised (zero for a vertex in no triangle of positive area).
+    pub fn vertex_normals(&self) -> Vec<Vector3<f64>> {
+        Self::vertex_normals_at(&self.vertices, &self.triangles)
+    }
+
+    /// [`TriSurface::vertex_normals`] of these triangles with the vertices at `positions`
+    /// (a deformed state of the surface, without building it).
+    pub fn vertex_normals_at(
+        positions: &[Point3<f64>],
+        triangles: &[[usize; 3]],
+    ) -> Vec<Vector3<f64>> {
+        let mut n = vec![Vector3::zeros(); positions.len()];
+        for &[a, b, c] in triangles {
+            let m = (positions[b] - positions[a]).cross(&(positions[c] - positions[a]));
+            for v in [a, b, c] {
+                n[v] += m;
+            }
+        }
+        for v in &mut n {
+            *v = v.try_normalize(0.0).unwrap_or_else(Vector3::zeros);
+        }
+        n
+    }
+
     /// Axis-aligned bounding box `(min, max)` of the vertices; `None` for an empty surface.
     pub fn bounding_box(&self) -> Option<(Point3<f64>, Point3<f64>)> {
         let first = *self.vertices.first()?;
@@ -63,5 +88,24 @@ impl TriSurface {
             })
             .sum::<f64>()
             / 6.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::primitives::icosphere;
+
+    #[test]
+    fn vertex_normals_of_a_sphere_are_radial() {
+        let c = Point3::new(0.3, -0.1, 0.2);
+        let s = icosphere(c, 2.0, 3);
+        let n = s.vertex_normals();
+        for (p, n) in s.vertices.iter().zip(&n) {
+            let radial = (p - c).normalize();
+            assert!((n.norm() - 1.0).abs() < 1e-12);
+            // The icosphere's vertex fan is nearly symmetric: within a degree of radial.
+            assert!(n.dot(&radial) > 1f64.to_radians().cos(), "{n} vs {radial}");
+        }
     }
 }

@@ -374,11 +374,15 @@ fn scene_file_follows_the_contract() {
     assert_eq!(get("grid.cell_size").as_float(), Some(15.0));
     assert_eq!(get("grid.subdivisions").as_integer(), Some(3));
     assert_eq!(get("grid.integration").as_str(), Some("weighted-cell"));
-    assert_eq!(get("material.law").as_str(), Some("neo-hookean"));
+    assert_eq!(get("material.law").as_str(), Some("corotated"));
     assert_eq!(get("material.young_modulus").as_float(), Some(4500.0));
     assert_eq!(get("material.poisson_ratio").as_float(), Some(0.45));
     assert_eq!(get("material.density").as_float(), Some(1060.0));
     assert_eq!(get("registration.rigid").as_str(), Some("icp"));
+    let support = get("boundary.support").as_array().unwrap();
+    assert_eq!(support.len(), 1);
+    assert_eq!(support[0]["stiffness"].as_float(), Some(1.0e5));
+    assert_eq!(support[0]["sliding"].as_bool(), Some(false));
 
     let num = |x: &toml::Value| x.as_float().unwrap();
     let point = |x: &toml::Value| {

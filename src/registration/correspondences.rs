@@ -110,6 +110,10 @@ pub const RIM_RATIO: f64 = 0.4;
 pub struct Correspondences {
     /// Model surface vertex of each kept source.
     pub sources: Vec<usize>,
+    /// Unit surface normal of each kept source when pairing was point-to-plane (the blended
+    /// displacement is then its component along the normal, and the spring acts along it
+    /// only); `None` for point-to-point pairs.
+    pub normals: Option<Vec<Vector3<f64>>>,
     /// Where each kept source is to go (current position + imposed displacement), metres.
     pub targets: Vec<Point3<f64>>,
     /// RMS of the kept source → nearest-cloud-point distances, metres.
@@ -132,8 +136,16 @@ pub fn rejection_threshold(d: &[f64], sigma: f64) -> f64 {
 /// cloud point of source `i` and `V(i)` the cloud points whose nearest kept source is `i`
 /// (`d(i) = c(N(i)) − x(i)` when `V(i)` is empty). `None` when fewer than 3 sources survive.
 /// Sources whose nearest cloud point is flagged in `rim` (when given) are dropped first.
+///
+/// With `normals` (unit outward normals of the current surface at every vertex of `x`), the
+/// pairing is point-to-plane: the blended displacement is replaced by its normal component
+/// `n (n · d(i))`. With a sparse cloud (a few points per cm², as far apart as the model's
+/// vertices) the tangential part of `d(i)` is mostly sampling noise — the nearest sample lies
+/// anywhere within half the sample spacing — and pulling along it distorts the surface.
+/// Sources with a zero normal are dropped.
 pub fn pair(
     x: &[Point3<f64>],
+    normals: Option<&[Vector3<f64>]>,
     candidates: &[usize],
     cloud: &IndexedPoints,
     rim: Option<&[bool]>,
@@ -145,7 +157,9 @@ pub fn pair(
             let (j, d) = cloud.nearest(&x[i]);
             (i, j, d)
         })
-        .filter(|&(_, j, _)| !rim.is_some_and(|r| r[j]))
+        .filter(|&(i, j, _)| {
+            !rim.is_some_and(|r| r[j]) && !normals.is_some_and(|n| n[i] == Vector3::zeros())
+        })
         .collect();
     let dists: Vec<f64> = forward.iter().map(|p| p.2).collect();
     let limit = rejection_threshold(&dists, rule.outlier_sigma)
@@ -179,11 +193,15 @@ pub fn pair(
             } else {
                 own
             };
-            x[i] + d
+            match normals {
+                Some(n) => x[i] + n[i] * n[i].dot(&d),
+                None => x[i] + d,
+            }
         })
         .collect();
     let rms = (kept.iter().map(|p| p.2 * p.2).sum::<f64>() / kept.len() as f64).sqrt();
     Some(Correspondences {
+        normals: normals.map(|n| kept.iter().map(|p| n[p.0]).collect()),
         sources: kept.iter().map(|p| p.0).collect(),
         targets,
         rms,
@@ -221,7 +239,7 @@ mod tests {
         let cloud = IndexedPoints::new(x.iter().map(|p| p + shift).collect()).unwrap();
         let all: Vec<usize> = (0..x.len()).collect();
         for alpha in [0.0, 0.75, 1.0] {
-            let c = pair(&x, &all, &cloud, None, &rule(alpha)).unwrap();
+            let c = pair(&x, None, &all, &cloud, None, &rule(alpha)).unwrap();
             assert_eq!(c.sources.len(), 25);
             for (&i, t) in c.sources.iter().zip(&c.targets) {
                 assert!((t - (x[i] + shift)).norm() < 1e-12);
@@ -240,14 +258,14 @@ mod tests {
         c.push(Point3::new(-0.3, 0.0, 0.1));
         let cloud = IndexedPoints::new(c).unwrap();
         let all: Vec<usize> = (0..x.len()).collect();
-        let p = pair(&x, &all, &cloud, None, &rule(0.75)).unwrap();
+        let p = pair(&x, None, &all, &cloud, None, &rule(0.75)).unwrap();
         assert!(!p.sources.contains(&20), "the far source is an outlier");
         // Blending, with pruning loose enough to keep the side point.
         let loose = PairingRule {
             outlier_sigma: 1e3,
             ..rule(0.75)
         };
-        let p = pair(&x, &all[..20], &cloud, None, &loose).unwrap();
+        let p = pair(&x, None, &all[..20], &cloud, None, &loose).unwrap();
         let s0 = p.sources.iter().position(|&i| i == 0).unwrap();
         // own: (0,0,0.1); back mean: ((0,0,0.1) + (-0.3,0,0.1)) / 2 = (-0.15, 0, 0.1)
         let expect = Point3::new(0.25 * -0.15, 0.0, 0.1);
@@ -257,7 +275,48 @@ mod tests {
             max_pair_distance: Some(0.05),
             ..rule(0.75)
         };
-        assert!(pair(&x, &all, &cloud, None, &capped).is_none());
+        assert!(pair(&x, None, &all, &cloud, None, &capped).is_none());
+    }
+
+    #[test]
+    fn point_to_plane_keeps_only_the_normal_offset_of_a_sparse_cloud() {
+        // Sources on the plane z = 0 (normal +z); the cloud samples the plane z = 0.1 at
+        // positions shifted in-plane by up to ±0.4: point-to-point pairs carry that in-plane
+        // sampling offset, point-to-plane pairs impose exactly the 0.1 normal offset.
+        let x: Vec<Point3<f64>> = (0..100)
+            .map(|k| Point3::new((k % 10) as f64, (k / 10) as f64, 0.0))
+            .collect();
+        let shift = |k: usize| {
+            let a = ((k * 7919) % 17) as f64 / 16.0 - 0.5;
+            let b = ((k * 104_729) % 13) as f64 / 12.0 - 0.5;
+            Vector3::new(0.8 * a, 0.8 * b, 0.1)
+        };
+        let cloud =
+            IndexedPoints::new(x.iter().enumerate().map(|(k, p)| p + shift(k)).collect()).unwrap();
+        let normals = vec![Vector3::z(); x.len()];
+        let all: Vec<usize> = (0..x.len()).collect();
+        let loose = PairingRule {
+            outlier_sigma: 1e3,
+            ..rule(0.75)
+        };
+        let plane = pair(&x, Some(&normals), &all, &cloud, None, &loose).unwrap();
+        assert_eq!(plane.sources.len(), 100);
+        assert_eq!(plane.normals.as_ref().map(Vec::len), Some(100));
+        for (&i, t) in plane.sources.iter().zip(&plane.targets) {
+            assert!((t - (x[i] + Vector3::new(0.0, 0.0, 0.1))).norm() < 1e-12);
+        }
+        let point = pair(&x, None, &all, &cloud, None, &loose).unwrap();
+        assert!(point.normals.is_none());
+        let tangential = point
+            .sources
+            .iter()
+            .zip(&point.targets)
+            .map(|(&i, t)| (t - x[i]).xy().norm())
+            .fold(0.0, f64::max);
+        assert!(
+            tangential > 0.2,
+            "point-to-point keeps the in-plane offsets"
+        );
     }
 
     #[test]

@@ -47,6 +47,10 @@ pub struct NonRigidSettings {
     /// Most Newton steps one factorisation of the tangent may serve (modified Newton, see
     /// [`NewtonSolver::with_factor_reuse`]); 1 refactorises at every step.
     pub factor_reuse: usize,
+    /// Point-to-plane springs: each source is pulled along its current surface normal only,
+    /// by the normal component of its blended displacement (see [`pair`]); otherwise
+    /// point-to-point springs as in the thesis.
+    pub point_to_plane: bool,
 }
 
 impl Default for NonRigidSettings {
@@ -55,27 +59,28 @@ impl Default for NonRigidSettings {
             alpha: 0.75,
             penalty_start: None,
             penalty_end: None,
-            penalty_steps: 5,
-            max_icp_iterations: 20,
-            newton_iterations: 5,
+            penalty_steps: 3,
+            max_icp_iterations: 10,
+            newton_iterations: 2,
             tolerance: 2e-4,
             outlier_sigma: 2.0,
             max_pair_distance: None,
             reject_rim: true,
             visibility_interval: 1,
             factor_reuse: 1,
+            point_to_plane: true,
         }
     }
 }
 
 impl NonRigidSettings {
     /// Settings for a frame that starts from the previous frame's result: the shape is
-    /// already close, so one stiff penalty step with a few cheap (modified-Newton) iterations.
+    /// already close, so one stiff penalty step with cheap (modified-Newton) iterations.
     pub fn warm() -> Self {
         Self {
             penalty_steps: 1,
-            max_icp_iterations: 5,
-            newton_iterations: 1,
+            max_icp_iterations: 10,
+            newton_iterations: 2,
             visibility_interval: 16,
             factor_reuse: 8,
             ..Self::default()
@@ -311,8 +316,18 @@ impl NonRigidIcp {
                     }
                     let candidates = &self.visible.as_ref().expect("set above").0;
                     let t = Instant::now();
-                    let pairs = pair(&x, candidates, &cloud, rim.as_deref(), &rule)
-                        .ok_or(NonRigidError::NoCorrespondence)?;
+                    let normals = settings
+                        .point_to_plane
+                        .then(|| TriSurface::vertex_normals_at(&x, &model.surface.triangles));
+                    let pairs = pair(
+                        &x,
+                        normals.as_deref(),
+                        candidates,
+                        &cloud,
+                        rim.as_deref(),
+                        &rule,
+                    )
+                    .ok_or(NonRigidError::NoCorrespondence)?;
                     report.sources = pairs.sources.len();
                     report.surface_rms = pairs.rms;
                     // Convergence: the imposed targets stopped moving.
@@ -347,6 +362,7 @@ impl NonRigidIcp {
                             .collect(),
                         stiffness: vec![k; pairs.sources.len()],
                         follows_load: false,
+                        normals: pairs.normals.clone(),
                     };
                     model.problem.springs.truncate(fixed_sets);
                     model.problem.springs.push(pull);

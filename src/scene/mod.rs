@@ -23,9 +23,9 @@ pub use load::{load_scene, load_scene_str, parse_scene, LoadedScene, SceneFormat
 pub use output::{GridSummary, ProbeResult, SimulateReport};
 pub use types::{
     defaults, BoundarySpec, BoxRegion, Camera, FixedRegion, FixedSpec, GridSpec, IntegrationMode,
-    LawKind, LoadSpec, MaterialSpec, ModelSpec, PointSource, ProbeSpec, RegistrationSpec,
-    RigidMode, Scene, SolverKind, SolverSpec, StructureSpec, TractionSpec, Units, Vec3,
-    VolumetricIntegration,
+    LawKind, LoadSpec, MaterialSpec, ModelSpec, PointSource, PoseUpdate, ProbeSpec,
+    RegistrationSpec, RigidMode, Scene, SolverKind, SolverSpec, StructureSpec, SupportSpec,
+    TractionSpec, Units, Vec3, VolumetricIntegration,
 };
 pub use validate::{
     validate_scene, MAX_BISECTIONS, MAX_LOAD_STEPS, MAX_SUBDIVISIONS, POINT_EXTENSIONS,

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use super::*;
+use crate::scene::PoseUpdate;
 
 /// The scene example of `docs/contracts.md` ("Scene file"), verbatim.
 const CONTRACT_EXAMPLE: &str = r#"units = "m"                      # "m" | "cm" | "mm"
@@ -200,8 +201,9 @@ fn contract_example_parses_with_documented_defaults() {
     assert_eq!(r.alpha, 0.75);
     assert_eq!(r.penalty_start, None);
     assert_eq!(r.penalty_end, None);
-    assert_eq!(r.penalty_steps, 5);
-    assert_eq!(r.max_icp_iterations, 30);
+    assert_eq!(r.penalty_steps, 3);
+    assert_eq!(r.max_icp_iterations, 10);
+    assert_eq!(r.pose, PoseUpdate::Hold);
     let d = RegistrationSpec::default();
     assert_eq!(
         RegistrationSpec {

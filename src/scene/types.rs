@@ -258,6 +258,27 @@ pub struct BoundarySpec {
     /// `[[boundary.fixed]]`: parts held at their rest position (by penalty springs).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub fixed: Vec<FixedSpec>,
+    /// `[[boundary.support]]`: elastic supports (the organs the liver rests on).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub support: Vec<SupportSpec>,
+}
+
+/// One `[[boundary.support]]`: an elastic support (Winkler foundation) under the part of the
+/// surface inside `box` — what the liver rests on (retroperitoneum, kidney, diaphragm), known
+/// from the pre-operative scan. With a partial intra-operative view it is the only thing that
+/// holds the unseen back of the organ; without it the back swings freely (method.md §4).
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SupportSpec {
+    /// The supported part of the surface (scene units).
+    #[serde(rename = "box")]
+    pub bbox: BoxRegion,
+    /// Spring stiffness per unit surface area, N/m³ (pascals per metre of displacement).
+    pub stiffness: f64,
+    /// `true` (default): the support pushes back along the surface normal only and lets the
+    /// surface slide along it; `false`: it resists motion in every direction.
+    #[serde(default = "defaults::sliding")]
+    pub sliding: bool,
 }
 
 /// One `[[boundary.fixed]]` region: exactly one of `box` and `points` (checked on load).
@@ -387,6 +408,24 @@ pub enum RigidMode {
     Identity,
 }
 
+/// How the model → cloud pose evolves across the frames of a session (with the non-rigid stage
+/// on; rigid-only registration always tracks).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
+pub enum PoseUpdate {
+    /// `"hold"` (default): the pose found on the first frame (or after a reset) is kept, and
+    /// the deformation explains all later change; the pose is searched again only when the
+    /// cloud no longer fits the deformed model at it (the camera or the patient moved). Right
+    /// for clouds in a fixed frame (a static or tracked camera): a rigid fit to a partly seen,
+    /// deforming organ otherwise turns the pose to absorb deformation, and the error drifts.
+    #[default]
+    #[serde(rename = "hold")]
+    Hold,
+    /// `"track"`: rigid ICP against the current deformed model on every frame, from the last
+    /// pose (clouds in a moving camera's frame with no tracker).
+    #[serde(rename = "track")]
+    Track,
+}
+
 /// The camera pose (scene units, model frame), used to find the visible part of the surface.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -407,6 +446,9 @@ pub struct RegistrationSpec {
     /// Rigid stage (default `"icp"`).
     #[serde(default)]
     pub rigid: RigidMode,
+    /// How the pose evolves across frames (default `"hold"`).
+    #[serde(default)]
+    pub pose: PoseUpdate,
     /// Camera pose; `None` when unknown.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera: Option<Camera>,
@@ -420,10 +462,10 @@ pub struct RegistrationSpec {
     /// Last penalty stiffness k₁ of the ramp, N/m (`None`: automatic); > 0 and ≥ k₀.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub penalty_end: Option<f64>,
-    /// Number of steps n_p of the ramp (default 5), ≥ 1.
+    /// Number of steps n_p of the ramp (default 3), ≥ 1.
     #[serde(default = "defaults::penalty_steps")]
     pub penalty_steps: u32,
-    /// ICP iterations allowed per stage (default 30), ≥ 1.
+    /// ICP iterations allowed per penalty step (default 10), ≥ 1.
     #[serde(default = "defaults::max_icp_iterations")]
     pub max_icp_iterations: u32,
     /// Model–cloud pairs farther apart than this (scene units) are dropped in the non-rigid
@@ -443,6 +485,7 @@ impl Default for RegistrationSpec {
     fn default() -> Self {
         RegistrationSpec {
             rigid: RigidMode::Icp,
+            pose: PoseUpdate::Hold,
             camera: None,
             alpha: defaults::alpha(),
             penalty_start: None,
@@ -490,16 +533,20 @@ pub mod defaults {
     pub fn yes() -> bool {
         true
     }
+    /// `boundary.support.sliding`.
+    pub fn sliding() -> bool {
+        true
+    }
     /// `registration.alpha`.
     pub fn alpha() -> f64 {
         0.75
     }
     /// `registration.penalty_steps`.
     pub fn penalty_steps() -> u32 {
-        5
+        3
     }
     /// `registration.max_icp_iterations`.
     pub fn max_icp_iterations() -> u32 {
-        30
+        10
     }
 }

@@ -253,6 +253,12 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
         }
     }
 
+    for (i, f) in scene.boundary.support.iter().enumerate() {
+        let k = format!("boundary.support[{i}]");
+        c.bbox(&format!("{k}.box"), &f.bbox);
+        c.positive(&format!("{k}.stiffness"), f.stiffness, " N/m³");
+    }
+
     // load
     c.vec3("load.gravity", &scene.load.gravity);
     for (i, t) in scene.load.traction.iter().enumerate() {

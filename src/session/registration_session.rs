@@ -8,8 +8,9 @@ use super::frame::{Frame, FrameError, FrameResult, StageTimes};
 use super::settings::SessionSettings;
 use crate::geometry::Camera;
 use crate::mesh::TriSurface;
-use crate::registration::{ModelTarget, NonRigidIcp, RigidIcp, RigidTransform};
-use crate::scene::{LoadedScene, RigidMode};
+use crate::registration::correspondences::rejection_threshold;
+use crate::registration::{IndexedPoints, ModelTarget, NonRigidIcp, RigidIcp, RigidTransform};
+use crate::scene::{LoadedScene, PoseUpdate, RigidMode};
 use crate::simulation::{ModelError, SceneModel};
 
 /// The last state a frame ended in successfully.
@@ -294,39 +295,23 @@ impl Session {
         }
         times.prepare_ms = ms(t);
 
-        // Rigid stage: track the pose against the current deformed surface.
+        // Rigid stage: hold the pose, or track it against the current deformed surface.
         let t = Instant::now();
-        let u0 = &self.good.u;
-        // With no rigid stage the fit of the identity is still checked (0 iterations).
-        let deformed = TriSurface::new(
-            self.model.surface_embedding.positions(u0),
-            self.model.surface.triangles.clone(),
-        );
-        let target = ModelTarget::new(&deformed, self.settings.target_spacing)
-            .map_err(|e| FrameError::Rigid(e.to_string()))?;
-        let (icp, initial) = match self.settings.rigid_mode {
-            RigidMode::Identity => (
-                RigidIcp {
-                    max_iterations: 0,
-                    ..self.settings.rigid.clone()
-                },
-                RigidTransform::identity(),
-            ),
-            RigidMode::Icp => (
-                self.settings.rigid.clone(),
-                self.good.model_to_cloud.inverse(),
-            ),
+        let hold = self.settings.non_rigid
+            && self.settings.pose_update == PoseUpdate::Hold
+            && self.settings.rigid_mode == RigidMode::Icp
+            && self.good.registered;
+        let (model_to_cloud, rigid_iterations) = if hold {
+            let rms = self.held_pose_rms(&cloud);
+            if rms <= self.settings.pose_reacquire_rms {
+                (self.good.model_to_cloud, 0)
+            } else {
+                flags.push("pose_reacquired".into());
+                self.track_pose(&cloud)?
+            }
+        } else {
+            self.track_pose(&cloud)?
         };
-        let r = icp
-            .register(&target, &cloud, Some(initial))
-            .map_err(|e| FrameError::Rigid(e.to_string()))?;
-        if r.rms > self.settings.max_rigid_rms {
-            return Err(FrameError::NoMatch {
-                rms_mm: r.rms * 1e3,
-                limit_mm: self.settings.max_rigid_rms * 1e3,
-            });
-        }
-        let (model_to_cloud, rigid_iterations) = (r.model_to_cloud, r.iterations);
         times.rigid_ms = ms(t);
 
         if !self.settings.non_rigid {
@@ -390,6 +375,71 @@ impl Session {
             sources: report.sources,
             warnings: report.warnings,
         })
+    }
+}
+
+impl Session {
+    /// Rigid ICP of `cloud` (metres, cloud frame) to the current deformed surface from the
+    /// last pose (or the identity fit when the rigid stage is off); rejects a cloud whose fit
+    /// leaves an RMS above [`SessionSettings::max_rigid_rms`].
+    fn track_pose(&self, cloud: &[Point3<f64>]) -> Result<(RigidTransform, usize), FrameError> {
+        let deformed = TriSurface::new(
+            self.model.surface_embedding.positions(&self.good.u),
+            self.model.surface.triangles.clone(),
+        );
+        let target = ModelTarget::new(&deformed, self.settings.target_spacing)
+            .map_err(|e| FrameError::Rigid(e.to_string()))?;
+        // With no rigid stage the fit of the identity is still checked (0 iterations).
+        let (icp, initial) = match self.settings.rigid_mode {
+            RigidMode::Identity => (
+                RigidIcp {
+                    max_iterations: 0,
+                    ..self.settings.rigid.clone()
+                },
+                RigidTransform::identity(),
+            ),
+            RigidMode::Icp => (
+                self.settings.rigid.clone(),
+                self.good.model_to_cloud.inverse(),
+            ),
+        };
+        let r = icp
+            .register(&target, cloud, Some(initial))
+            .map_err(|e| FrameError::Rigid(e.to_string()))?;
+        if r.rms > self.settings.max_rigid_rms {
+            return Err(FrameError::NoMatch {
+                rms_mm: r.rms * 1e3,
+                limit_mm: self.settings.max_rigid_rms * 1e3,
+            });
+        }
+        Ok((r.model_to_cloud, r.iterations))
+    }
+
+    /// RMS distance (metres) from the points of `cloud` (metres, cloud frame), taken to the
+    /// model frame by the held pose, to the current deformed surface — measured to the
+    /// tangent plane at the nearest vertex, so the vertex spacing does not count — after the
+    /// mean + 2σ outlier rule: how well the held pose still fits.
+    fn held_pose_rms(&self, cloud: &[Point3<f64>]) -> f64 {
+        let x = self.model.surface_embedding.positions(&self.good.u);
+        let normals = TriSurface::vertex_normals_at(&x, &self.model.surface.triangles);
+        let Some(vertices) = IndexedPoints::new(x) else {
+            return f64::INFINITY;
+        };
+        let to_model = self.good.model_to_cloud.inverse();
+        let d: Vec<f64> = cloud
+            .iter()
+            .map(|p| {
+                let q = to_model.apply(p);
+                let (i, _) = vertices.nearest(&q);
+                normals[i].dot(&(q - vertices.points[i])).abs()
+            })
+            .collect();
+        let limit = rejection_threshold(&d, 2.0);
+        let kept: Vec<f64> = d.into_iter().filter(|&v| v <= limit).collect();
+        if kept.is_empty() {
+            return f64::INFINITY;
+        }
+        (kept.iter().map(|v| v * v).sum::<f64>() / kept.len() as f64).sqrt()
     }
 }
 

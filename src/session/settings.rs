@@ -1,7 +1,7 @@
 //! What a session does per frame, and its limits.
 
 use crate::registration::{NonRigidSettings, RigidIcp};
-use crate::scene::{RigidMode, Scene};
+use crate::scene::{PoseUpdate, RigidMode, Scene};
 
 /// Settings of a [`Session`](super::Session). Lengths in metres.
 #[derive(Debug, Clone, PartialEq)]
@@ -9,6 +9,14 @@ pub struct SessionSettings {
     /// Rigid stage: ICP (tracking from the last frame's pose) or none (the clouds are in the
     /// model's frame).
     pub rigid_mode: RigidMode,
+    /// How the pose evolves across frames when the non-rigid stage runs.
+    pub pose_update: PoseUpdate,
+    /// With [`PoseUpdate::Hold`], the pose is searched again (flag `pose_reacquired`) when
+    /// the cloud's RMS distance to the deformed surface's vertices at the held pose exceeds
+    /// this, metres (default 8 mm). In normal operation it is 3–5 mm on the phantom's
+    /// sequences (1 mm noise, and the deformation since the last frame, which the non-rigid
+    /// stage is there to explain); smaller camera moves are absorbed as deformation.
+    pub pose_reacquire_rms: f64,
     /// Rigid ICP settings.
     pub rigid: RigidIcp,
     /// Spacing of the surface samples rigid ICP pairs with, metres.
@@ -39,6 +47,8 @@ impl Default for SessionSettings {
     fn default() -> Self {
         Self {
             rigid_mode: RigidMode::Icp,
+            pose_update: PoseUpdate::Hold,
+            pose_reacquire_rms: 0.008,
             rigid: RigidIcp::default(),
             target_spacing: 0.005,
             max_rigid_rms: 0.02,
@@ -58,6 +68,7 @@ impl SessionSettings {
         let mut s = Self::default();
         if let Some(r) = &scene.registration {
             s.rigid_mode = r.rigid;
+            s.pose_update = r.pose;
             for n in [&mut s.cold, &mut s.warm] {
                 n.alpha = r.alpha;
                 n.penalty_end = r.penalty_end;

@@ -9,7 +9,7 @@ use nalgebra::{Point3, Vector3};
 use super::*;
 use crate::mesh::primitives::icosphere;
 use crate::mesh::{write_obj, write_points, TriSurface};
-use crate::scene::load_scene;
+use crate::scene::{load_scene, PoseUpdate};
 
 /// A clamped ellipsoid scene in mm; returns the scene path and the rest surface (mm).
 fn scene(tag: &str, rigid: &str) -> (PathBuf, TriSurface) {
@@ -219,4 +219,41 @@ fn rigid_tracking_recovers_a_shift_of_the_camera_frame() {
     // Results are in the cloud frame: the targets moved with the shift.
     let moved = r.structures[0].1[0] - Point3::new(-20.0, 0.0, 0.0);
     assert!((moved - shift).norm() < 0.05, "{moved}");
+}
+
+#[test]
+fn a_held_pose_stays_put_and_is_reacquired_when_the_camera_moves() {
+    let (path, rest) = scene("hold", "icp");
+    let mut s = session(&path);
+    assert_eq!(s.settings.pose_update, PoseUpdate::Hold);
+    let cloud = bent(&rest, 6.0);
+    let first = s.register(&frame(cloud.clone(), "0"));
+    assert!(first.error.is_none(), "{:?}", first.error);
+    assert!(
+        first.rigid_iterations > 0,
+        "the first frame searches the pose"
+    );
+    // The same scene again: the held pose fits, no rigid search, the pose is kept exactly.
+    let second = s.register(&frame(cloud.clone(), "1"));
+    assert!(second.error.is_none(), "{:?}", second.error);
+    assert_eq!(second.rigid_iterations, 0);
+    assert_eq!(second.model_to_cloud, first.model_to_cloud);
+    assert!(!second.flags.iter().any(|f| f == "pose_reacquired"));
+    // The camera frame jumps by 2 cm: the held pose no longer fits and is searched again.
+    let shift = Vector3::new(10.0, -8.0, 16.0);
+    let moved: Vec<Point3<f64>> = cloud.iter().map(|p| p + shift).collect();
+    let third = s.register(&frame(moved, "2"));
+    assert!(third.error.is_none(), "{:?}", third.error);
+    assert!(
+        third.flags.iter().any(|f| f == "pose_reacquired"),
+        "{:?}",
+        third.flags
+    );
+    let dt = (third.model_to_cloud.translation - first.model_to_cloud.translation) * 1e3;
+    assert!(
+        (dt - shift).norm() < 0.5,
+        "pose moved by {dt} mm, camera by {shift}"
+    );
+    // The targets follow the camera frame.
+    assert!(max_change(&second, &third) > 19.0);
 }

@@ -243,6 +243,29 @@ impl SceneModel {
             }
         }
 
+        for (i, sup) in scene.boundary.support.iter().enumerate() {
+            let key = format!("boundary.support[{i}]");
+            let region = region_box(sup.bbox.min, sup.bbox.max, scale);
+            let set = PenaltySprings::support_surface_region(
+                &grid,
+                &surface,
+                &region,
+                sup.stiffness,
+                sup.sliding,
+            )
+            .map_err(|source| ModelError::Embedding {
+                what: key.clone(),
+                source,
+            })?
+            .ok_or_else(|| {
+                ModelError::Invalid(format!(
+                    "{}: {key}: the box holds no part of the surface",
+                    loaded.path.display()
+                ))
+            })?;
+            springs.push(set);
+        }
+
         let mut probe_points = Vec::new();
         for p in &scene.probe {
             probe_points.extend(source_points(&p.points, loaded, scale)?);

@@ -196,10 +196,14 @@ impl TruthModel {
             && self.bed_stiffness == 0.0
     }
 
-    /// `scene` with its grid and material replaced by this truth model's.
+    /// `scene` with its grid and material replaced by this truth model's, and its elastic
+    /// supports (`[[boundary.support]]`, the registration model's guess of what the liver
+    /// rests on) removed: the truth's own bed ([`TruthModel::bed_stiffness`]) stands for the
+    /// real anatomy, so the registration's guess is graded, not copied.
     pub fn apply_to(&self, scene: &LoadedScene) -> LoadedScene {
         let mut out = scene.clone();
         let s = &mut out.scene;
+        s.boundary.support.clear();
         s.grid.cell_size = self.cell_size / scene.length_scale();
         s.grid.subdivisions = self.subdivisions;
         s.grid.integration = self.integration;
