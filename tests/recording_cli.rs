@@ -231,6 +231,7 @@ fn a_killed_recording_holds_every_frame_reported_done() {
     let report: Value = serde_json::from_str(stdout.trim()).unwrap();
     assert_eq!(report["frames"], r.complete_frames());
     assert_eq!(report["identical"], true);
+    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
