@@ -15,6 +15,7 @@
 //! - [`evaluation`]: results and truth formats, target registration error;
 //! - [`recording`]: MCAP recordings of sessions and their replay;
 //! - `visualisation` (feature `rerun`): 3D logging to rerun;
+//! - [`server`]: the registration server (HTTP, WebSocket, gRPC) for AR displays;
 //! - [`cli`]: the command line.
 //!
 //! Lower layers never import higher ones. Inside the mechanics everything is SI (m, N, Pa, J).
@@ -32,6 +33,7 @@ pub mod recording;
 pub mod registration;
 pub mod scenarios;
 pub mod scene;
+pub mod server;
 pub mod session;
 pub mod simulation;
 pub mod synthetic;

@@ -9,6 +9,7 @@ pub mod demo;
 pub mod eval;
 pub mod progress;
 pub mod register;
+pub mod serve;
 pub mod replay;
 pub mod simulate;
 
@@ -162,6 +163,9 @@ pub enum Command {
     /// surface vertices and structures (mm) per frame and overall; exits non-zero beyond the
     /// tolerance.
     Replay(replay::ReplayArgs),
+    /// The registration server: HTTP + WebSocket and gRPC for AR displays (docs/server.md).
+    /// Settings: --config FILE, then LIVEREG_* variables, then flags.
+    Serve(serve::ServeArgs),
 }
 
 /// Runs the command line; errors are printed as one line on stderr with a non-zero exit code.
@@ -198,6 +202,7 @@ pub fn run(cli: Cli) -> ExitCode {
             rerun,
         } => demo::run_with(&out, frames, &scenarios, &rerun).map(|_| ()),
         Command::Replay(args) => replay::run(&args).map(|_| ()),
+        Command::Serve(args) => serve::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,390 @@
+#!/usr/bin/env python3
+"""Python client of the livereg registration server, standard library only.
+
+HTTP (urllib) for sessions and single frames, and a small RFC 6455 WebSocket client (socket,
+hashlib) for streams. Lengths are in the scene's units; results are in the cloud's frame.
+
+    from livereg_client import Client
+    c = Client("http://127.0.0.1:8080", token="...")
+    sid = c.create_session_files("fixtures/liver_phantom/scene.toml")["id"]
+    result = c.register(sid, [[x, y, z], ...])          # one frame, waits for its result
+    with c.stream(sid) as ws:                           # WebSocket: newest frame wins
+        ws.send_frame([[x, y, z], ...], seq=1)          # JSON; send_frame_binary for f32
+        msg = ws.recv()                                 # {"type": "result", ...} or error
+    c.close_session(sid)
+
+Command line (used by the tests):
+
+    python3 livereg_client.py --url http://127.0.0.1:8080 --token-file tokens.txt \\
+        roundtrip --scene SCENE --frames DIR --out results.jsonl --transport ws|ws-binary|http
+"""
+
+import argparse
+import base64
+import hashlib
+import json
+import os
+import socket
+import struct
+import sys
+import time
+import urllib.error
+import urllib.parse
+import urllib.request
+
+__all__ = ["Client", "LiveregError", "WebSocket", "encode_binary_frame"]
+
+_WS_GUID = "258EAFA5-E914-47DA-95CA-C5AB0DC85B11"
+
+
+class LiveregError(Exception):
+    """An error answered by the server: HTTP status, code and message."""
+
+    def __init__(self, status, code, message):
+        super().__init__("%s %s: %s" % (status, code, message))
+        self.status = status
+        self.code = code
+        self.message = message
+
+
+def encode_binary_frame(points, seq=0, camera=None):
+    """The compact binary frame (docs/server.md): little-endian header, then n x 3 float32."""
+    flags = 1 if camera is not None else 0
+    out = [b"LVRG", struct.pack("<BBHQI", 1, flags, 0, seq, len(points))]
+    if camera is not None:
+        pos, look, up = camera
+        out.append(struct.pack("<9f", *pos, *look, *(up or (0.0, 0.0, 0.0))))
+    flat = [c for p in points for c in p]
+    out.append(struct.pack("<%df" % len(flat), *flat))
+    return b"".join(out)
+
+
+def _scene_files(scene_path):
+    """The scene text and the files of its directory that it names (by quoted file name)."""
+    with open(scene_path, "rb") as f:
+        scene = f.read()
+    text = scene.decode("utf-8")
+    d = os.path.dirname(os.path.abspath(scene_path))
+    files = {}
+    for name in sorted(os.listdir(d)):
+        p = os.path.join(d, name)
+        if os.path.isfile(p) and os.path.abspath(p) != os.path.abspath(scene_path):
+            if '"%s"' % name in text:
+                with open(p, "rb") as f:
+                    files[name] = f.read()
+    return scene, files
+
+
+def _multipart(parts):
+    """A multipart/form-data body from (name, filename, bytes) parts: (content type, body)."""
+    boundary = "livereg-" + base64.b16encode(os.urandom(12)).decode().lower()
+    chunks = []
+    for name, filename, data in parts:
+        disp = 'form-data; name="%s"' % name
+        if filename is not None:
+            disp += '; filename="%s"' % filename
+        chunks.append(
+            ("--%s\r\nContent-Disposition: %s\r\nContent-Type: application/octet-stream\r\n\r\n"
+             % (boundary, disp)).encode())
+        chunks.append(data)
+        chunks.append(b"\r\n")
+    chunks.append(("--%s--\r\n" % boundary).encode())
+    return "multipart/form-data; boundary=" + boundary, b"".join(chunks)
+
+
+class Client:
+    """HTTP client of one server with one bearer token."""
+
+    def __init__(self, url, token=None, timeout=60.0):
+        self.url = url.rstrip("/")
+        self.token = token
+        self.timeout = timeout
+
+    def _request(self, method, path, body=None, content_type=None):
+        headers = {}
+        if self.token:
+            headers["Authorization"] = "Bearer " + self.token
+        if content_type:
+            headers["Content-Type"] = content_type
+        req = urllib.request.Request(self.url + path, data=body, method=method, headers=headers)
+        try:
+            with urllib.request.urlopen(req, timeout=self.timeout) as r:
+                data = r.read()
+                return json.loads(data) if data else None
+        except urllib.error.HTTPError as e:
+            raw = e.read()
+            try:
+                err = json.loads(raw)["error"]
+                raise LiveregError(e.code, err["code"], err["message"]) from None
+            except (ValueError, KeyError, TypeError):
+                raise LiveregError(e.code, "http", raw.decode("utf-8", "replace")) from None
+
+    # Sessions.
+    def create_session_files(self, scene_path, budget_ms=None, rigid_only=False):
+        """Creates a session by uploading the scene file and the files it names (multipart)."""
+        scene, files = _scene_files(scene_path)
+        ext = "json" if scene_path.lower().endswith(".json") else "toml"
+        parts = [("scene", "scene." + ext, scene)]
+        parts += [("file", name, data) for name, data in files.items()]
+        if budget_ms is not None:
+            parts.append(("budget_ms", None, str(budget_ms).encode()))
+        if rigid_only:
+            parts.append(("rigid_only", None, b"true"))
+        ctype, body = _multipart(parts)
+        return self._request("POST", "/v1/sessions", body, ctype)
+
+    def create_session_inline(self, scene, meshes=None, points=None, files=None, **options):
+        """Creates a session from a scene (dict, or TOML text) and inline arrays:
+        meshes = {"liver.obj": {"vertices": [[x,y,z],...], "triangles": [[i,j,k],...]}},
+        points = {"targets.xyz": [[x,y,z],...]}, files = {"name": "text"}."""
+        body = {"scene": scene, "meshes": meshes or {}, "points": points or {}, "files": files or {}}
+        body.update(options)
+        return self._request("POST", "/v1/sessions", json.dumps(body).encode(), "application/json")
+
+    def get_session(self, sid):
+        return self._request("GET", "/v1/sessions/" + sid)
+
+    def list_sessions(self):
+        return self._request("GET", "/v1/sessions")["sessions"]
+
+    def reset_session(self, sid):
+        return self._request("POST", "/v1/sessions/%s/reset" % sid)
+
+    def close_session(self, sid):
+        return self._request("DELETE", "/v1/sessions/" + sid)
+
+    # Frames.
+    def register(self, sid, points, seq=0, source=None, camera=None):
+        """Registers one frame (JSON, full precision) and returns its result."""
+        frame = {"seq": seq, "points": [list(map(float, p)) for p in points]}
+        if source:
+            frame["source"] = source
+        if camera:
+            frame["camera"] = camera
+        return self._request("POST", "/v1/sessions/%s/frames" % sid,
+                             json.dumps(frame).encode(), "application/json")
+
+    def register_binary(self, sid, points, seq=0):
+        """Registers one frame in the binary encoding (float32)."""
+        return self._request("POST", "/v1/sessions/%s/frames" % sid,
+                             encode_binary_frame(points, seq), "application/octet-stream")
+
+    def stream(self, sid):
+        """A WebSocket stream of the session (use as a context manager)."""
+        return WebSocket(self.url, "/v1/sessions/%s/stream" % sid, self.token, self.timeout)
+
+    def health(self):
+        return self._request("GET", "/healthz")
+
+
+class WebSocket:
+    """A minimal RFC 6455 client (no extensions, ws:// only): text and binary messages."""
+
+    def __init__(self, url, path, token, timeout=60.0):
+        u = urllib.parse.urlparse(url)
+        if u.scheme != "http":
+            raise ValueError("this stdlib WebSocket client speaks ws:// (http) only")
+        host, port = u.hostname, u.port or 80
+        self.sock = socket.create_connection((host, port), timeout=timeout)
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        key = base64.b64encode(os.urandom(16)).decode()
+        lines = ["GET %s HTTP/1.1" % path, "Host: %s:%d" % (host, port), "Upgrade: websocket",
+                 "Connection: Upgrade", "Sec-WebSocket-Key: " + key, "Sec-WebSocket-Version: 13"]
+        if token:
+            lines.append("Authorization: Bearer " + token)
+        self.sock.sendall(("\r\n".join(lines) + "\r\n\r\n").encode())
+        self._buf = b""
+        head = self._read_until(b"\r\n\r\n").decode("latin-1")
+        status = int(head.split(" ", 2)[1])
+        if status != 101:
+            body = self._buf
+            self.sock.close()
+            try:
+                err = json.loads(body)["error"]
+                raise LiveregError(status, err["code"], err["message"])
+            except (ValueError, KeyError):
+                raise LiveregError(status, "http", head.splitlines()[0])
+        accept = base64.b64encode(hashlib.sha1((key + _WS_GUID).encode()).digest()).decode()
+        if ("sec-websocket-accept: " + accept).lower() not in head.lower():
+            raise ConnectionError("bad Sec-WebSocket-Accept")
+        self.closed = False
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def _read_until(self, marker):
+        while marker not in self._buf:
+            chunk = self.sock.recv(65536)
+            if not chunk:
+                raise ConnectionError("connection closed during the handshake")
+            self._buf += chunk
+        i = self._buf.index(marker) + len(marker)
+        head, self._buf = self._buf[:i], self._buf[i:]
+        return head
+
+    def _read(self, n):
+        while len(self._buf) < n:
+            chunk = self.sock.recv(max(65536, n - len(self._buf)))
+            if not chunk:
+                raise ConnectionError("connection closed")
+            self._buf += chunk
+        out, self._buf = self._buf[:n], self._buf[n:]
+        return out
+
+    def _send(self, opcode, payload):
+        n = len(payload)
+        if n < 126:
+            header = struct.pack("!BB", 0x80 | opcode, 0x80 | n)
+        elif n < 65536:
+            header = struct.pack("!BBH", 0x80 | opcode, 0x80 | 126, n)
+        else:
+            header = struct.pack("!BBQ", 0x80 | opcode, 0x80 | 127, n)
+        mask = os.urandom(4)
+        if n:
+            full = (mask * (n // 4 + 1))[:n]
+            masked = (int.from_bytes(payload, "big") ^ int.from_bytes(full, "big")).to_bytes(n, "big")
+        else:
+            masked = b""
+        self.sock.sendall(header + mask + masked)
+
+    def send_text(self, text):
+        self._send(0x1, text.encode("utf-8"))
+
+    def send_binary(self, data):
+        self._send(0x2, data)
+
+    def send_frame(self, points, seq=0, source=None):
+        """Sends a frame as JSON (full precision)."""
+        frame = {"seq": seq, "points": [list(map(float, p)) for p in points]}
+        if source:
+            frame["source"] = source
+        self.send_text(json.dumps(frame))
+
+    def send_frame_binary(self, points, seq=0, camera=None):
+        """Sends a frame in the binary encoding (float32)."""
+        self.send_binary(encode_binary_frame(points, seq, camera))
+
+    def recv(self):
+        """The next message as a dict; {"type": "close", "code": n} when the server closes."""
+        data, first_op = b"", None
+        while True:
+            b1, b2 = self._read(2)
+            op, fin, n = b1 & 0x0F, b1 & 0x80, b2 & 0x7F
+            if n == 126:
+                n = struct.unpack("!H", self._read(2))[0]
+            elif n == 127:
+                n = struct.unpack("!Q", self._read(8))[0]
+            mask = self._read(4) if b2 & 0x80 else None
+            payload = self._read(n)
+            if mask:
+                payload = bytes(c ^ mask[i % 4] for i, c in enumerate(payload))
+            if op == 0x9:  # ping
+                self._send(0xA, payload)
+                continue
+            if op == 0xA:
+                continue
+            if op == 0x8:
+                code = struct.unpack("!H", payload[:2])[0] if len(payload) >= 2 else 1005
+                if not self.closed:
+                    try:
+                        self._send(0x8, payload[:2])
+                    except OSError:
+                        pass
+                self.closed = True
+                return {"type": "close", "code": code}
+            if op != 0:
+                first_op = op
+            data += payload
+            if fin:
+                if first_op == 0x1:
+                    return json.loads(data.decode("utf-8"))
+                return {"type": "binary", "data": data}
+
+    def close(self):
+        if not self.closed:
+            try:
+                self._send(0x8, struct.pack("!H", 1000))
+                self.closed = True
+                deadline = time.time() + 5
+                while time.time() < deadline:
+                    if self.recv().get("type") == "close":
+                        break
+            except (OSError, ConnectionError, ValueError):
+                pass
+        self.sock.close()
+
+
+def _read_points(path):
+    pts = []
+    with open(path) as f:
+        for line in f:
+            line = line.strip()
+            if not line or line.startswith("#"):
+                continue
+            pts.append([float(v) for v in line.replace(",", " ").split()[:3]])
+    return pts
+
+
+def _roundtrip(client, args):
+    session = client.create_session_files(args.scene)
+    sid = session["id"]
+    names = sorted(n for n in os.listdir(args.frames) if n.endswith((".xyz", ".txt", ".csv")))
+    results = []
+    if args.transport == "http":
+        for k, name in enumerate(names):
+            pts = _read_points(os.path.join(args.frames, name))
+            results.append(client.register(sid, pts, seq=k, source=name))
+    else:
+        with client.stream(sid) as ws:
+            for k, name in enumerate(names):
+                pts = _read_points(os.path.join(args.frames, name))
+                if args.transport == "ws-binary":
+                    ws.send_frame_binary(pts, seq=k)
+                else:
+                    ws.send_frame(pts, seq=k, source=name)
+                msg = ws.recv()
+                if msg.get("type") != "result":
+                    raise SystemExit("frame %d: %s" % (k, msg))
+                results.append(msg)
+    info = client.close_session(sid)
+    with open(args.out, "w") as f:
+        for r in results:
+            f.write(json.dumps(r) + "\n")
+    print(json.dumps({"session": sid, "frames": len(results),
+                      "frames_registered": info["frames_registered"]}))
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--url", default="http://127.0.0.1:8080")
+    p.add_argument("--token-file", help="first line: name:token or token (else $LIVEREG_TOKEN)")
+    sub = p.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("roundtrip", help="create, send every frame of DIR, write results, close")
+    r.add_argument("--scene", required=True)
+    r.add_argument("--frames", required=True)
+    r.add_argument("--out", required=True)
+    r.add_argument("--transport", choices=["ws", "ws-binary", "http"], default="ws")
+    sub.add_parser("health")
+    args = p.parse_args(argv)
+    token = os.environ.get("LIVEREG_TOKEN")
+    if args.token_file:
+        with open(args.token_file) as f:
+            line = next(l.strip() for l in f if l.strip() and not l.startswith("#"))
+        token = line.split(":", 1)[1] if ":" in line else line
+    client = Client(args.url, token)
+    try:
+        if args.cmd == "roundtrip":
+            _roundtrip(client, args)
+        else:
+            print(json.dumps(client.health()))
+    except LiveregError as e:
+        print("livereg_client: %s" % e, file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

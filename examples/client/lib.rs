@@ -1,0 +1,725 @@
+//! A Rust client of the livereg server: gRPC (tonic, the generated client) and WebSocket
+//! (tokio-tungstenite), with a minimal HTTP/1.1 helper for the JSON API. Used by
+//! `examples/client/main.rs` and by the tests (`tests/server_*.rs` include this file).
+#![allow(dead_code)]
+
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use futures_util::{SinkExt, StreamExt};
+use livereg::server::codec::encode_binary_frame;
+use livereg::server::proto;
+use livereg::server::proto::registration_client::RegistrationClient;
+use serde_json::Value;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+use tokio_tungstenite::tungstenite::Message;
+
+/// Any error, as text.
+pub type Res<T> = Result<T, String>;
+
+/// An HTTP response: status, headers (lower-case names) and body.
+#[derive(Debug, Clone)]
+pub struct HttpResponse {
+    /// Status code.
+    pub status: u16,
+    /// Headers, names in lower case.
+    pub headers: BTreeMap<String, String>,
+    /// Body bytes.
+    pub body: Vec<u8>,
+}
+
+impl HttpResponse {
+    /// The body as JSON (Null when it is not JSON).
+    pub fn json(&self) -> Value {
+        serde_json::from_slice(&self.body).unwrap_or(Value::Null)
+    }
+}
+
+/// One HTTP/1.1 request (`Connection: close`) with raw `body` bytes.
+pub async fn http(
+    addr: SocketAddr,
+    method: &str,
+    path: &str,
+    headers: &[(&str, &str)],
+    body: &[u8],
+) -> Res<HttpResponse> {
+    let mut s = tokio::net::TcpStream::connect(addr)
+        .await
+        .map_err(|e| format!("connect {addr}: {e}"))?;
+    let _ = s.set_nodelay(true);
+    let mut req = format!(
+        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\nContent-Length: {}\r\n",
+        body.len()
+    );
+    for (k, v) in headers {
+        req.push_str(&format!("{k}: {v}\r\n"));
+    }
+    req.push_str("\r\n");
+    let mut bytes = req.into_bytes();
+    bytes.extend_from_slice(body);
+    // The server may answer (413) before reading a large body: ignore a failed write then.
+    let _ = s.write_all(&bytes).await;
+    let mut out = Vec::new();
+    s.read_to_end(&mut out)
+        .await
+        .map_err(|e| format!("read: {e}"))?;
+    parse_response(&out)
+}
+
+fn parse_response(raw: &[u8]) -> Res<HttpResponse> {
+    let end = raw
+        .windows(4)
+        .position(|w| w == b"\r\n\r\n")
+        .ok_or("no end of headers")?;
+    let head = String::from_utf8_lossy(&raw[..end]);
+    let mut lines = head.split("\r\n");
+    let status_line = lines.next().ok_or("empty response")?;
+    let status: u16 = status_line
+        .split(' ')
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .ok_or(format!("bad status line {status_line:?}"))?;
+    let headers: BTreeMap<String, String> = lines
+        .filter_map(|l| l.split_once(':'))
+        .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_string()))
+        .collect();
+    let mut body = raw[end + 4..].to_vec();
+    if headers
+        .get("transfer-encoding")
+        .is_some_and(|v| v.contains("chunked"))
+    {
+        let mut out = Vec::new();
+        let mut rest = &body[..];
+        loop {
+            let Some(p) = rest.windows(2).position(|w| w == b"\r\n") else {
+                break;
+            };
+            let n = usize::from_str_radix(String::from_utf8_lossy(&rest[..p]).trim(), 16)
+                .map_err(|e| format!("chunk size: {e}"))?;
+            if n == 0 {
+                break;
+            }
+            out.extend_from_slice(&rest[p + 2..p + 2 + n]);
+            rest = &rest[p + 2 + n + 2..];
+        }
+        body = out;
+    }
+    Ok(HttpResponse {
+        status,
+        headers,
+        body,
+    })
+}
+
+/// A scene and its files read from disk (the scene's directory holds the files it names).
+#[derive(Debug, Clone)]
+pub struct SceneFiles {
+    /// Scene text.
+    pub scene: String,
+    /// "toml" or "json".
+    pub format: String,
+    /// File name → content.
+    pub files: BTreeMap<String, Vec<u8>>,
+}
+
+impl SceneFiles {
+    /// Reads `scene_path` and every other regular file of its directory whose name the scene
+    /// text mentions.
+    pub fn read(scene_path: &Path) -> Res<Self> {
+        let scene = std::fs::read_to_string(scene_path)
+            .map_err(|e| format!("{}: {e}", scene_path.display()))?;
+        let dir = scene_path.parent().unwrap_or(Path::new("."));
+        let mut files = BTreeMap::new();
+        for e in std::fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))? {
+            let p = e.map_err(|e| e.to_string())?.path();
+            let Some(name) = p.file_name().and_then(|n| n.to_str()) else {
+                continue;
+            };
+            if p.is_file() && p != scene_path && scene.contains(&format!("\"{name}\"")) {
+                files.insert(
+                    name.to_string(),
+                    std::fs::read(&p).map_err(|e| e.to_string())?,
+                );
+            }
+        }
+        let format = if scene_path.extension().is_some_and(|e| e == "json") {
+            "json"
+        } else {
+            "toml"
+        };
+        Ok(Self {
+            scene,
+            format: format.into(),
+            files,
+        })
+    }
+
+    /// A multipart/form-data body (boundary, bytes) uploading the scene and its files.
+    pub fn multipart(&self) -> (String, Vec<u8>) {
+        let boundary = "livereg-boundary-7d1f0c2e9b";
+        let mut b = Vec::new();
+        let mut part = |name: &str, file: &str, data: &[u8]| {
+            b.extend_from_slice(
+                format!(
+                    "--{boundary}\r\nContent-Disposition: form-data; name=\"{name}\"; filename=\"{file}\"\r\nContent-Type: application/octet-stream\r\n\r\n"
+                )
+                .as_bytes(),
+            );
+            b.extend_from_slice(data);
+            b.extend_from_slice(b"\r\n");
+        };
+        part(
+            "scene",
+            &format!("scene.{}", self.format),
+            self.scene.as_bytes(),
+        );
+        for (n, d) in &self.files {
+            part("file", n, d);
+        }
+        b.extend_from_slice(format!("--{boundary}--\r\n").as_bytes());
+        (boundary.to_string(), b)
+    }
+}
+
+/// Creates a session over HTTP (multipart upload); returns its id.
+pub async fn http_create_session(addr: SocketAddr, token: &str, scene: &SceneFiles) -> Res<String> {
+    let (boundary, body) = scene.multipart();
+    let ct = format!("multipart/form-data; boundary={boundary}");
+    let auth = format!("Bearer {token}");
+    let r = http(
+        addr,
+        "POST",
+        "/v1/sessions",
+        &[("Content-Type", &ct), ("Authorization", &auth)],
+        &body,
+    )
+    .await?;
+    if r.status != 201 {
+        return Err(format!(
+            "create session: {} {}",
+            r.status,
+            String::from_utf8_lossy(&r.body)
+        ));
+    }
+    r.json()["id"]
+        .as_str()
+        .map(str::to_string)
+        .ok_or("no id".into())
+}
+
+/// Closes a session over HTTP.
+pub async fn http_close_session(addr: SocketAddr, token: &str, id: &str) -> Res<Value> {
+    let auth = format!("Bearer {token}");
+    let r = http(
+        addr,
+        "DELETE",
+        &format!("/v1/sessions/{id}"),
+        &[("Authorization", &auth)],
+        b"",
+    )
+    .await?;
+    if r.status != 200 {
+        return Err(format!(
+            "close: {} {}",
+            r.status,
+            String::from_utf8_lossy(&r.body)
+        ));
+    }
+    Ok(r.json())
+}
+
+/// A WebSocket stream of one session.
+pub struct WsClient {
+    ws: tokio_tungstenite::WebSocketStream<
+        tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>,
+    >,
+}
+
+/// What the server said on a stream.
+#[derive(Debug, Clone)]
+pub enum WsEvent {
+    /// A result (the JSON object, `type` = `result`).
+    Result(Value),
+    /// A refused frame: seq, code, message.
+    Error(u64, String, String),
+    /// The server closed the stream with this code.
+    Closed(u16),
+}
+
+impl WsClient {
+    /// Opens `ws://addr/v1/sessions/{id}/stream` with the token.
+    pub async fn connect(addr: SocketAddr, id: &str, token: &str) -> Res<Self> {
+        let mut req = format!("ws://{addr}/v1/sessions/{id}/stream")
+            .into_client_request()
+            .map_err(|e| e.to_string())?;
+        req.headers_mut().insert(
+            "authorization",
+            format!("Bearer {token}").parse().map_err(|_| "bad token")?,
+        );
+        let (ws, _) = tokio_tungstenite::connect_async(req)
+            .await
+            .map_err(|e| format!("websocket connect: {e}"))?;
+        Ok(Self { ws })
+    }
+
+    /// Sends a frame as JSON.
+    pub async fn send_json(&mut self, seq: u64, source: &str, points: &[[f64; 3]]) -> Res<()> {
+        let msg = serde_json::json!({"seq": seq, "source": source, "points": points});
+        self.ws
+            .send(Message::Text(msg.to_string().into()))
+            .await
+            .map_err(|e| e.to_string())
+    }
+
+    /// Sends a frame in the binary encoding (f32).
+    pub async fn send_binary(&mut self, seq: u64, points: &[[f32; 3]]) -> Res<()> {
+        self.ws
+            .send(Message::Binary(
+                encode_binary_frame(seq, points, None).into(),
+            ))
+            .await
+            .map_err(|e| e.to_string())
+    }
+
+    /// Sends raw text or bytes (tests of bad input).
+    pub async fn send_raw(&mut self, m: Message) -> Res<()> {
+        self.ws.send(m).await.map_err(|e| e.to_string())
+    }
+
+    /// The next event (None when the connection ended without a close frame).
+    pub async fn next(&mut self) -> Option<WsEvent> {
+        loop {
+            match self.ws.next().await? {
+                Ok(Message::Text(t)) => {
+                    let v: Value = serde_json::from_str(&t).ok()?;
+                    return Some(match v["type"].as_str() {
+                        Some("result") => WsEvent::Result(v),
+                        _ => WsEvent::Error(
+                            v["seq"].as_u64().unwrap_or(0),
+                            v["error"]["code"].as_str().unwrap_or("").to_string(),
+                            v["error"]["message"].as_str().unwrap_or("").to_string(),
+                        ),
+                    });
+                }
+                Ok(Message::Close(f)) => {
+                    return Some(WsEvent::Closed(
+                        f.map(|f| u16::from(f.code)).unwrap_or(1005),
+                    ))
+                }
+                Ok(_) => continue,
+                Err(_) => return None,
+            }
+        }
+    }
+
+    /// Closes the stream.
+    pub async fn close(mut self) {
+        let _ = self.ws.close(None).await;
+    }
+
+    /// Splits into a sender and a receiver.
+    pub fn split(
+        self,
+    ) -> (
+        futures_util::stream::SplitSink<
+            tokio_tungstenite::WebSocketStream<
+                tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>,
+            >,
+            Message,
+        >,
+        futures_util::stream::SplitStream<
+            tokio_tungstenite::WebSocketStream<
+                tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>,
+            >,
+        >,
+    ) {
+        self.ws.split()
+    }
+}
+
+/// A gRPC client with its token.
+#[derive(Clone)]
+pub struct GrpcClient {
+    /// The generated client.
+    pub inner: RegistrationClient<tonic::transport::Channel>,
+    token: String,
+}
+
+impl GrpcClient {
+    /// Connects to `http://addr`.
+    pub async fn connect(addr: SocketAddr, token: &str) -> Res<Self> {
+        let inner = RegistrationClient::connect(format!("http://{addr}"))
+            .await
+            .map_err(|e| format!("grpc connect: {e}"))?
+            .max_decoding_message_size(usize::MAX);
+        Ok(Self {
+            inner,
+            token: token.to_string(),
+        })
+    }
+
+    /// A request carrying the token.
+    pub fn req<T>(&self, m: T) -> tonic::Request<T> {
+        let mut r = tonic::Request::new(m);
+        if let Ok(v) = format!("Bearer {}", self.token).parse() {
+            r.metadata_mut().insert("authorization", v);
+        }
+        r
+    }
+
+    /// Creates a session from a scene and its files.
+    pub async fn create_session(
+        &mut self,
+        scene: &SceneFiles,
+    ) -> Result<proto::SessionInfo, tonic::Status> {
+        let req = self.req(proto::CreateSessionRequest {
+            scene: scene.scene.clone(),
+            scene_format: scene.format.clone(),
+            files: scene.files.clone().into_iter().collect(),
+            budget_ms: None,
+            rigid_only: false,
+        });
+        Ok(self.inner.create_session(req).await?.into_inner())
+    }
+
+    /// Registers one frame (full precision).
+    pub async fn register(
+        &mut self,
+        session: &str,
+        seq: u64,
+        source: &str,
+        points: &[[f64; 3]],
+    ) -> Result<proto::FrameResult, tonic::Status> {
+        let req = self.req(proto::RegisterRequest {
+            session_id: session.to_string(),
+            frame: Some(frame_f64(seq, source, points)),
+        });
+        Ok(self.inner.register(req).await?.into_inner())
+    }
+
+    /// Closes a session.
+    pub async fn close_session(
+        &mut self,
+        id: &str,
+    ) -> Result<proto::CloseSessionResponse, tonic::Status> {
+        let req = self.req(proto::SessionRef { id: id.to_string() });
+        Ok(self.inner.close_session(req).await?.into_inner())
+    }
+}
+
+/// A protobuf frame with f64 coordinates.
+pub fn frame_f64(seq: u64, source: &str, points: &[[f64; 3]]) -> proto::Frame {
+    proto::Frame {
+        seq,
+        source: source.to_string(),
+        points: Vec::new(),
+        camera: None,
+        points_f64: points.iter().flatten().copied().collect(),
+    }
+}
+
+/// The JSON results.jsonl-shaped record of a gRPC result (for comparison with `register`).
+pub fn proto_to_record(r: &proto::FrameResult) -> Value {
+    let rot: Vec<Vec<f64>> = r.rotation.chunks(3).map(|c| c.to_vec()).collect();
+    let structures: serde_json::Map<String, Value> = r
+        .structures
+        .iter()
+        .map(|s| {
+            let pts: Vec<Vec<f64>> = s.points.chunks(3).map(|c| c.to_vec()).collect();
+            (s.name.clone(), serde_json::json!(pts))
+        })
+        .collect();
+    serde_json::json!({
+        "frame": r.frame, "source": r.source, "converged": r.converged,
+        "rigid": {"rotation": rot, "translation": r.translation},
+        "diagnostics": {"icp_iterations": r.icp_iterations, "newton_iterations": r.newton_iterations,
+                        "surface_rms": r.surface_rms},
+        "structures": structures,
+        "error": r.error,
+    })
+}
+
+/// Reads the point files of a directory in lexical order: (file name, points).
+pub fn read_frames(dir: &Path) -> Res<Vec<(String, Vec<[f64; 3]>)>> {
+    let mut files: Vec<_> = std::fs::read_dir(dir)
+        .map_err(|e| format!("{}: {e}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "xyz" || e == "txt"))
+        .collect();
+    files.sort();
+    files
+        .iter()
+        .map(|p| {
+            let pts = livereg::mesh::read_points(p).map_err(|e| e.to_string())?;
+            Ok((
+                p.file_name()
+                    .unwrap_or_default()
+                    .to_string_lossy()
+                    .into_owned(),
+                pts.iter().map(|q| [q.x, q.y, q.z]).collect(),
+            ))
+        })
+        .collect()
+}
+
+/// Percentile (nearest rank on sorted data), 0 when empty.
+pub fn pct(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return 0.0;
+    }
+    let k = ((p * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len()) - 1;
+    sorted[k]
+}
+
+/// Streams `frames` over one WebSocket in lock step (send, wait for the result): the results
+/// in order, and per frame (end-to-end ms, registration wall ms).
+pub async fn ws_lockstep(
+    addr: SocketAddr,
+    id: &str,
+    token: &str,
+    frames: &[(String, Vec<[f64; 3]>)],
+    binary: bool,
+) -> Res<(Vec<Value>, Vec<(f64, f64)>)> {
+    let mut ws = WsClient::connect(addr, id, token).await?;
+    let mut results = Vec::new();
+    let mut times = Vec::new();
+    for (k, (name, pts)) in frames.iter().enumerate() {
+        let t = Instant::now();
+        if binary {
+            let p32: Vec<[f32; 3]> = pts
+                .iter()
+                .map(|p| [p[0] as f32, p[1] as f32, p[2] as f32])
+                .collect();
+            ws.send_binary(k as u64, &p32).await?;
+        } else {
+            ws.send_json(k as u64, name, pts).await?;
+        }
+        match ws.next().await {
+            Some(WsEvent::Result(v)) => {
+                let e2e = t.elapsed().as_secs_f64() * 1e3;
+                times.push((e2e, v["wall_ms"].as_f64().unwrap_or(0.0)));
+                results.push(v);
+            }
+            other => return Err(format!("frame {k}: expected a result, got {other:?}")),
+        }
+    }
+    ws.close().await;
+    Ok((results, times))
+}
+
+/// Settings of a load run.
+#[derive(Debug, Clone)]
+pub struct LoadSpec {
+    /// Concurrent sessions.
+    pub sessions: usize,
+    /// Frames per second each session sends.
+    pub hz: f64,
+    /// Streaming time per session.
+    pub duration: Duration,
+    /// Send frames in the binary encoding.
+    pub binary: bool,
+}
+
+/// What a load run measured.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct LoadReport {
+    /// Sessions.
+    pub sessions: usize,
+    /// Frames sent (after warm-up).
+    pub sent: u64,
+    /// Results received.
+    pub results: u64,
+    /// Frames the server skipped (newest wins), as reported in results.
+    pub skipped: u64,
+    /// Error messages received, and results whose registration failed.
+    pub errors: u64,
+    /// End-to-end latency percentiles (client send → result received), ms.
+    pub e2e_p50_ms: f64,
+    /// See `e2e_p50_ms`.
+    pub e2e_p95_ms: f64,
+    /// See `e2e_p50_ms`.
+    pub e2e_p99_ms: f64,
+    /// Largest end-to-end latency, ms.
+    pub e2e_max_ms: f64,
+    /// Registration wall time percentiles of the same frames, ms.
+    pub wall_p50_ms: f64,
+    /// See `wall_p50_ms`.
+    pub wall_p95_ms: f64,
+    /// Cold first frame (warm-up, not counted above): median over sessions, ms.
+    pub warmup_p50_ms: f64,
+    /// First error messages, for the record.
+    pub error_samples: Vec<String>,
+}
+
+/// Runs `spec.sessions` sessions at once over WebSocket, each created over HTTP from `scene`,
+/// warmed up with one frame (the cold first frame, reported apart), then streaming `frames`
+/// cyclically at `spec.hz` for `spec.duration`; collects end-to-end latencies.
+pub async fn load_test(
+    addr: SocketAddr,
+    token: &str,
+    scene: &SceneFiles,
+    frames: &[(String, Vec<[f64; 3]>)],
+    spec: &LoadSpec,
+) -> Res<LoadReport> {
+    let mut ids = Vec::new();
+    for _ in 0..spec.sessions {
+        ids.push(http_create_session(addr, token, scene).await?);
+    }
+    let frames = std::sync::Arc::new(frames.to_vec());
+    let mut tasks = Vec::new();
+    for id in ids.clone() {
+        let token = token.to_string();
+        let frames = frames.clone();
+        let spec = spec.clone();
+        tasks.push(tokio::spawn(async move {
+            one_session(addr, &id, &token, &frames, &spec).await
+        }));
+    }
+    let mut rep = LoadReport {
+        sessions: spec.sessions,
+        ..Default::default()
+    };
+    let mut e2e = Vec::new();
+    let mut wall = Vec::new();
+    let mut warm = Vec::new();
+    for t in tasks {
+        let s = t.await.map_err(|e| e.to_string())??;
+        rep.sent += s.sent;
+        rep.results += s.e2e.len() as u64;
+        rep.skipped += s.skipped;
+        rep.errors += s.errors.len() as u64;
+        rep.error_samples.extend(s.errors.into_iter().take(3));
+        e2e.extend(s.e2e);
+        wall.extend(s.wall);
+        warm.push(s.warmup_ms);
+    }
+    for id in &ids {
+        http_close_session(addr, token, id).await?;
+    }
+    let sort = |v: &mut Vec<f64>| v.sort_by(f64::total_cmp);
+    sort(&mut e2e);
+    sort(&mut wall);
+    sort(&mut warm);
+    rep.e2e_p50_ms = pct(&e2e, 0.5);
+    rep.e2e_p95_ms = pct(&e2e, 0.95);
+    rep.e2e_p99_ms = pct(&e2e, 0.99);
+    rep.e2e_max_ms = e2e.last().copied().unwrap_or(0.0);
+    rep.wall_p50_ms = pct(&wall, 0.5);
+    rep.wall_p95_ms = pct(&wall, 0.95);
+    rep.warmup_p50_ms = pct(&warm, 0.5);
+    Ok(rep)
+}
+
+struct SessionRun {
+    sent: u64,
+    skipped: u64,
+    errors: Vec<String>,
+    e2e: Vec<f64>,
+    wall: Vec<f64>,
+    warmup_ms: f64,
+}
+
+fn f32_points(p: &[[f64; 3]]) -> Vec<[f32; 3]> {
+    p.iter()
+        .map(|q| [q[0] as f32, q[1] as f32, q[2] as f32])
+        .collect()
+}
+
+async fn one_session(
+    addr: SocketAddr,
+    id: &str,
+    token: &str,
+    frames: &[(String, Vec<[f64; 3]>)],
+    spec: &LoadSpec,
+) -> Res<SessionRun> {
+    let mut ws = WsClient::connect(addr, id, token).await?;
+    // Warm-up: the cold first frame.
+    let t = Instant::now();
+    ws.send_json(0, &frames[0].0, &frames[0].1).await?;
+    match ws.next().await {
+        Some(WsEvent::Result(_)) => {}
+        other => return Err(format!("warm-up: {other:?}")),
+    }
+    let warmup_ms = t.elapsed().as_secs_f64() * 1e3;
+    let (mut tx, mut rx) = ws.split();
+    let sent_at = std::sync::Arc::new(std::sync::Mutex::new(BTreeMap::<u64, Instant>::new()));
+    let sa = sent_at.clone();
+    let period = Duration::from_secs_f64(1.0 / spec.hz);
+    let n = (spec.duration.as_secs_f64() * spec.hz).round() as u64;
+    let binary = spec.binary;
+    let frames_owned = frames.to_vec();
+    let sender = tokio::spawn(async move {
+        let mut tick = tokio::time::interval(period);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        let mut sent = 0u64;
+        for k in 1..=n {
+            tick.tick().await;
+            let (name, pts) = &frames_owned[k as usize % frames_owned.len()];
+            let msg = if binary {
+                Message::Binary(encode_binary_frame(k, &f32_points(pts), None).into())
+            } else {
+                Message::Text(
+                    serde_json::json!({"seq": k, "source": name, "points": pts})
+                        .to_string()
+                        .into(),
+                )
+            };
+            if let Ok(mut m) = sa.lock() {
+                m.insert(k, Instant::now());
+            }
+            if tx.send(msg).await.is_err() {
+                break;
+            }
+            sent += 1;
+        }
+        (tx, sent)
+    });
+    let mut run = SessionRun {
+        sent: 0,
+        skipped: 0,
+        errors: Vec::new(),
+        e2e: Vec::new(),
+        wall: Vec::new(),
+        warmup_ms,
+    };
+    let deadline = Instant::now() + spec.duration + Duration::from_secs(30);
+    let mut last_seq = 0;
+    while last_seq < n && Instant::now() < deadline {
+        let msg = tokio::time::timeout(Duration::from_secs(30), rx.next()).await;
+        let Ok(Some(Ok(Message::Text(t)))) = msg else {
+            if matches!(msg, Ok(Some(Ok(_)))) {
+                continue;
+            }
+            break;
+        };
+        let now = Instant::now();
+        let v: Value = serde_json::from_str(&t).map_err(|e| e.to_string())?;
+        let seq = v["seq"].as_u64().unwrap_or(0);
+        if v["type"] == "result" {
+            let sent = sent_at.lock().ok().and_then(|m| m.get(&seq).copied());
+            if let Some(s) = sent {
+                run.e2e.push((now - s).as_secs_f64() * 1e3);
+            }
+            run.wall.push(v["wall_ms"].as_f64().unwrap_or(0.0));
+            run.skipped += v["skipped"].as_u64().unwrap_or(0);
+            if let Some(e) = v["diagnostics"]["error"].as_str() {
+                run.errors.push(format!("frame {seq}: {e}"));
+            }
+            last_seq = seq;
+        } else {
+            run.errors.push(t.to_string());
+        }
+        // The last frame was sent and an answer for a frame after all earlier ones arrived:
+        // once the sender is done, stop when the newest frame is answered.
+        if sender.is_finished() && last_seq == n {
+            break;
+        }
+    }
+    let (mut tx, sent) = sender.await.map_err(|e| e.to_string())?;
+    run.sent = sent;
+    let _ = tx.send(Message::Close(None)).await;
+    Ok(run)
+}

@@ -1,0 +1,390 @@
+//! Server configuration: a TOML file, then `LIVEREG_*` environment variables, then command-line
+//! flags, each overriding the one before (see docs/server.md for every key).
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+/// A bearer token and the name it is known by (logs, metrics; never the token itself).
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct TokenEntry {
+    /// Name of the client (an operating room, a display), shown in logs.
+    pub name: String,
+    /// The secret (at least 16 characters).
+    pub token: String,
+}
+
+/// TLS certificate chain and private key (PEM files). Reserved: this build refuses it (TLS is
+/// terminated in front of the server; see docs/server.md).
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct TlsConfig {
+    /// PEM certificate chain.
+    pub cert: PathBuf,
+    /// PEM private key.
+    pub key: PathBuf,
+}
+
+/// Limits enforced on every request (see [`super::limits`]).
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LimitsConfig {
+    /// Largest request body (HTTP body, WebSocket message, gRPC message), bytes.
+    pub max_body_bytes: usize,
+    /// Most points in one frame (larger frames are refused with 413; the session thins frames
+    /// above its own `max_cloud_points` on its own).
+    pub max_frame_points: usize,
+    /// Most triangles of any mesh of a scene (surface or structure).
+    pub max_mesh_triangles: usize,
+    /// Most grid cells a scene may ask for (bounding box volume / cell_size³).
+    pub max_grid_cells: usize,
+    /// Most octree levels (`grid.subdivisions`) a scene may ask for.
+    pub max_subdivisions: u32,
+    /// Most open sessions per token.
+    pub max_sessions_per_token: usize,
+    /// Most open sessions in the whole server.
+    pub max_sessions: usize,
+    /// Frames per second a session accepts (token bucket of this size, refilled at this rate).
+    pub max_frames_per_second: f64,
+    /// Sessions without any request for this long are closed, seconds (0: never).
+    pub session_idle_timeout_s: u64,
+}
+
+impl Default for LimitsConfig {
+    fn default() -> Self {
+        Self {
+            max_body_bytes: 32 << 20,
+            max_frame_points: 200_000,
+            max_mesh_triangles: 200_000,
+            max_grid_cells: 200_000,
+            max_subdivisions: 4,
+            max_sessions_per_token: 8,
+            max_sessions: 64,
+            max_frames_per_second: 60.0,
+            session_idle_timeout_s: 3600,
+        }
+    }
+}
+
+/// The whole configuration of `livereg serve`.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ServerConfig {
+    /// HTTP + WebSocket address (default `127.0.0.1:8080`; port 0 picks a free port).
+    pub bind: SocketAddr,
+    /// gRPC address (default `127.0.0.1:50051`); `None` turns gRPC off.
+    pub grpc_bind: Option<SocketAddr>,
+    /// Accepted bearer tokens.
+    pub tokens: Vec<TokenEntry>,
+    /// A file of tokens, one `name:token` (or bare `token`) per line; `#` comments.
+    pub token_file: Option<PathBuf>,
+    /// Development only: no token needed. Refused unless every bind address is loopback.
+    pub insecure_loopback_dev: bool,
+    /// Where uploaded scenes are kept while their session lives (created if missing).
+    pub data_dir: PathBuf,
+    /// Frames registered at the same time (CPU-bound; default: the number of cores).
+    pub worker_threads: usize,
+    /// Threads of the async runtime that handles the network (default 2).
+    pub io_threads: usize,
+    /// Sessions being created at the same time (grid building is CPU-bound; default 1).
+    pub max_concurrent_creates: usize,
+    /// Seconds in-flight frames get to finish on shutdown.
+    pub shutdown_grace_s: u64,
+    /// Log format: `"text"` or `"json"`.
+    pub log_format: String,
+    /// Log filter (tracing `EnvFilter` syntax), e.g. `"info"` or `"livereg=debug"`.
+    pub log_filter: String,
+    /// Whether `/metrics` needs a token (default false: scraped from inside the cluster).
+    pub metrics_require_token: bool,
+    /// TLS for both HTTP and gRPC (reserved; refused by this build).
+    pub tls: Option<TlsConfig>,
+    /// Limits.
+    pub limits: LimitsConfig,
+}
+
+impl Default for ServerConfig {
+    fn default() -> Self {
+        Self {
+            bind: SocketAddr::from(([127, 0, 0, 1], 8080)),
+            grpc_bind: Some(SocketAddr::from(([127, 0, 0, 1], 50051))),
+            tokens: Vec::new(),
+            token_file: None,
+            insecure_loopback_dev: false,
+            data_dir: std::env::temp_dir().join("livereg-server"),
+            worker_threads: std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(2),
+            io_threads: 2,
+            max_concurrent_creates: 1,
+            shutdown_grace_s: 30,
+            log_format: "text".into(),
+            log_filter: "info".into(),
+            metrics_require_token: false,
+            tls: None,
+            limits: LimitsConfig::default(),
+        }
+    }
+}
+
+/// Environment variables read by [`ServerConfig::apply_env`], with the key each sets.
+pub const ENV_VARS: &[(&str, &str)] = &[
+    ("LIVEREG_BIND", "bind"),
+    ("LIVEREG_GRPC_BIND", "grpc_bind (`off` disables gRPC)"),
+    (
+        "LIVEREG_TOKENS",
+        "tokens: comma-separated `name:token` or `token`",
+    ),
+    ("LIVEREG_TOKEN_FILE", "token_file"),
+    ("LIVEREG_DATA_DIR", "data_dir"),
+    ("LIVEREG_WORKER_THREADS", "worker_threads"),
+    ("LIVEREG_IO_THREADS", "io_threads"),
+    ("LIVEREG_LOG", "log_filter"),
+    ("LIVEREG_LOG_FORMAT", "log_format"),
+    ("LIVEREG_TLS_CERT", "tls.cert"),
+    ("LIVEREG_TLS_KEY", "tls.key"),
+    ("LIVEREG_MAX_BODY_BYTES", "limits.max_body_bytes"),
+    ("LIVEREG_MAX_FRAME_POINTS", "limits.max_frame_points"),
+    (
+        "LIVEREG_MAX_SESSIONS_PER_TOKEN",
+        "limits.max_sessions_per_token",
+    ),
+    ("LIVEREG_MAX_SESSIONS", "limits.max_sessions"),
+    ("LIVEREG_MAX_FPS", "limits.max_frames_per_second"),
+];
+
+fn parse_num<T: std::str::FromStr>(var: &str, v: &str) -> Result<T, String>
+where
+    T::Err: std::fmt::Display,
+{
+    v.trim()
+        .parse::<T>()
+        .map_err(|e| format!("{var}={v:?}: {e}"))
+}
+
+/// Tokens from `name:token` / `token` items (a bare token is named `token-<n>`).
+pub fn parse_token_list<'a>(items: impl Iterator<Item = &'a str>) -> Vec<TokenEntry> {
+    items
+        .map(str::trim)
+        .filter(|s| !s.is_empty() && !s.starts_with('#'))
+        .enumerate()
+        .map(|(i, s)| match s.split_once(':') {
+            Some((name, token)) if !name.trim().is_empty() => TokenEntry {
+                name: name.trim().to_string(),
+                token: token.trim().to_string(),
+            },
+            _ => TokenEntry {
+                name: format!("token-{}", i + 1),
+                token: s.to_string(),
+            },
+        })
+        .collect()
+}
+
+impl ServerConfig {
+    /// Reads a TOML configuration file (unknown keys are errors naming the key).
+    pub fn from_file(path: &Path) -> Result<Self, String> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| format!("{}: cannot read the configuration: {e}", path.display()))?;
+        toml::from_str(&text).map_err(|e| {
+            format!(
+                "{}: {}",
+                path.display(),
+                e.to_string().replace('\n', " ").trim()
+            )
+        })
+    }
+
+    /// Applies `LIVEREG_*` variables (see [`ENV_VARS`]) looked up with `get`.
+    pub fn apply_env(&mut self, get: impl Fn(&str) -> Option<String>) -> Result<(), String> {
+        if let Some(v) = get("LIVEREG_BIND") {
+            self.bind = parse_num("LIVEREG_BIND", &v)?;
+        }
+        if let Some(v) = get("LIVEREG_GRPC_BIND") {
+            self.grpc_bind = if v.trim().eq_ignore_ascii_case("off") {
+                None
+            } else {
+                Some(parse_num("LIVEREG_GRPC_BIND", &v)?)
+            };
+        }
+        if let Some(v) = get("LIVEREG_TOKENS") {
+            self.tokens.extend(parse_token_list(v.split(',')));
+        }
+        if let Some(v) = get("LIVEREG_TOKEN_FILE") {
+            self.token_file = Some(PathBuf::from(v));
+        }
+        if let Some(v) = get("LIVEREG_DATA_DIR") {
+            self.data_dir = PathBuf::from(v);
+        }
+        if let Some(v) = get("LIVEREG_WORKER_THREADS") {
+            self.worker_threads = parse_num("LIVEREG_WORKER_THREADS", &v)?;
+        }
+        if let Some(v) = get("LIVEREG_IO_THREADS") {
+            self.io_threads = parse_num("LIVEREG_IO_THREADS", &v)?;
+        }
+        if let Some(v) = get("LIVEREG_LOG") {
+            self.log_filter = v;
+        }
+        if let Some(v) = get("LIVEREG_LOG_FORMAT") {
+            self.log_format = v;
+        }
+        match (get("LIVEREG_TLS_CERT"), get("LIVEREG_TLS_KEY")) {
+            (Some(cert), Some(key)) => {
+                self.tls = Some(TlsConfig {
+                    cert: cert.into(),
+                    key: key.into(),
+                })
+            }
+            (None, None) => {}
+            _ => return Err("LIVEREG_TLS_CERT and LIVEREG_TLS_KEY go together".into()),
+        }
+        if let Some(v) = get("LIVEREG_MAX_BODY_BYTES") {
+            self.limits.max_body_bytes = parse_num("LIVEREG_MAX_BODY_BYTES", &v)?;
+        }
+        if let Some(v) = get("LIVEREG_MAX_FRAME_POINTS") {
+            self.limits.max_frame_points = parse_num("LIVEREG_MAX_FRAME_POINTS", &v)?;
+        }
+        if let Some(v) = get("LIVEREG_MAX_SESSIONS_PER_TOKEN") {
+            self.limits.max_sessions_per_token = parse_num("LIVEREG_MAX_SESSIONS_PER_TOKEN", &v)?;
+        }
+        if let Some(v) = get("LIVEREG_MAX_SESSIONS") {
+            self.limits.max_sessions = parse_num("LIVEREG_MAX_SESSIONS", &v)?;
+        }
+        if let Some(v) = get("LIVEREG_MAX_FPS") {
+            self.limits.max_frames_per_second = parse_num("LIVEREG_MAX_FPS", &v)?;
+        }
+        Ok(())
+    }
+
+    /// All tokens: the configured ones plus those of `token_file`.
+    pub fn all_tokens(&self) -> Result<Vec<TokenEntry>, String> {
+        let mut tokens = self.tokens.clone();
+        if let Some(f) = &self.token_file {
+            let text = std::fs::read_to_string(f)
+                .map_err(|e| format!("{}: cannot read the token file: {e}", f.display()))?;
+            tokens.extend(parse_token_list(text.lines()));
+        }
+        Ok(tokens)
+    }
+
+    /// Checks the configuration: values in range, tokens long enough and unique, no
+    /// unauthenticated mode off loopback.
+    pub fn validate(&self) -> Result<(), String> {
+        let tokens = self.all_tokens()?;
+        for t in &tokens {
+            if t.token.chars().count() < 16 {
+                return Err(format!(
+                    "token `{}` is shorter than 16 characters; use a long random secret (e.g. `openssl rand -hex 32`)",
+                    t.name
+                ));
+            }
+        }
+        for (i, a) in tokens.iter().enumerate() {
+            if tokens[..i].iter().any(|b| b.token == a.token) {
+                return Err(format!("token `{}` is listed twice", a.name));
+            }
+        }
+        if self.insecure_loopback_dev {
+            let mut addrs = vec![self.bind];
+            addrs.extend(self.grpc_bind);
+            if let Some(a) = addrs.iter().find(|a| !a.ip().is_loopback()) {
+                return Err(format!(
+                    "--insecure-loopback-dev needs loopback bind addresses, got {a}"
+                ));
+            }
+        } else if tokens.is_empty() {
+            return Err("no bearer tokens configured: set `tokens` in the configuration, LIVEREG_TOKENS or LIVEREG_TOKEN_FILE (or --insecure-loopback-dev for loopback-only development)".into());
+        }
+        let l = &self.limits;
+        let checks: [(bool, &str); 9] = [
+            (self.worker_threads >= 1, "worker_threads must be >= 1"),
+            (self.io_threads >= 1, "io_threads must be >= 1"),
+            (
+                self.max_concurrent_creates >= 1,
+                "max_concurrent_creates must be >= 1",
+            ),
+            (
+                l.max_body_bytes >= 1024,
+                "limits.max_body_bytes must be >= 1024",
+            ),
+            (
+                l.max_frame_points >= 3,
+                "limits.max_frame_points must be >= 3",
+            ),
+            (
+                l.max_mesh_triangles >= 4,
+                "limits.max_mesh_triangles must be >= 4",
+            ),
+            (l.max_grid_cells >= 1, "limits.max_grid_cells must be >= 1"),
+            (
+                l.max_sessions_per_token >= 1 && l.max_sessions >= 1,
+                "limits.max_sessions and limits.max_sessions_per_token must be >= 1",
+            ),
+            (
+                l.max_frames_per_second.is_finite() && l.max_frames_per_second > 0.0,
+                "limits.max_frames_per_second must be > 0",
+            ),
+        ];
+        if let Some((_, m)) = checks.iter().find(|(ok, _)| !ok) {
+            return Err((*m).to_string());
+        }
+        if !matches!(self.log_format.as_str(), "text" | "json") {
+            return Err(format!(
+                "log_format must be \"text\" or \"json\", got {:?}",
+                self.log_format
+            ));
+        }
+        if self.tls.is_some() {
+            return Err("TLS is configured, but this build does not terminate TLS itself yet: terminate TLS in front of the server (Kubernetes ingress, a reverse proxy; see docs/server.md) and remove `tls`".into());
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn env_overrides_file_values_and_bad_values_name_the_variable() {
+        let mut c: ServerConfig = toml::from_str(
+            "bind = \"0.0.0.0:9000\"\n[limits]\nmax_frame_points = 10\n[[tokens]]\nname = \"or1\"\ntoken = \"0123456789abcdef0\"\n",
+        )
+        .unwrap();
+        assert_eq!(c.limits.max_frame_points, 10);
+        let env = |k: &str| match k {
+            "LIVEREG_BIND" => Some("127.0.0.1:7000".to_string()),
+            "LIVEREG_TOKENS" => Some("or2:fedcba9876543210f, bare-token-long-enough".to_string()),
+            "LIVEREG_GRPC_BIND" => Some("off".to_string()),
+            _ => None,
+        };
+        c.apply_env(env).unwrap();
+        assert_eq!(c.bind.port(), 7000);
+        assert_eq!(c.grpc_bind, None);
+        assert_eq!(c.tokens.len(), 3);
+        assert_eq!(c.tokens[1].name, "or2");
+        assert_eq!(c.tokens[2].name, "token-2");
+        c.validate().unwrap();
+        let err = c
+            .apply_env(|k| (k == "LIVEREG_MAX_FPS").then(|| "fast".to_string()))
+            .unwrap_err();
+        assert!(err.contains("LIVEREG_MAX_FPS"), "{err}");
+        let unknown = toml::from_str::<ServerConfig>("bnid = \"x\"").unwrap_err();
+        assert!(unknown.to_string().contains("bnid"));
+    }
+
+    #[test]
+    fn no_tokens_is_refused_unless_loopback_dev() {
+        let mut c = ServerConfig::default();
+        assert!(c.validate().unwrap_err().contains("no bearer tokens"));
+        c.insecure_loopback_dev = true;
+        c.validate().unwrap();
+        c.bind = "0.0.0.0:8080".parse().unwrap();
+        assert!(c.validate().unwrap_err().contains("loopback"));
+        c.bind = "127.0.0.1:8080".parse().unwrap();
+        c.insecure_loopback_dev = false;
+        c.tokens = parse_token_list(["short"].into_iter());
+        assert!(c.validate().unwrap_err().contains("shorter than 16"));
+    }
+}

@@ -1,0 +1,347 @@
+//! The HTTP API (axum) under `/v1`, plus `/healthz`, `/readyz`, `/metrics` and the OpenAPI
+//! document. Every error is [`ApiError`]'s JSON shape.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use axum::body::Bytes;
+use axum::extract::{DefaultBodyLimit, FromRequest, Multipart, Path, Request, State};
+use axum::http::{header, HeaderMap, Method, StatusCode};
+use axum::middleware::{self, Next};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Extension, Json, Router};
+use serde_json::json;
+
+use super::auth::Owner;
+use super::codec::{decode_binary_frame, decode_json_frame, ResultMessage};
+use super::error::ApiError;
+use super::registry::SessionInfo;
+use super::service::AppState;
+use super::upload::{check_file_name, CreateSessionJson, SceneUpload};
+use crate::scene::SceneFormat;
+
+/// Every route: method and path (axum syntax), as the OpenAPI document must list them.
+pub const ROUTES: &[(&str, &str)] = &[
+    ("GET", "/healthz"),
+    ("GET", "/readyz"),
+    ("GET", "/metrics"),
+    ("GET", "/v1/openapi.json"),
+    ("POST", "/v1/sessions"),
+    ("GET", "/v1/sessions"),
+    ("GET", "/v1/sessions/{id}"),
+    ("DELETE", "/v1/sessions/{id}"),
+    ("POST", "/v1/sessions/{id}/reset"),
+    ("POST", "/v1/sessions/{id}/frames"),
+    ("GET", "/v1/sessions/{id}/stream"),
+];
+
+type ApiResult<T> = Result<T, ApiError>;
+
+/// The router of the HTTP API.
+pub fn router(state: Arc<AppState>) -> Router {
+    let limit = state.config.limits.max_body_bytes;
+    let authed = Router::new()
+        .route("/v1/sessions", post(create_session).get(list_sessions))
+        .route("/v1/sessions/{id}", get(get_session).delete(delete_session))
+        .route("/v1/sessions/{id}/reset", post(reset_session))
+        .route("/v1/sessions/{id}/frames", post(submit_frame))
+        .route("/v1/sessions/{id}/stream", get(super::ws::stream))
+        .layer(middleware::from_fn_with_state(state.clone(), require_token));
+    let metrics = if state.config.metrics_require_token {
+        Router::new()
+            .route("/metrics", get(metrics))
+            .layer(middleware::from_fn_with_state(state.clone(), require_token))
+    } else {
+        Router::new().route("/metrics", get(metrics))
+    };
+    Router::new()
+        .route("/healthz", get(healthz))
+        .route("/readyz", get(readyz))
+        .route("/v1/openapi.json", get(openapi))
+        .merge(metrics)
+        .merge(authed)
+        .fallback(not_found)
+        .method_not_allowed_fallback(method_not_allowed)
+        .layer(DefaultBodyLimit::max(limit))
+        .layer(middleware::from_fn(log_request))
+        .with_state(state)
+}
+
+async fn log_request(req: Request, next: Next) -> Response {
+    let t = Instant::now();
+    let method = req.method().clone();
+    let path = req.uri().path().to_string();
+    let r = next.run(req).await;
+    let status = r.status().as_u16();
+    let ms = t.elapsed().as_secs_f64() * 1e3;
+    if status >= 500 {
+        tracing::warn!(%method, path, status, ms, "http");
+    } else {
+        tracing::debug!(%method, path, status, ms, "http");
+    }
+    r
+}
+
+async fn require_token(
+    State(state): State<Arc<AppState>>,
+    mut req: Request,
+    next: Next,
+) -> Response {
+    let header = req
+        .headers()
+        .get(header::AUTHORIZATION)
+        .map(|v| v.as_bytes());
+    match state.auth.authenticate(header) {
+        Ok(owner) => {
+            req.extensions_mut().insert(owner);
+            next.run(req).await
+        }
+        Err(e) => state.count(e).into_response(),
+    }
+}
+
+async fn healthz() -> Json<serde_json::Value> {
+    Json(json!({"status": "ok"}))
+}
+
+async fn readyz(State(state): State<Arc<AppState>>) -> Response {
+    if state.is_draining() {
+        ApiError::shutting_down().into_response()
+    } else {
+        Json(json!({"status": "ready", "sessions": state.registry.len()})).into_response()
+    }
+}
+
+async fn metrics(State(state): State<Arc<AppState>>) -> Response {
+    (
+        [(header::CONTENT_TYPE, "text/plain; version=0.0.4")],
+        state.metrics.render(),
+    )
+        .into_response()
+}
+
+async fn openapi() -> Json<serde_json::Value> {
+    Json(super::openapi::document())
+}
+
+async fn not_found(method: Method, uri: axum::http::Uri) -> ApiError {
+    ApiError::not_found(format!("no route {method} {}", uri.path()))
+}
+
+async fn method_not_allowed(method: Method, uri: axum::http::Uri) -> ApiError {
+    ApiError::new(
+        StatusCode::METHOD_NOT_ALLOWED,
+        "method_not_allowed",
+        format!("{} does not accept {method}", uri.path()),
+    )
+}
+
+fn content_type(headers: &HeaderMap) -> String {
+    headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("")
+        .to_ascii_lowercase()
+}
+
+fn body_error(e: axum::extract::rejection::BytesRejection, limit: usize) -> ApiError {
+    if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
+        ApiError::too_large(
+            "payload_too_large",
+            format!("the request body exceeds {limit} bytes (limits.max_body_bytes)"),
+        )
+    } else {
+        ApiError::bad_request(format!("cannot read the request body: {e}"))
+    }
+}
+
+async fn read_multipart(mut mp: Multipart, limit: usize) -> ApiResult<SceneUpload> {
+    let mut up = SceneUpload::default();
+    let mut scene = None;
+    let field_err = |e: axum::extract::multipart::MultipartError| {
+        if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
+            ApiError::too_large(
+                "payload_too_large",
+                format!("the upload exceeds {limit} bytes (limits.max_body_bytes)"),
+            )
+        } else {
+            ApiError::bad_request(format!("malformed multipart body: {}", e.body_text()))
+        }
+    };
+    while let Some(field) = mp.next_field().await.map_err(field_err)? {
+        let name = field.name().unwrap_or("").to_string();
+        let file_name = field.file_name().map(str::to_string);
+        let ctype = field.content_type().unwrap_or("").to_ascii_lowercase();
+        let bytes = field.bytes().await.map_err(field_err)?;
+        let text = || {
+            String::from_utf8(bytes.to_vec())
+                .map_err(|_| ApiError::bad_request(format!("part `{name}` is not UTF-8 text")))
+        };
+        match name.as_str() {
+            "scene" => {
+                let json = ctype.contains("json")
+                    || file_name
+                        .as_deref()
+                        .is_some_and(|f| f.to_ascii_lowercase().ends_with(".json"));
+                up.format = Some(if json {
+                    SceneFormat::Json
+                } else {
+                    SceneFormat::Toml
+                });
+                scene = Some(text()?);
+            }
+            "budget_ms" => {
+                let t = text()?;
+                up.budget_ms = Some(t.trim().parse().map_err(|_| {
+                    ApiError::bad_request(format!("budget_ms must be a number, got {t:?}"))
+                })?);
+            }
+            "rigid_only" => {
+                let t = text()?;
+                up.rigid_only = match t.trim() {
+                    "true" | "1" => true,
+                    "false" | "0" => false,
+                    _ => {
+                        return Err(ApiError::bad_request(format!(
+                            "rigid_only must be true or false, got {t:?}"
+                        )))
+                    }
+                };
+            }
+            _ => {
+                let Some(f) = file_name else {
+                    return Err(ApiError::bad_request(format!(
+                        "multipart part `{name}` has no file name (expected `scene`, `budget_ms`, `rigid_only`, or files with a filename)"
+                    )));
+                };
+                check_file_name(&f)?;
+                if up.files.insert(f.clone(), bytes.to_vec()).is_some() {
+                    return Err(ApiError::invalid_scene(format!(
+                        "file `{f}` is given twice"
+                    )));
+                }
+            }
+        }
+    }
+    up.scene = scene.ok_or_else(|| {
+        ApiError::bad_request("the multipart upload has no `scene` part (the scene file)")
+    })?;
+    Ok(up)
+}
+
+async fn create_session(
+    State(state): State<Arc<AppState>>,
+    Extension(owner): Extension<Owner>,
+    req: Request,
+) -> ApiResult<(StatusCode, Json<SessionInfo>)> {
+    let limit = state.config.limits.max_body_bytes;
+    let ctype = content_type(req.headers());
+    let upload = if ctype.starts_with("multipart/form-data") {
+        let mp = Multipart::from_request(req, &state)
+            .await
+            .map_err(|e| state.count(ApiError::bad_request(format!("multipart: {e}"))))?;
+        read_multipart(mp, limit)
+            .await
+            .map_err(|e| state.count(e))?
+    } else if ctype.starts_with("application/json") || ctype.is_empty() {
+        let body = Bytes::from_request(req, &state)
+            .await
+            .map_err(|e| state.count(body_error(e, limit)))?;
+        let c: CreateSessionJson = serde_json::from_slice(&body).map_err(|e| {
+            state.count(ApiError::bad_request(format!(
+                "malformed session request: {e}"
+            )))
+        })?;
+        c.into_upload().map_err(|e| state.count(e))?
+    } else {
+        return Err(state.count(ApiError::new(
+            StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            "unsupported_media_type",
+            format!("Content-Type {ctype:?}: send application/json (inline scene) or multipart/form-data (scene files)"),
+        )));
+    };
+    let info = state
+        .create_session(&owner, upload)
+        .await
+        .map_err(|e| state.count(e))?;
+    Ok((StatusCode::CREATED, Json(info)))
+}
+
+async fn list_sessions(
+    State(state): State<Arc<AppState>>,
+    Extension(owner): Extension<Owner>,
+) -> Json<serde_json::Value> {
+    let list: Vec<SessionInfo> = state
+        .registry
+        .list(&owner)
+        .iter()
+        .map(|h| SessionInfo::of(h))
+        .collect();
+    Json(json!({ "sessions": list }))
+}
+
+async fn get_session(
+    State(state): State<Arc<AppState>>,
+    Extension(owner): Extension<Owner>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<SessionInfo>> {
+    let h = state.session(&owner, &id).map_err(|e| state.count(e))?;
+    Ok(Json(SessionInfo::of(&h)))
+}
+
+async fn delete_session(
+    State(state): State<Arc<AppState>>,
+    Extension(owner): Extension<Owner>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<SessionInfo>> {
+    state
+        .close_session(&owner, &id)
+        .map(Json)
+        .map_err(|e| state.count(e))
+}
+
+async fn reset_session(
+    State(state): State<Arc<AppState>>,
+    Extension(owner): Extension<Owner>,
+    Path(id): Path<String>,
+) -> ApiResult<Json<SessionInfo>> {
+    let h = state.session(&owner, &id).map_err(|e| state.count(e))?;
+    h.request_reset();
+    Ok(Json(SessionInfo::of(&h)))
+}
+
+async fn submit_frame(
+    State(state): State<Arc<AppState>>,
+    Extension(owner): Extension<Owner>,
+    Path(id): Path<String>,
+    headers: HeaderMap,
+    body: Result<Bytes, axum::extract::rejection::BytesRejection>,
+) -> ApiResult<Json<ResultMessage>> {
+    let limits = &state.config.limits;
+    // Unknown sessions are answered before the body is looked at.
+    let h = state.session(&owner, &id).map_err(|e| state.count(e))?;
+    let body = body.map_err(|e| state.count(body_error(e, limits.max_body_bytes)))?;
+    let ctype = content_type(&headers);
+    let incoming = if ctype.starts_with("application/octet-stream") {
+        decode_binary_frame(&body, limits.max_frame_points)
+    } else {
+        decode_json_frame(&body)
+    }
+    .map_err(|e| {
+        state.reject(&h, &e);
+        state.count(e)
+    })?;
+    let (h, done) = state
+        .register_once(&owner, &id, incoming)
+        .await
+        .map_err(|e| state.count(e))?;
+    Ok(Json(ResultMessage::new(
+        done.seq,
+        done.skipped,
+        done.server_ms,
+        done.queue_ms,
+        &done.result,
+        h.info.length_scale,
+    )))
+}

@@ -1,0 +1,232 @@
+//! The registration server (`livereg serve`): HTTP + WebSocket (axum) and gRPC (tonic) front
+//! ends over one set of sessions, for AR displays streaming point clouds.
+//!
+//! - [`config`]: file, environment and flags; [`auth`]: bearer tokens (constant time);
+//! - [`limits`]: sizes and rates; [`registry`]: sessions, ownership, random ids;
+//! - [`upload`]: scenes uploaded with their files; [`worker`]: per-session registration on
+//!   the blocking pool with a newest-wins mailbox; [`service`]: the operations and shared state;
+//! - [`http`], [`ws`], [`grpc`]: the front ends; [`codec`]: frame and result encodings;
+//! - [`metrics`]: Prometheus; [`openapi`]: the HTTP API's document; [`error`]: one error type.
+//!
+//! The server uses the session, scene and evaluation layers (and the mesh reader to check
+//! uploaded meshes before building anything); nothing below it imports it.
+
+pub mod auth;
+pub mod codec;
+pub mod config;
+pub mod error;
+pub mod grpc;
+pub mod http;
+pub mod limits;
+pub mod metrics;
+pub mod openapi;
+pub mod registry;
+pub mod service;
+pub mod upload;
+pub mod worker;
+pub mod ws;
+
+/// Generated gRPC messages, server and client of `proto/livereg/v1/registration.proto`.
+#[allow(missing_docs, clippy::all, clippy::pedantic)]
+pub mod proto {
+    tonic::include_proto!("livereg.v1");
+}
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::sync::watch;
+use tokio::task::JoinHandle;
+
+pub use config::ServerConfig;
+pub use error::ApiError;
+use service::AppState;
+
+/// Triggers a graceful shutdown: new work is refused (503 / `UNAVAILABLE`), frames in flight
+/// finish and are delivered, streams close (WebSocket code 1001), then the servers stop.
+#[derive(Debug, Clone)]
+pub struct ShutdownHandle {
+    tx: Arc<watch::Sender<bool>>,
+    state: Arc<AppState>,
+}
+
+impl ShutdownHandle {
+    /// Starts the shutdown (idempotent).
+    pub fn trigger(&self) {
+        self.state.start_draining();
+        self.tx.send_replace(true);
+    }
+}
+
+/// A started server: its bound addresses and how to stop it.
+#[derive(Debug)]
+pub struct RunningServer {
+    /// Where HTTP and WebSocket listen.
+    pub http_addr: SocketAddr,
+    /// Where gRPC listens (`None` when off).
+    pub grpc_addr: Option<SocketAddr>,
+    handle: ShutdownHandle,
+    state: Arc<AppState>,
+    tasks: Vec<JoinHandle<Result<(), String>>>,
+}
+
+impl RunningServer {
+    /// A handle that triggers the shutdown (e.g. from a signal handler).
+    pub fn shutdown_handle(&self) -> ShutdownHandle {
+        self.handle.clone()
+    }
+
+    /// The shared state (metrics, sessions), for tests and tools.
+    pub fn state(&self) -> &Arc<AppState> {
+        &self.state
+    }
+
+    /// Waits until a shutdown is triggered, then drains: closes every session, lets the frames
+    /// in flight finish (at most `shutdown_grace_s`), and stops the servers.
+    pub async fn run_until_stopped(self) -> Result<(), String> {
+        let mut rx = self.handle.tx.subscribe();
+        let _ = rx.wait_for(|s| *s).await;
+        let state = self.state.clone();
+        let grace = Duration::from_secs(state.config.shutdown_grace_s);
+        tracing::info!("shutting down: finishing frames in flight");
+        let sessions = state.registry.drain();
+        for h in &sessions {
+            state.retire(h, "shutdown");
+        }
+        let drain = async {
+            for h in &sessions {
+                h.wait_ended().await;
+            }
+            state.streams_closed().await;
+        };
+        if tokio::time::timeout(grace, drain).await.is_err() {
+            tracing::warn!("shutdown grace of {grace:?} exceeded; stopping anyway");
+        }
+        let mut result = Ok(());
+        for t in self.tasks {
+            match tokio::time::timeout(grace, t).await {
+                Ok(Ok(Ok(()))) => {}
+                Ok(Ok(Err(e))) => result = Err(e),
+                Ok(Err(e)) => result = Err(format!("server task: {e}")),
+                Err(_) => tracing::warn!("a server did not stop within the grace period"),
+            }
+        }
+        tracing::info!("stopped");
+        result
+    }
+
+    /// Triggers the shutdown and waits for it to finish.
+    pub async fn shutdown(self) -> Result<(), String> {
+        self.handle.trigger();
+        self.run_until_stopped().await
+    }
+}
+
+/// Validates `config`, binds the HTTP (and gRPC) listeners and starts serving on the current
+/// tokio runtime. Port 0 binds a free port; the bound addresses are returned.
+pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
+    config.validate()?;
+    let tokens = config.all_tokens()?;
+    std::fs::create_dir_all(config.data_dir.join("sessions"))
+        .map_err(|e| format!("data_dir {}: cannot create: {e}", config.data_dir.display()))?;
+    let (tx, rx) = watch::channel(false);
+    let auth = auth::Authenticator::new(&tokens, config.insecure_loopback_dev);
+    let state = Arc::new(AppState::new(config.clone(), auth, rx.clone()));
+    let handle = ShutdownHandle {
+        tx: Arc::new(tx),
+        state: state.clone(),
+    };
+    let signal = |mut rx: watch::Receiver<bool>| async move {
+        let _ = rx.wait_for(|s| *s).await;
+    };
+    let listener = tokio::net::TcpListener::bind(config.bind)
+        .await
+        .map_err(|e| format!("cannot listen on {} (bind): {e}", config.bind))?;
+    let http_addr = listener
+        .local_addr()
+        .map_err(|e| format!("bound address: {e}"))?;
+    let mut tasks = Vec::new();
+    let app = http::router(state.clone());
+    let tls = config.tls.clone();
+    let sig = signal(rx.clone());
+    tasks.push(tokio::spawn(async move {
+        serve_http(listener, app, tls, sig).await
+    }));
+    let mut grpc_addr = None;
+    if let Some(addr) = config.grpc_bind {
+        let l = tokio::net::TcpListener::bind(addr)
+            .await
+            .map_err(|e| format!("cannot listen on {addr} (grpc_bind): {e}"))?;
+        grpc_addr = Some(l.local_addr().map_err(|e| format!("bound address: {e}"))?);
+        let svc = proto::registration_server::RegistrationServer::new(grpc::GrpcService::new(
+            state.clone(),
+        ))
+        .max_decoding_message_size(config.limits.max_body_bytes)
+        .max_encoding_message_size(usize::MAX);
+        let incoming = tokio_stream::wrappers::TcpListenerStream::new(l);
+        let sig = signal(rx.clone());
+        let builder = tonic::transport::Server::builder();
+        let builder = grpc_tls(builder, config.tls.as_ref())?;
+        tasks.push(tokio::spawn(async move {
+            builder
+                .tcp_nodelay(true)
+                .add_service(svc)
+                .serve_with_incoming_shutdown(incoming, sig)
+                .await
+                .map_err(|e| format!("gRPC server: {e}"))
+        }));
+    }
+    let idle = config.limits.session_idle_timeout_s;
+    if idle > 0 {
+        let st = state.clone();
+        let mut rx = rx.clone();
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(Duration::from_secs(idle.clamp(1, 30)));
+            loop {
+                tokio::select! {
+                    _ = tick.tick() => {
+                        for h in st.registry.take_idle(idle as f64) {
+                            st.retire(&h, "idle");
+                        }
+                    }
+                    _ = rx.wait_for(|s| *s) => break,
+                }
+            }
+        });
+    }
+    tracing::info!(%http_addr, grpc_addr = ?grpc_addr, "listening");
+    Ok(RunningServer {
+        http_addr,
+        grpc_addr,
+        handle,
+        state,
+        tasks,
+    })
+}
+
+async fn serve_http(
+    listener: tokio::net::TcpListener,
+    app: axum::Router,
+    _tls: Option<config::TlsConfig>,
+    signal: impl std::future::Future<Output = ()> + Send + 'static,
+) -> Result<(), String> {
+    use axum::serve::ListenerExt;
+    // No Nagle delay: results are small writes that must leave at once.
+    let listener = listener.tap_io(|tcp| {
+        let _ = tcp.set_nodelay(true);
+    });
+    axum::serve(listener, app)
+        .with_graceful_shutdown(signal)
+        .await
+        .map_err(|e| format!("HTTP server: {e}"))
+}
+
+/// TLS is refused by [`ServerConfig::validate`] in this build (terminate TLS in front of the
+/// server); the gRPC builder is returned unchanged.
+fn grpc_tls(
+    b: tonic::transport::Server,
+    _tls: Option<&config::TlsConfig>,
+) -> Result<tonic::transport::Server, String> {
+    Ok(b)
+}

@@ -1,0 +1,276 @@
+//! Open sessions: unguessable ids, ownership (a session is visible only to the token that
+//! created it; to every other token it does not exist), and the per-token and global limits.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+use serde::{Deserialize, Serialize};
+
+use super::auth::Owner;
+use super::config::LimitsConfig;
+use super::error::ApiError;
+use super::worker::SessionHandle;
+
+/// A new session id: 128 random bits from the operating system, 32 lowercase hex digits.
+pub fn new_session_id() -> Result<String, ApiError> {
+    let mut b = [0u8; 16];
+    getrandom::fill(&mut b)
+        .map_err(|e| ApiError::internal(format!("no randomness for a session id: {e}")))?;
+    Ok(b.iter().map(|x| format!("{x:02x}")).collect())
+}
+
+/// Whether `id` has the shape of a session id (so bad ids are answered without a lookup).
+pub fn is_session_id(id: &str) -> bool {
+    id.len() == 32
+        && id
+            .bytes()
+            .all(|c| c.is_ascii_digit() || (b'a'..=b'f').contains(&c))
+}
+
+/// A session's public description (`GET /v1/sessions/{id}`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SessionInfo {
+    /// The id.
+    pub id: String,
+    /// Scene units.
+    pub units: String,
+    /// Surface vertices of the model.
+    pub surface_vertices: usize,
+    /// Surface triangles of the model.
+    pub surface_triangles: usize,
+    /// Structure names in scene order.
+    pub structures: Vec<String>,
+    /// Frames registered.
+    pub frames_registered: u64,
+    /// Registered frames whose result carries an error.
+    pub frames_failed: u64,
+    /// Frames skipped (a newer one arrived first).
+    pub frames_skipped: u64,
+    /// Frames refused before registration.
+    pub frames_rejected: u64,
+    /// Seconds since creation.
+    pub age_s: f64,
+    /// Whether the next frame starts warm.
+    pub warm: bool,
+    /// Relative URL of the WebSocket stream.
+    pub stream: String,
+}
+
+impl SessionInfo {
+    /// The description of `h` now.
+    pub fn of(h: &SessionHandle) -> Self {
+        use std::sync::atomic::Ordering::Relaxed;
+        Self {
+            id: h.id.clone(),
+            units: h.info.units.clone(),
+            surface_vertices: h.info.surface_vertices,
+            surface_triangles: h.info.surface_triangles,
+            structures: h.info.structures.clone(),
+            frames_registered: h.counters.registered.load(Relaxed),
+            frames_failed: h.counters.failed.load(Relaxed),
+            frames_skipped: h.counters.skipped.load(Relaxed),
+            frames_rejected: h.counters.rejected.load(Relaxed),
+            age_s: h.created.elapsed().as_secs_f64(),
+            warm: h.is_warm(),
+            stream: format!("/v1/sessions/{}/stream", h.id),
+        }
+    }
+}
+
+#[derive(Debug, Default)]
+struct Inner {
+    sessions: HashMap<String, Arc<SessionHandle>>,
+    /// Sessions being created, per owner (they count against the limits).
+    reserved: HashMap<Owner, usize>,
+}
+
+/// The open sessions.
+#[derive(Debug)]
+pub struct Registry {
+    inner: Mutex<Inner>,
+    limits: LimitsConfig,
+}
+
+/// A place reserved for a session being created; released on drop unless committed.
+#[derive(Debug)]
+pub struct Reservation<'a> {
+    registry: &'a Registry,
+    owner: Owner,
+    done: bool,
+}
+
+impl Drop for Reservation<'_> {
+    fn drop(&mut self) {
+        if !self.done {
+            self.registry.release(&self.owner);
+        }
+    }
+}
+
+impl Reservation<'_> {
+    /// Registers the created session in place of the reservation.
+    pub fn commit(mut self, handle: Arc<SessionHandle>) {
+        self.done = true;
+        if let Ok(mut g) = self.registry.inner.lock() {
+            if let Some(n) = g.reserved.get_mut(&self.owner) {
+                *n = n.saturating_sub(1);
+            }
+            g.sessions.insert(handle.id.clone(), handle);
+        }
+    }
+}
+
+impl Registry {
+    /// An empty registry enforcing `limits`.
+    pub fn new(limits: LimitsConfig) -> Self {
+        Self {
+            inner: Mutex::new(Inner::default()),
+            limits,
+        }
+    }
+
+    fn lock(&self) -> Result<std::sync::MutexGuard<'_, Inner>, ApiError> {
+        self.inner
+            .lock()
+            .map_err(|_| ApiError::internal("session registry poisoned"))
+    }
+
+    fn release(&self, owner: &Owner) {
+        if let Ok(mut g) = self.inner.lock() {
+            if let Some(n) = g.reserved.get_mut(owner) {
+                *n = n.saturating_sub(1);
+            }
+        }
+    }
+
+    /// Reserves a place for a new session of `owner`; 429 when the token or the server is at
+    /// its session limit.
+    pub fn reserve(&self, owner: &Owner) -> Result<Reservation<'_>, ApiError> {
+        let mut g = self.lock()?;
+        let mine = g.sessions.values().filter(|h| &h.owner == owner).count()
+            + g.reserved.get(owner).copied().unwrap_or(0);
+        if mine >= self.limits.max_sessions_per_token {
+            return Err(ApiError::too_many(
+                "too_many_sessions",
+                format!(
+                    "this token already has {mine} open sessions, the limit (limits.max_sessions_per_token = {}); close one first",
+                    self.limits.max_sessions_per_token
+                ),
+            ));
+        }
+        let all = g.sessions.len() + g.reserved.values().sum::<usize>();
+        if all >= self.limits.max_sessions {
+            return Err(ApiError::too_many(
+                "too_many_sessions",
+                format!(
+                    "the server has {all} open sessions, its limit (limits.max_sessions); try another replica or later"
+                ),
+            ));
+        }
+        *g.reserved.entry(owner.clone()).or_insert(0) += 1;
+        Ok(Reservation {
+            registry: self,
+            owner: owner.clone(),
+            done: false,
+        })
+    }
+
+    /// The session `id` of `owner`; 404 when it does not exist *or belongs to another token*
+    /// (the same answer, so ids of other tokens cannot be probed).
+    pub fn get(&self, owner: &Owner, id: &str) -> Result<Arc<SessionHandle>, ApiError> {
+        if !is_session_id(id) {
+            return Err(ApiError::unknown_session(id));
+        }
+        let g = self.lock()?;
+        match g.sessions.get(id) {
+            Some(h) if &h.owner == owner => Ok(h.clone()),
+            _ => Err(ApiError::unknown_session(id)),
+        }
+    }
+
+    /// Removes the session `id` of `owner` (404 as [`Registry::get`]) and returns it.
+    pub fn remove(&self, owner: &Owner, id: &str) -> Result<Arc<SessionHandle>, ApiError> {
+        let h = self.get(owner, id)?;
+        self.lock()?.sessions.remove(id);
+        Ok(h)
+    }
+
+    /// The sessions of `owner`.
+    pub fn list(&self, owner: &Owner) -> Vec<Arc<SessionHandle>> {
+        self.inner
+            .lock()
+            .map(|g| {
+                g.sessions
+                    .values()
+                    .filter(|h| &h.owner == owner)
+                    .cloned()
+                    .collect()
+            })
+            .unwrap_or_default()
+    }
+
+    /// Removes and returns every session (shutdown).
+    pub fn drain(&self) -> Vec<Arc<SessionHandle>> {
+        self.inner
+            .lock()
+            .map(|mut g| g.sessions.drain().map(|(_, h)| h).collect())
+            .unwrap_or_default()
+    }
+
+    /// Removes and returns the sessions idle for more than `seconds`.
+    pub fn take_idle(&self, seconds: f64) -> Vec<Arc<SessionHandle>> {
+        let Ok(mut g) = self.inner.lock() else {
+            return Vec::new();
+        };
+        let idle: Vec<String> = g
+            .sessions
+            .values()
+            .filter(|h| h.idle_s() > seconds)
+            .map(|h| h.id.clone())
+            .collect();
+        idle.iter().filter_map(|id| g.sessions.remove(id)).collect()
+    }
+
+    /// Number of open sessions.
+    pub fn len(&self) -> usize {
+        self.inner.lock().map(|g| g.sessions.len()).unwrap_or(0)
+    }
+
+    /// Whether no session is open.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ids_are_128_bit_hex_and_distinct() {
+        let a = new_session_id().unwrap();
+        let b = new_session_id().unwrap();
+        assert!(is_session_id(&a) && is_session_id(&b));
+        assert_ne!(a, b);
+        assert!(!is_session_id("../etc"));
+        assert!(!is_session_id(&a.to_uppercase()));
+    }
+
+    #[test]
+    fn reservations_count_against_the_token_limit() {
+        let r = Registry::new(LimitsConfig {
+            max_sessions_per_token: 1,
+            max_sessions: 2,
+            ..Default::default()
+        });
+        let a = Owner("a".into());
+        let b = Owner("b".into());
+        let ra = r.reserve(&a).unwrap();
+        assert_eq!(r.reserve(&a).unwrap_err().code, "too_many_sessions");
+        let rb = r.reserve(&b).unwrap();
+        assert!(r.reserve(&Owner("c".into())).is_err());
+        drop(ra);
+        drop(rb);
+        assert!(r.reserve(&a).is_ok());
+    }
+}

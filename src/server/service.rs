@@ -1,0 +1,260 @@
+//! The server's operations, shared by the HTTP, WebSocket and gRPC front ends: create,
+//! describe, reset and close a session; submit a frame. Also the shared state.
+
+use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+use tokio::sync::{oneshot, watch, Notify, Semaphore};
+
+use super::auth::{Authenticator, Owner};
+use super::codec::Incoming;
+use super::config::ServerConfig;
+use super::error::ApiError;
+use super::limits::check_frame;
+use super::metrics::Metrics;
+use super::registry::{new_session_id, Registry, SessionInfo};
+use super::upload::{build_session, materialize, SceneUpload};
+use super::worker::{run_worker, Completed, Job, ModelInfo, Outcome, Reply, SessionHandle};
+
+/// Everything the front ends share.
+#[derive(Debug)]
+pub struct AppState {
+    /// The configuration in force.
+    pub config: ServerConfig,
+    /// Token check.
+    pub auth: Authenticator,
+    /// Open sessions.
+    pub registry: Registry,
+    /// Metrics.
+    pub metrics: Arc<Metrics>,
+    /// Registration slots (`worker_threads`).
+    pub slots: Arc<Semaphore>,
+    /// Session-creation slots (`max_concurrent_creates`).
+    pub creates: Arc<Semaphore>,
+    /// Becomes true when shutdown starts.
+    pub shutdown: watch::Receiver<bool>,
+    draining: AtomicBool,
+    open_streams: AtomicI64,
+    streams_done: Notify,
+}
+
+/// Counts an open stream while alive (shutdown waits for streams to finish their frames).
+#[derive(Debug)]
+pub struct StreamGuard(Arc<AppState>);
+
+impl Drop for StreamGuard {
+    fn drop(&mut self) {
+        self.0.metrics.streams.fetch_sub(1, Ordering::Relaxed);
+        if self.0.open_streams.fetch_sub(1, Ordering::AcqRel) == 1 {
+            self.0.streams_done.notify_waiters();
+        }
+    }
+}
+
+impl AppState {
+    /// The state for a validated configuration.
+    pub fn new(config: ServerConfig, auth: Authenticator, shutdown: watch::Receiver<bool>) -> Self {
+        Self {
+            registry: Registry::new(config.limits.clone()),
+            metrics: Arc::new(Metrics::default()),
+            slots: Arc::new(Semaphore::new(config.worker_threads)),
+            creates: Arc::new(Semaphore::new(config.max_concurrent_creates)),
+            auth,
+            config,
+            shutdown,
+            draining: AtomicBool::new(false),
+            open_streams: AtomicI64::new(0),
+            streams_done: Notify::new(),
+        }
+    }
+
+    /// Whether shutdown has started.
+    pub fn is_draining(&self) -> bool {
+        self.draining.load(Ordering::Acquire)
+    }
+
+    /// Marks the start of shutdown: new work is refused from now on.
+    pub fn start_draining(&self) {
+        self.draining.store(true, Ordering::Release);
+    }
+
+    /// Counts `e` in the metrics and returns it.
+    pub fn count(&self, e: ApiError) -> ApiError {
+        self.metrics.inc("livereg_errors_total", e.code, 1);
+        e
+    }
+
+    /// A guard counting an open stream.
+    pub fn stream_guard(self: &Arc<Self>) -> StreamGuard {
+        self.metrics.streams.fetch_add(1, Ordering::Relaxed);
+        self.open_streams.fetch_add(1, Ordering::AcqRel);
+        StreamGuard(self.clone())
+    }
+
+    /// Waits until no stream is open.
+    pub async fn streams_closed(&self) {
+        loop {
+            let n = self.streams_done.notified();
+            if self.open_streams.load(Ordering::Acquire) <= 0 {
+                return;
+            }
+            n.await;
+        }
+    }
+
+    /// Creates a session for `owner` from `upload`: limits, scene checks, model build on the
+    /// blocking pool, then its worker.
+    pub async fn create_session(
+        self: &Arc<Self>,
+        owner: &Owner,
+        upload: SceneUpload,
+    ) -> Result<SessionInfo, ApiError> {
+        if self.is_draining() {
+            return Err(ApiError::shutting_down());
+        }
+        let reservation = self.registry.reserve(owner)?;
+        let id = new_session_id()?;
+        let dir = self.config.data_dir.join("sessions").join(&id);
+        let _permit = self
+            .creates
+            .acquire()
+            .await
+            .map_err(|_| ApiError::shutting_down())?;
+        let limits = self.config.limits.clone();
+        let t = Instant::now();
+        let d = dir.clone();
+        let built = tokio::task::spawn_blocking(move || {
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                let loaded = materialize(&upload, &d, &limits)?;
+                let session = build_session(&loaded, &upload)?;
+                let info = ModelInfo {
+                    units: loaded.scene.units.as_str().to_string(),
+                    length_scale: loaded.length_scale(),
+                    surface_vertices: session.model.surface.vertices.len(),
+                    surface_triangles: session.model.surface.triangles.len(),
+                    structures: session
+                        .model
+                        .structures
+                        .iter()
+                        .map(|s| s.name.clone())
+                        .collect(),
+                };
+                Ok::<_, ApiError>((session, info))
+            }))
+            .unwrap_or_else(|_| {
+                Err(ApiError::internal(
+                    "building the model failed unexpectedly (please report this scene)",
+                ))
+            })
+        })
+        .await
+        .map_err(|e| ApiError::internal(format!("session build task: {e}")))
+        .and_then(|r| r);
+        let (session, info) = match built {
+            Ok(x) => x,
+            Err(e) => {
+                let _ = std::fs::remove_dir_all(&dir);
+                return Err(e);
+            }
+        };
+        self.metrics
+            .session_build
+            .observe(t.elapsed().as_secs_f64());
+        let handle = Arc::new(SessionHandle::new(
+            id,
+            owner.clone(),
+            info,
+            dir,
+            self.config.limits.max_frames_per_second,
+        ));
+        tokio::spawn(run_worker(
+            handle.clone(),
+            session,
+            self.slots.clone(),
+            self.metrics.clone(),
+        ));
+        reservation.commit(handle.clone());
+        self.metrics.sessions.fetch_add(1, Ordering::Relaxed);
+        self.metrics
+            .sessions_created
+            .fetch_add(1, Ordering::Relaxed);
+        tracing::info!(session = %handle.id, owner = owner.name(), build_ms = t.elapsed().as_secs_f64() * 1e3, "session created");
+        Ok(SessionInfo::of(&handle))
+    }
+
+    /// The session `id` of `owner` (404 otherwise).
+    pub fn session(&self, owner: &Owner, id: &str) -> Result<Arc<SessionHandle>, ApiError> {
+        let h = self.registry.get(owner, id)?;
+        h.touch();
+        Ok(h)
+    }
+
+    /// Closes a session: removed at once, its pending frames still finish.
+    pub fn close_session(&self, owner: &Owner, id: &str) -> Result<SessionInfo, ApiError> {
+        let h = self.registry.remove(owner, id)?;
+        self.retire(&h, "client");
+        Ok(SessionInfo::of(&h))
+    }
+
+    /// Closes a session already removed from the registry, counting why.
+    pub fn retire(&self, h: &SessionHandle, reason: &str) {
+        h.close();
+        self.metrics.sessions.fetch_sub(1, Ordering::Relaxed);
+        self.metrics.inc("livereg_sessions_closed_total", reason, 1);
+        tracing::info!(session = %h.id, owner = h.owner.name(), reason, "session closed");
+    }
+
+    /// Checks a decoded frame for `h` (validity, points, rate): refusals are counted.
+    pub fn admit(&self, h: &SessionHandle, incoming: &Incoming) -> Result<(), ApiError> {
+        if self.is_draining() {
+            return Err(ApiError::shutting_down());
+        }
+        if let Err(e) = check_frame(&incoming.frame, &self.config.limits) {
+            self.reject(h, &e);
+            return Err(e);
+        }
+        // (the session counts its own rate refusals)
+        h.admit(self.config.limits.max_frames_per_second)
+            .inspect_err(|e| self.count_rejection(e))
+    }
+
+    /// Counts a frame of `h` refused before registration (session counter and metrics).
+    pub fn reject(&self, h: &SessionHandle, e: &ApiError) {
+        h.counters.rejected.fetch_add(1, Ordering::Relaxed);
+        self.count_rejection(e);
+    }
+
+    fn count_rejection(&self, e: &ApiError) {
+        self.metrics.inc("livereg_frames_total", "rejected", 1);
+        self.metrics.inc("livereg_frame_failures_total", e.code, 1);
+    }
+
+    /// Submits one frame and waits for its outcome (HTTP and gRPC unary): 409 when a newer
+    /// frame replaced it.
+    pub async fn register_once(
+        &self,
+        owner: &Owner,
+        id: &str,
+        incoming: Incoming,
+    ) -> Result<(Arc<SessionHandle>, Completed), ApiError> {
+        let received = Instant::now();
+        let h = self.session(owner, id)?;
+        self.admit(&h, &incoming)?;
+        let (tx, rx) = oneshot::channel();
+        h.submit(
+            Job {
+                incoming,
+                received,
+                reply: Reply::Once(tx),
+            },
+            &self.metrics,
+        );
+        match rx.await {
+            Ok(Outcome::Done(c)) => Ok((h, *c)),
+            Ok(Outcome::Skipped) => Err(ApiError::superseded()),
+            Ok(Outcome::Failed(e)) => Err(e),
+            Err(_) => Err(ApiError::internal("the session's worker ended")),
+        }
+    }
+}

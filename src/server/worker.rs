@@ -1,0 +1,426 @@
+//! Per-session registration: a single-slot mailbox where the newest frame wins, and a worker
+//! task that registers on the blocking thread pool when one of the server's registration
+//! slots is free.
+//!
+//! Registration is CPU-bound (≈ 0.5 s per warm frame on the phantom), so at most
+//! `worker_threads` frames are registered at once (a fair semaphore). A session's worker takes
+//! its pending frame only once it holds a slot: a frame that waited is replaced by any newer
+//! one that arrived meanwhile, so what gets registered is never older than the client's frame
+//! period, and queues cannot grow. Replaced frames are answered "skipped" and counted.
+
+use std::panic::AssertUnwindSafe;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use tokio::sync::{mpsc, oneshot, Notify, Semaphore};
+
+use super::auth::Owner;
+use super::codec::Incoming;
+use super::error::ApiError;
+use super::limits::RateLimiter;
+use super::metrics::Metrics;
+use crate::session::{FrameResult, Session};
+
+/// A registered frame with its timings.
+#[derive(Debug, Clone)]
+pub struct Completed {
+    /// The client's frame number.
+    pub seq: u64,
+    /// The session's result.
+    pub result: FrameResult,
+    /// Receipt of the frame → result ready, ms.
+    pub server_ms: f64,
+    /// Wait for a registration slot, ms.
+    pub queue_ms: f64,
+    /// Frames skipped since the previous result delivered to this receiver.
+    pub skipped: u64,
+}
+
+/// What happened to a submitted frame.
+#[derive(Debug)]
+pub enum Outcome {
+    /// Registered (the result may still carry a registration `error`).
+    Done(Box<Completed>),
+    /// Replaced by a newer frame before registration.
+    Skipped,
+    /// Not registered (the session closed, or the worker failed).
+    Failed(ApiError),
+}
+
+/// Events delivered to a stream (WebSocket or gRPC).
+#[derive(Debug)]
+pub enum StreamEvent {
+    /// A registered frame.
+    Result(Box<Completed>),
+    /// An error about one frame (`seq`) or the stream; the stream goes on.
+    Error {
+        /// The frame concerned (0 when unknown).
+        seq: u64,
+        /// The error.
+        error: ApiError,
+    },
+}
+
+/// A stream's receiving end, as held by the frames it submitted.
+#[derive(Debug, Clone)]
+pub struct StreamSink {
+    /// Where results go (bounded: a client that does not read loses results, counted as
+    /// skipped, rather than making the server queue them).
+    pub tx: mpsc::Sender<StreamEvent>,
+    /// Frames of this stream skipped since its last result.
+    pub skipped: Arc<AtomicU64>,
+}
+
+/// Where a frame's outcome goes.
+#[derive(Debug)]
+pub enum Reply {
+    /// One request waiting for its answer (HTTP, gRPC unary).
+    Once(oneshot::Sender<Outcome>),
+    /// A stream.
+    Stream(StreamSink),
+}
+
+/// A frame waiting in a session's mailbox.
+#[derive(Debug)]
+pub struct Job {
+    /// The decoded frame.
+    pub incoming: Incoming,
+    /// When the server received it.
+    pub received: Instant,
+    /// Where the outcome goes.
+    pub reply: Reply,
+}
+
+/// Facts about a session's model, fixed at creation.
+#[derive(Debug, Clone)]
+pub struct ModelInfo {
+    /// Scene units (`m`, `cm`, `mm`).
+    pub units: String,
+    /// Metres per scene unit.
+    pub length_scale: f64,
+    /// Surface vertices.
+    pub surface_vertices: usize,
+    /// Surface triangles.
+    pub surface_triangles: usize,
+    /// Structure names in scene order.
+    pub structures: Vec<String>,
+}
+
+/// Frame counters of a session.
+#[derive(Debug, Default)]
+pub struct Counters {
+    /// Frames registered (with or without a registration error).
+    pub registered: AtomicU64,
+    /// Frames skipped because a newer one arrived first.
+    pub skipped: AtomicU64,
+    /// Frames refused before registration (bad input, rate).
+    pub rejected: AtomicU64,
+    /// Registered frames whose result carries an error.
+    pub failed: AtomicU64,
+}
+
+#[derive(Debug, Default)]
+struct Mailbox {
+    pending: Option<Job>,
+    closed: bool,
+}
+
+/// One open session: ownership, model facts, mailbox and counters. The [`Session`] itself
+/// lives in the worker task.
+#[derive(Debug)]
+pub struct SessionHandle {
+    /// 128-bit random id, hex.
+    pub id: String,
+    /// The token that created it.
+    pub owner: Owner,
+    /// Creation time.
+    pub created: Instant,
+    /// Model facts.
+    pub info: ModelInfo,
+    /// Frame counters.
+    pub counters: Counters,
+    /// Directory of the uploaded scene (removed when the worker ends).
+    pub dir: std::path::PathBuf,
+    last_used: Mutex<Instant>,
+    mailbox: Mutex<Mailbox>,
+    wake: Notify,
+    ended: Notify,
+    ended_flag: AtomicBool,
+    rate: Mutex<RateLimiter>,
+    warm: AtomicBool,
+    reset_requested: AtomicBool,
+    skipped_since_result: AtomicU64,
+}
+
+impl SessionHandle {
+    /// A handle for a new session.
+    pub fn new(
+        id: String,
+        owner: Owner,
+        info: ModelInfo,
+        dir: std::path::PathBuf,
+        max_fps: f64,
+    ) -> Self {
+        Self {
+            id,
+            owner,
+            created: Instant::now(),
+            info,
+            counters: Counters::default(),
+            dir,
+            last_used: Mutex::new(Instant::now()),
+            mailbox: Mutex::new(Mailbox::default()),
+            wake: Notify::new(),
+            ended: Notify::new(),
+            ended_flag: AtomicBool::new(false),
+            rate: Mutex::new(RateLimiter::new(max_fps)),
+            warm: AtomicBool::new(false),
+            reset_requested: AtomicBool::new(false),
+            skipped_since_result: AtomicU64::new(0),
+        }
+    }
+
+    /// Marks the session used now (idle timeout).
+    pub fn touch(&self) {
+        if let Ok(mut t) = self.last_used.lock() {
+            *t = Instant::now();
+        }
+    }
+
+    /// Seconds since the last request.
+    pub fn idle_s(&self) -> f64 {
+        self.last_used
+            .lock()
+            .map(|t| t.elapsed().as_secs_f64())
+            .unwrap_or(0.0)
+    }
+
+    /// Whether the next frame starts from a registered state.
+    pub fn is_warm(&self) -> bool {
+        self.warm.load(Ordering::Relaxed)
+    }
+
+    /// Takes a frame-rate token; 429 when the session is over its rate.
+    pub fn admit(&self, max_fps: f64) -> Result<(), ApiError> {
+        let ok = self
+            .rate
+            .lock()
+            .map(|mut r| r.try_acquire(Instant::now()))
+            .unwrap_or(false);
+        if ok {
+            Ok(())
+        } else {
+            self.counters.rejected.fetch_add(1, Ordering::Relaxed);
+            Err(super::limits::rate_limited(max_fps))
+        }
+    }
+
+    /// Puts `job` in the mailbox; a frame still waiting there is skipped (newest wins).
+    pub fn submit(&self, job: Job, metrics: &Metrics) {
+        self.touch();
+        let previous = {
+            let Ok(mut mb) = self.mailbox.lock() else {
+                fail(job.reply, ApiError::internal("session mailbox poisoned"));
+                return;
+            };
+            if mb.closed {
+                drop(mb);
+                fail(
+                    job.reply,
+                    ApiError::not_found(format!("session `{}` is closed", self.id)),
+                );
+                return;
+            }
+            mb.pending.replace(job)
+        };
+        if let Some(old) = previous {
+            self.counters.skipped.fetch_add(1, Ordering::Relaxed);
+            metrics.inc("livereg_frames_total", "skipped", 1);
+            match old.reply {
+                Reply::Once(tx) => {
+                    self.skipped_since_result.fetch_add(1, Ordering::Relaxed);
+                    let _ = tx.send(Outcome::Skipped);
+                }
+                Reply::Stream(sink) => {
+                    sink.skipped.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+        }
+        self.wake.notify_one();
+    }
+
+    /// Asks the worker to forget every frame before the next one (back to the rest shape).
+    pub fn request_reset(&self) {
+        self.reset_requested.store(true, Ordering::Relaxed);
+        self.warm.store(false, Ordering::Relaxed);
+    }
+
+    /// Closes the mailbox: frames already submitted are still registered, new ones refused;
+    /// the worker ends after them.
+    pub fn close(&self) {
+        if let Ok(mut mb) = self.mailbox.lock() {
+            mb.closed = true;
+        }
+        self.wake.notify_one();
+    }
+
+    /// Whether the worker has ended.
+    pub fn has_ended(&self) -> bool {
+        self.ended_flag.load(Ordering::Acquire)
+    }
+
+    /// Waits until the worker has ended (after [`SessionHandle::close`]).
+    pub async fn wait_ended(&self) {
+        loop {
+            let notified = self.ended.notified();
+            if self.has_ended() {
+                return;
+            }
+            notified.await;
+        }
+    }
+
+    fn take(&self) -> Option<Job> {
+        self.mailbox
+            .lock()
+            .ok()
+            .and_then(|mut mb| mb.pending.take())
+    }
+
+    /// `Some(true)` when a frame waits, `Some(false)` when closed and empty, `None` when idle.
+    fn state(&self) -> Option<bool> {
+        let mb = self.mailbox.lock().ok()?;
+        if mb.pending.is_some() {
+            Some(true)
+        } else if mb.closed {
+            Some(false)
+        } else {
+            None
+        }
+    }
+}
+
+fn fail(reply: Reply, error: ApiError) {
+    match reply {
+        Reply::Once(tx) => {
+            let _ = tx.send(Outcome::Failed(error));
+        }
+        Reply::Stream(sink) => {
+            let _ = sink.tx.try_send(StreamEvent::Error { seq: 0, error });
+        }
+    }
+}
+
+fn ms_since(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+/// The worker of one session: waits for frames, takes a registration slot, registers the
+/// newest frame on the blocking pool and delivers the outcome; ends when the session is
+/// closed and its mailbox empty (or if registration panicked, which closes the session).
+pub async fn run_worker(
+    handle: Arc<SessionHandle>,
+    session: Session,
+    slots: Arc<Semaphore>,
+    metrics: Arc<Metrics>,
+) {
+    let mut session = Some(session);
+    loop {
+        // Wait for a frame (or the end).
+        loop {
+            let notified = handle.wake.notified();
+            match handle.state() {
+                Some(true) => break,
+                Some(false) => return finish(&handle),
+                None => notified.await,
+            }
+        }
+        let Ok(permit) = slots.clone().acquire_owned().await else {
+            return finish(&handle);
+        };
+        // The newest frame, taken only now that a slot is ours.
+        let Some(job) = handle.take() else {
+            continue;
+        };
+        let Some(mut s) = session.take() else {
+            return finish(&handle);
+        };
+        let queue_ms = ms_since(job.received);
+        if handle.reset_requested.swap(false, Ordering::Relaxed) {
+            s.reset();
+        }
+        let frame = job.incoming.frame;
+        let joined = tokio::task::spawn_blocking(move || {
+            let r = std::panic::catch_unwind(AssertUnwindSafe(|| s.register(&frame)));
+            (s, r)
+        })
+        .await;
+        drop(permit);
+        let (s, result) = match joined {
+            Ok((s, Ok(r))) => (s, r),
+            Ok((_, Err(_))) | Err(_) => {
+                tracing::error!(session = %handle.id, "registration panicked; the session is closed");
+                metrics.inc("livereg_frame_failures_total", "panic", 1);
+                metrics.inc("livereg_sessions_closed_total", "failed", 1);
+                handle.close();
+                fail(
+                    job.reply,
+                    ApiError::internal("registration failed unexpectedly; the session was closed (please report this frame)"),
+                );
+                // Refuse whatever else is waiting.
+                while let Some(j) = handle.take() {
+                    fail(j.reply, ApiError::internal("the session was closed"));
+                }
+                return finish(&handle);
+            }
+        };
+        handle.warm.store(s.is_warm(), Ordering::Relaxed);
+        session = Some(s);
+        handle.counters.registered.fetch_add(1, Ordering::Relaxed);
+        metrics.registration.observe(result.wall_ms / 1e3);
+        metrics.queue_wait.observe(queue_ms / 1e3);
+        match &result.error {
+            Some(e) => {
+                handle.counters.failed.fetch_add(1, Ordering::Relaxed);
+                metrics.inc("livereg_frames_total", "failed", 1);
+                metrics.inc("livereg_frame_failures_total", e.cause(), 1);
+            }
+            None => metrics.inc("livereg_frames_total", "registered", 1),
+        }
+        let server_ms = ms_since(job.received);
+        metrics.latency.observe(server_ms / 1e3);
+        let mut done = Completed {
+            seq: job.incoming.seq,
+            result,
+            server_ms,
+            queue_ms,
+            skipped: 0,
+        };
+        match job.reply {
+            Reply::Once(tx) => {
+                done.skipped = handle.skipped_since_result.swap(0, Ordering::Relaxed);
+                let _ = tx.send(Outcome::Done(Box::new(done)));
+            }
+            Reply::Stream(sink) => {
+                done.skipped = sink.skipped.swap(0, Ordering::Relaxed);
+                let n = done.skipped;
+                if sink
+                    .tx
+                    .try_send(StreamEvent::Result(Box::new(done)))
+                    .is_err()
+                {
+                    // The client is not reading (or left): count the result as skipped.
+                    sink.skipped.fetch_add(n + 1, Ordering::Relaxed);
+                }
+            }
+        }
+    }
+}
+
+fn finish(handle: &SessionHandle) {
+    let _ = std::fs::remove_dir_all(&handle.dir);
+    handle.ended_flag.store(true, Ordering::Release);
+    handle.ended.notify_waiters();
+    tracing::info!(session = %handle.id, owner = handle.owner.name(), "session ended");
+}
