@@ -9,8 +9,8 @@ pub mod demo;
 pub mod eval;
 pub mod progress;
 pub mod register;
-pub mod serve;
 pub mod replay;
+pub mod serve;
 pub mod simulate;
 
 /// `--rerun FILE.rrd` and `--rerun-connect URL`: 3D logging to rerun (feature `rerun`).
