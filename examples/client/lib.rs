@@ -93,10 +93,7 @@ fn parse_response(raw: &[u8]) -> Res<HttpResponse> {
     {
         let mut out = Vec::new();
         let mut rest = &body[..];
-        loop {
-            let Some(p) = rest.windows(2).position(|w| w == b"\r\n") else {
-                break;
-            };
+        while let Some(p) = rest.windows(2).position(|w| w == b"\r\n") {
             let n = usize::from_str_radix(String::from_utf8_lossy(&rest[..p]).trim(), 16)
                 .map_err(|e| format!("chunk size: {e}"))?;
             if n == 0 {
@@ -321,24 +318,18 @@ impl WsClient {
     }
 
     /// Splits into a sender and a receiver.
-    pub fn split(
-        self,
-    ) -> (
-        futures_util::stream::SplitSink<
-            tokio_tungstenite::WebSocketStream<
-                tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>,
-            >,
-            Message,
-        >,
-        futures_util::stream::SplitStream<
-            tokio_tungstenite::WebSocketStream<
-                tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>,
-            >,
-        >,
-    ) {
+    pub fn split(self) -> (WsSink, WsSource) {
         self.ws.split()
     }
 }
+
+/// The WebSocket connection type of the client.
+pub type WsStream =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+/// Sending half of a split [`WsClient`].
+pub type WsSink = futures_util::stream::SplitSink<WsStream, Message>;
+/// Receiving half of a split [`WsClient`].
+pub type WsSource = futures_util::stream::SplitStream<WsStream>;
 
 /// A gRPC client with its token.
 #[derive(Clone)]

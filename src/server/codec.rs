@@ -215,7 +215,7 @@ pub fn decode_proto_frame(f: proto::Frame, max_points: usize) -> Result<Incoming
     } else {
         f.points_f64
     };
-    if coords.len() % 3 != 0 {
+    if !coords.len().is_multiple_of(3) {
         return Err(ApiError::bad_request(format!(
             "frame.points has {} numbers, not a multiple of 3",
             coords.len()

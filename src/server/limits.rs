@@ -123,7 +123,7 @@ pub fn check_scene_size(
             let cells: f64 = (0..3)
                 .map(|k| ((hi[k] - lo[k]) / cell_size).ceil().max(1.0) + 1.0)
                 .product();
-            if !(cells <= limits.max_grid_cells as f64) {
+            if cells.is_nan() || cells > limits.max_grid_cells as f64 {
                 return Err(ApiError::too_large(
                     "grid_too_large",
                     format!(

@@ -259,9 +259,9 @@ pub fn materialize(
             let mut lo = [f64::INFINITY; 3];
             let mut hi = [f64::NEG_INFINITY; 3];
             for v in &surface.vertices {
-                for k in 0..3 {
-                    lo[k] = lo[k].min(v[k]);
-                    hi[k] = hi[k].max(v[k]);
+                for (k, c) in v.coords.iter().enumerate() {
+                    lo[k] = lo[k].min(*c);
+                    hi[k] = hi[k].max(*c);
                 }
             }
             (lo, hi)
