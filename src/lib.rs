@@ -13,6 +13,8 @@
 //! - [`phantom`]: the bundled liver phantom (surface, vessel targets, tumour, ligament);
 //! - [`synthetic`]: a virtual camera producing partial, noisy point clouds (tests, benchmarks);
 //! - [`evaluation`]: results and truth formats, target registration error;
+//! - [`benchmark`]: speed against accuracy — configuration sweeps, stability matrix;
+//! - [`charts`]: charts (TRE against ms per frame, Pareto front);
 //! - [`recording`]: MCAP recordings of sessions and their replay;
 //! - `visualisation` (feature `rerun`): 3D logging to rerun;
 //! - [`server`]: the registration server (HTTP, WebSocket, gRPC) for AR displays;
@@ -21,6 +23,8 @@
 //! Lower layers never import higher ones. Inside the mechanics everything is SI (m, N, Pa, J).
 #![warn(missing_docs)]
 
+pub mod benchmark;
+pub mod charts;
 pub mod cli;
 pub mod evaluation;
 pub mod geometry;

@@ -5,6 +5,8 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+pub mod bench;
+pub mod calibrate;
 pub mod demo;
 pub mod eval;
 pub mod progress;
@@ -43,13 +45,13 @@ impl RerunArgs {
 
     /// The rerun stream asked for (`None` when neither flag is given).
     #[cfg(feature = "rerun")]
-    pub fn stream(&self, app: &str) -> Result<Option<rerun::RecordingStream>, String> {
+    pub fn stream(&self, app: &'static str) -> Result<Option<rerun::RecordingStream>, String> {
         crate::visualisation::open_stream(app, self.rerun.as_deref(), self.rerun_connect.as_deref())
     }
 
     /// Without the `rerun` feature: an error naming how to enable it when a flag is given.
     #[cfg(not(feature = "rerun"))]
-    pub fn stream(&self, _app: &str) -> Result<Option<std::convert::Infallible>, String> {
+    pub fn stream(&self, _app: &'static str) -> Result<Option<std::convert::Infallible>, String> {
         if self.is_set() {
             return Err(
                 "--rerun / --rerun-connect need a build with rerun support: \
@@ -142,6 +144,14 @@ pub enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Speed against accuracy: a sweep of registration models (grid, integration, law, linear
+    /// solver, penalty schedule) on the phantom's scenarios or your own frames and truth;
+    /// writes bench.json and a chart (PNG, SVG) of TRE against ms per frame.
+    Bench(bench::BenchArgs),
+    /// Model no more than a scene needs: picks the cheapest registration model that meets a
+    /// TRE target (or the most accurate within a latency budget) on synthetic deformations of
+    /// the scene's own model, writes it into a scene file and checks it on fresh frames.
+    Calibrate(calibrate::CalibrateArgs),
     /// End to end on the bundled liver phantom: simulates intra-operative sequences
     /// (pneumoperitoneum, gravity in a new pose, a tool push), registers them, prints TRE
     /// without registration, after rigid and after non-rigid, and ms per frame.
@@ -201,6 +211,8 @@ pub fn run(cli: Cli) -> ExitCode {
             scenarios,
             rerun,
         } => demo::run_with(&out, frames, &scenarios, &rerun).map(|_| ()),
+        Command::Bench(args) => bench::run(&args).map(|_| ()),
+        Command::Calibrate(args) => calibrate::run(&args).map(|_| ()),
         Command::Replay(args) => replay::run(&args).map(|_| ()),
         Command::Serve(args) => serve::run(&args),
     };

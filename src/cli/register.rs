@@ -48,6 +48,9 @@ pub struct RegisterSummary {
     pub p95_ms: f64,
     /// The results file.
     pub results: PathBuf,
+    /// What `--record` wrote (frames, results, bytes, ms spent recording).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub recording: Option<crate::recording::RecorderStats>,
 }
 
 /// One frame to register: a point file, or a frame of a recording.
@@ -57,6 +60,31 @@ pub enum FrameInput {
     File(PathBuf),
     /// A recorded frame (its points and camera, or the reason it could not be read).
     Recorded(Box<FrameMessage>),
+}
+
+impl FrameInput {
+    /// The frame: the file's points, or the recorded frame; otherwise its source name and
+    /// why it could not be read.
+    pub fn read(&self) -> Result<Frame, (String, String)> {
+        match self {
+            FrameInput::File(path) => {
+                let source = path
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                read_points(path)
+                    .map(|points| Frame {
+                        source: source.clone(),
+                        points,
+                        camera: None,
+                    })
+                    .map_err(|e| (source, e.to_string()))
+            }
+            FrameInput::Recorded(m) => m
+                .to_frame()
+                .ok_or_else(|| (m.source.clone(), m.input_error.clone().unwrap_or_default())),
+        }
+    }
 }
 
 /// Told about every frame as soon as it is registered (recorders, visualisers).
@@ -193,24 +221,7 @@ pub fn register_inputs(
     let mut out = Vec::with_capacity(inputs.len());
     for (index, input) in inputs.iter().enumerate() {
         let received = now_ns();
-        let frame = match input {
-            FrameInput::File(path) => {
-                let source = path
-                    .file_name()
-                    .map(|n| n.to_string_lossy().into_owned())
-                    .unwrap_or_default();
-                read_points(path)
-                    .map(|points| Frame {
-                        source: source.clone(),
-                        points,
-                        camera: None,
-                    })
-                    .map_err(|e| (source, e.to_string()))
-            }
-            FrameInput::Recorded(m) => m
-                .to_frame()
-                .ok_or_else(|| (m.source.clone(), m.input_error.clone().unwrap_or_default())),
-        };
+        let frame = input.read();
         let r = match &frame {
             Ok(f) => session.register(f),
             Err((source, e)) => session.reject(source, FrameError::Input(e.clone())),
@@ -250,6 +261,7 @@ pub fn summarize(results: &[FrameResult], path: &Path) -> RegisterSummary {
         p50_ms: pct(0.5),
         p95_ms: pct(0.95),
         results: path.to_path_buf(),
+        recording: None,
     }
 }
 
@@ -326,10 +338,12 @@ pub fn run(args: &RegisterArgs) -> Result<RegisterSummary, String> {
         }
         register_inputs(&mut session, &inputs, &path, "register", &mut observers)?
     };
-    if let Some(r) = recorder {
-        r.finish().map_err(|e| e.to_string())?;
-    }
-    let summary = summarize(&results, &path);
+    let stats = match recorder {
+        Some(r) => Some(r.finish().map_err(|e| e.to_string())?),
+        None => None,
+    };
+    let mut summary = summarize(&results, &path);
+    summary.recording = stats;
     println!(
         "{}",
         serde_json::to_string(&summary).map_err(|e| e.to_string())?

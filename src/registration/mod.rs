@@ -27,6 +27,7 @@
 //! assert!(result.model_to_cloud.rotation_angle_to(&truth) < 0.01);
 //! ```
 
+pub mod coarse_to_fine;
 pub mod correspondences;
 pub mod kabsch;
 pub mod model_target;
@@ -39,6 +40,7 @@ mod test_support;
 #[cfg(test)]
 mod tests;
 
+pub use coarse_to_fine::Prolongation;
 pub use correspondences::{Correspondences, IndexedPoints, PairingRule};
 pub use kabsch::kabsch;
 pub use model_target::ModelTarget;

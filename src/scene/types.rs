@@ -479,6 +479,11 @@ pub struct RegistrationSpec {
     /// Clouds with more points are thinned to at most this many (default 20 000); ≥ 3.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_cloud_points: Option<u32>,
+    /// Coarse-to-fine start: a cold frame (the first, or after a reset or failure) is first
+    /// registered on a grid with cells this many times larger, and the fine registration
+    /// starts from its prolongated displacement (`None`, default: off); in `(1, 4]`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub coarse_to_fine: Option<f64>,
 }
 
 impl Default for RegistrationSpec {
@@ -495,6 +500,7 @@ impl Default for RegistrationSpec {
             max_pair_distance: None,
             time_budget_ms: None,
             max_cloud_points: None,
+            coarse_to_fine: None,
         }
     }
 }

@@ -325,6 +325,14 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
         if let Some(b) = r.time_budget_ms {
             c.positive("registration.time_budget_ms", b, " ms");
         }
+        if let Some(f) = r.coarse_to_fine {
+            if !(f.is_finite() && f > 1.0 && f <= 4.0) {
+                c.fail(
+                    "registration.coarse_to_fine",
+                    format!("must be a cell-size factor in (1, 4], got {f}"),
+                );
+            }
+        }
         if let Some(n) = r.max_cloud_points {
             if n < 3 {
                 c.fail(

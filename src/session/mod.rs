@@ -14,5 +14,5 @@ pub mod settings;
 mod tests;
 
 pub use frame::{Frame, FrameError, FrameResult, StageTimes};
-pub use registration_session::Session;
+pub use registration_session::{recovery_settings, robust_law, Session, BEFORE_RECOVERY};
 pub use settings::SessionSettings;

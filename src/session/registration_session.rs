@@ -7,9 +7,14 @@ use nalgebra::Point3;
 use super::frame::{Frame, FrameError, FrameResult, StageTimes};
 use super::settings::SessionSettings;
 use crate::geometry::Camera;
+use crate::mechanics::LawKind;
 use crate::mesh::TriSurface;
 use crate::registration::correspondences::rejection_threshold;
-use crate::registration::{IndexedPoints, ModelTarget, NonRigidIcp, RigidIcp, RigidTransform};
+use crate::registration::non_rigid_icp::{NonRigidReport, NonRigidTimings};
+use crate::registration::{
+    IndexedPoints, ModelTarget, NonRigidIcp, NonRigidSettings, Prolongation, RigidIcp,
+    RigidTransform,
+};
 use crate::scene::{LoadedScene, PoseUpdate, RigidMode};
 use crate::simulation::{ModelError, SceneModel};
 
@@ -43,6 +48,14 @@ pub struct Session {
     non_rigid_warm: NonRigidIcp,
     good: GoodState,
     frames: usize,
+    coarse: Option<CoarseStart>,
+}
+
+/// The coarse model of a coarse-to-fine start and its prolongation to the fine grid.
+struct CoarseStart {
+    model: SceneModel,
+    icp: NonRigidIcp,
+    prolongation: Prolongation,
 }
 
 impl Session {
@@ -73,7 +86,35 @@ impl Session {
             }
             None => None,
         };
-        Ok(Self::new(model, settings, scene_camera))
+        let coarse_factor = settings.coarse_to_fine;
+        let mut session = Self::new(model, settings, scene_camera);
+        if let Some(f) = coarse_factor {
+            let mut coarse_scene = loaded.clone();
+            coarse_scene.scene.grid.cell_size *= f;
+            let coarse = SceneModel::build(&coarse_scene)
+                .map_err(|e| ModelError::Invalid(format!("registration.coarse_to_fine: {e}")))?;
+            session = session.with_coarse_start(coarse)?;
+        }
+        Ok(session)
+    }
+
+    /// Adds a coarse-to-fine start: cold frames are first registered on `coarse` (the same
+    /// body on a coarser grid, SI units) and the fine registration starts from its
+    /// prolongated displacement, with one stiff penalty step.
+    pub fn with_coarse_start(mut self, coarse: SceneModel) -> Result<Self, ModelError> {
+        let prolongation = Prolongation::new(&coarse.problem.grid, &self.model.problem.grid)
+            .map_err(|e| ModelError::Invalid(format!("coarse-to-fine prolongation: {e}")))?;
+        self.coarse = Some(CoarseStart {
+            icp: NonRigidIcp::new(self.settings.cold, coarse.newton),
+            model: coarse,
+            prolongation,
+        });
+        Ok(self)
+    }
+
+    /// Whether cold frames start on a coarse grid.
+    pub fn has_coarse_start(&self) -> bool {
+        self.coarse.is_some()
     }
 
     /// A session for `model` with `settings` and the camera (model frame, metres) used when a
@@ -92,6 +133,7 @@ impl Session {
                 registered: false,
             },
             frames: 0,
+            coarse: None,
         }
     }
 
@@ -105,6 +147,9 @@ impl Session {
         };
         self.non_rigid_cold.invalidate();
         self.non_rigid_warm.invalidate();
+        if let Some(c) = &mut self.coarse {
+            c.icp.invalidate();
+        }
     }
 
     /// Frames seen so far (including rejected ones).
@@ -341,22 +386,99 @@ impl Session {
             .settings
             .time_budget_ms
             .map(|b| start + Duration::from_secs_f64(b.max(0.0) * 1e-3));
-        let mut u = self.good.u.clone();
-        let icp = if self.good.registered {
-            self.non_rigid_warm.settings = self.settings.warm;
-            &mut self.non_rigid_warm
+        let warm = self.good.registered;
+        let settings = if warm {
+            self.settings.warm
         } else {
-            self.non_rigid_cold.settings = self.settings.cold;
-            &mut self.non_rigid_cold
+            self.settings.cold
         };
-        let report = icp
-            .register(&mut self.model, &aligned, camera.as_ref(), &mut u, deadline)
-            .map_err(|e| FrameError::NonRigid(e.to_string()))?;
-        times.visibility_ms = report.timings.visibility_ms;
-        times.pairing_ms = report.timings.pairing_ms;
-        times.newton_ms = report.timings.newton_ms;
-        if !u.iter().all(|v| v.is_finite()) {
-            icp.invalidate();
+        // Coarse-to-fine start of a cold frame: the coarse registration's field, prolongated,
+        // is the fine stage's start, which then needs only the stiff end of the ramp.
+        let mut start_u = None;
+        let mut settings = settings;
+        let mut coarse_counts = (0, 0, 0);
+        let mut spent = NonRigidTimings::default();
+        if !warm {
+            if let Some(c) = &mut self.coarse {
+                let mut uc = vec![0.0; c.model.problem.dofs()];
+                c.icp.settings = self.settings.cold;
+                if let Ok(r) =
+                    c.icp
+                        .register(&mut c.model, &aligned, camera.as_ref(), &mut uc, deadline)
+                {
+                    add_timings(&mut spent, &r.timings);
+                    if r.warnings.is_empty() && all_finite(&uc) {
+                        start_u = Some(c.prolongation.apply(&uc));
+                        settings.penalty_steps = 1;
+                        coarse_counts = (r.icp_iterations, r.newton_iterations, r.factorizations);
+                        flags.push("coarse_start".into());
+                    }
+                } else {
+                    c.icp.invalidate();
+                }
+            }
+        }
+        let (mut u, mut report) = self.non_rigid_attempt(
+            warm,
+            settings,
+            None,
+            start_u,
+            &aligned,
+            camera.as_ref(),
+            deadline,
+        )?;
+        report.icp_iterations += coarse_counts.0;
+        report.newton_iterations += coarse_counts.1;
+        report.factorizations += coarse_counts.2;
+        add_timings(&mut spent, &report.timings);
+        if self.settings.recovery && (solver_failed(&report) || !all_finite(&u)) {
+            // Recovery ladder from the last good state: smaller penalty increments, then the
+            // same with a more robust law for this frame only.
+            let first = report.warnings.clone();
+            let smaller = recovery_settings(&self.settings.cold);
+            let robust = robust_law(self.model.problem.material.law);
+            let mut recovered = false;
+            for (name, law) in [("smaller-steps", None), ("robust-law", Some(robust))] {
+                if deadline.is_some_and(|d| Instant::now() >= d) {
+                    break;
+                }
+                let (u2, r2) = self.non_rigid_attempt(
+                    true,
+                    smaller,
+                    law,
+                    None,
+                    &aligned,
+                    camera.as_ref(),
+                    deadline,
+                )?;
+                add_timings(&mut spent, &r2.timings);
+                if !solver_failed(&r2) && all_finite(&u2) {
+                    flags.push(format!("recovered:{name}"));
+                    u = u2;
+                    let mut r2 = r2;
+                    r2.warnings = first
+                        .iter()
+                        .map(|w| format!("{BEFORE_RECOVERY}{w}"))
+                        .chain(r2.warnings)
+                        .collect();
+                    r2.icp_iterations += report.icp_iterations;
+                    r2.newton_iterations += report.newton_iterations;
+                    r2.factorizations += report.factorizations;
+                    report = r2;
+                    recovered = true;
+                    break;
+                }
+            }
+            if !recovered {
+                flags.push("recovery_failed".into());
+            }
+        }
+        times.visibility_ms = spent.visibility_ms;
+        times.pairing_ms = spent.pairing_ms;
+        times.newton_ms = spent.newton_ms;
+        if !all_finite(&u) {
+            self.non_rigid_cold.invalidate();
+            self.non_rigid_warm.invalidate();
             return Err(FrameError::NonFiniteState);
         }
         if report.deadline_reached {
@@ -378,7 +500,51 @@ impl Session {
     }
 }
 
+/// Prefix of the warnings of a failed attempt that a recovery then rescued.
+pub const BEFORE_RECOVERY: &str = "before recovery: ";
+
 impl Session {
+    /// One non-rigid attempt from `start` (default: the last good state) with `settings`
+    /// (the warm stage's solver when `warm`, else the cold one's) and, for this attempt only,
+    /// `law` instead of the model's. Returns the new displacement and the report.
+    #[allow(clippy::too_many_arguments)]
+    fn non_rigid_attempt(
+        &mut self,
+        warm: bool,
+        settings: NonRigidSettings,
+        law: Option<LawKind>,
+        start: Option<Vec<f64>>,
+        aligned: &[Point3<f64>],
+        camera: Option<&Camera>,
+        deadline: Option<Instant>,
+    ) -> Result<(Vec<f64>, NonRigidReport), FrameError> {
+        let mut u = start.unwrap_or_else(|| self.good.u.clone());
+        let icp = if warm {
+            &mut self.non_rigid_warm
+        } else {
+            &mut self.non_rigid_cold
+        };
+        let changed = icp.settings != settings || law.is_some();
+        if changed {
+            icp.invalidate();
+        }
+        icp.settings = settings;
+        let own_law = self.model.problem.material.law;
+        if let Some(l) = law {
+            self.model.problem.material.law = l;
+        }
+        let report = icp.register(&mut self.model, aligned, camera, &mut u, deadline);
+        self.model.problem.material.law = own_law;
+        if law.is_some() {
+            icp.invalidate();
+        }
+        if !all_finite(&u) {
+            icp.invalidate();
+        }
+        let report = report.map_err(|e| FrameError::NonRigid(e.to_string()))?;
+        Ok((u, report))
+    }
+
     /// Rigid ICP of `cloud` (metres, cloud frame) to the current deformed surface from the
     /// last pose (or the identity fit when the rigid stage is off); rejects a cloud whose fit
     /// leaves an RMS above [`SessionSettings::max_rigid_rms`].
@@ -456,6 +622,42 @@ struct Done {
     used_points: usize,
     sources: usize,
     warnings: Vec<String>,
+}
+
+/// Whether the Newton solver reported a failure (diverged, inverted, iteration cap) during
+/// a non-rigid registration.
+fn solver_failed(r: &NonRigidReport) -> bool {
+    !r.warnings.is_empty()
+}
+
+fn all_finite(u: &[f64]) -> bool {
+    u.iter().all(|v| v.is_finite())
+}
+
+fn add_timings(a: &mut NonRigidTimings, b: &NonRigidTimings) {
+    a.visibility_ms += b.visibility_ms;
+    a.pairing_ms += b.pairing_ms;
+    a.newton_ms += b.newton_ms;
+}
+
+/// The recovery attempt's settings: the cold ramp with twice its steps (at least 6), so each
+/// penalty increment is smaller, and fresh factorisations at every Newton step.
+pub fn recovery_settings(cold: &NonRigidSettings) -> NonRigidSettings {
+    NonRigidSettings {
+        penalty_steps: (2 * cold.penalty_steps).max(6),
+        factor_reuse: 1,
+        visibility_interval: 1,
+        ..*cold
+    }
+}
+
+/// The law a recovery falls back to: corotated (rotation-invariant, no volumetric blow-up
+/// under compression), or linear elasticity when the model already is corotated.
+pub fn robust_law(law: LawKind) -> LawKind {
+    match law {
+        LawKind::Corotated => LawKind::Linear,
+        _ => LawKind::Corotated,
+    }
 }
 
 /// The frame's camera (cloud frame, scene units) moved into the model frame, metres.

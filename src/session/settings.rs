@@ -38,6 +38,15 @@ pub struct SessionSettings {
     /// Clouds with more points are thinned (every k-th point) to at most this many, and the
     /// frame is flagged `decimated`.
     pub max_cloud_points: usize,
+    /// When a frame's non-rigid stage reports a solver failure (diverged, inverted element,
+    /// Newton iteration cap) or a non-finite state, retry it from the last good state with
+    /// smaller penalty increments, then also with a more robust law for that frame; the frame
+    /// is flagged `recovered:<how>` or `recovery_failed` (default true).
+    pub recovery: bool,
+    /// Coarse-to-fine start of cold frames: the factor on the cell size of the coarse grid
+    /// (`None`: off). Takes effect when the session is built by
+    /// [`Session::from_scene`](super::Session::from_scene) (which builds the coarse model).
+    pub coarse_to_fine: Option<f64>,
 }
 
 /// Default of [`SessionSettings::max_cloud_points`].
@@ -57,6 +66,8 @@ impl Default for SessionSettings {
             warm: NonRigidSettings::warm(),
             time_budget_ms: None,
             max_cloud_points: DEFAULT_MAX_CLOUD_POINTS,
+            recovery: true,
+            coarse_to_fine: None,
         }
     }
 }
@@ -81,6 +92,7 @@ impl SessionSettings {
             if let Some(n) = r.max_cloud_points {
                 s.max_cloud_points = n as usize;
             }
+            s.coarse_to_fine = r.coarse_to_fine;
         }
         s
     }

@@ -257,3 +257,40 @@ fn a_held_pose_stays_put_and_is_reacquired_when_the_camera_moves() {
     // The targets follow the camera frame.
     assert!(max_change(&second, &third) > 19.0);
 }
+
+#[test]
+fn a_coarse_start_prolongates_the_coarse_field_and_agrees_with_the_fine_registration() {
+    let (path, rest) = scene("coarse", "none");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let coarse_path = path.with_file_name("scene_coarse.toml");
+    std::fs::write(&coarse_path, format!("{text}coarse_to_fine = 2.0\n")).unwrap();
+    let mut plain = session(&path);
+    let mut coarse = session(&coarse_path);
+    assert!(!plain.has_coarse_start() && coarse.has_coarse_start());
+    let cloud = frame(bent(&rest, 8.0), "bent");
+    let a = plain.register(&cloud);
+    let b = coarse.register(&cloud);
+    assert!(
+        a.error.is_none() && b.error.is_none(),
+        "{:?} {:?}",
+        a.error,
+        b.error
+    );
+    assert!(
+        b.flags.contains(&"coarse_start".to_string()),
+        "{:?}",
+        b.flags
+    );
+    assert!(!a.flags.contains(&"coarse_start".to_string()));
+    // Both follow the bend at the tip (8 mm at the far end), and agree within 0.5 mm.
+    let tip = |r: &FrameResult| r.structures[0].1[3];
+    assert!(tip(&b).z > 1.0, "{}", tip(&b));
+    assert!(max_change(&a, &b) < 0.5, "{}", max_change(&a, &b));
+    // Warm frames start from the last state, not from the coarse grid.
+    let c = coarse.register(&cloud);
+    assert!(c.warm && !c.flags.contains(&"coarse_start".to_string()));
+    // A reset makes the next frame cold again: coarse start once more.
+    coarse.reset();
+    let d = coarse.register(&cloud);
+    assert!(d.flags.contains(&"coarse_start".to_string()));
+}

@@ -29,7 +29,7 @@ use crate::session::{Frame, FrameResult, Session};
 /// Opens a rerun stream `app` writing to `save` (an `.rrd` file) or connected to a viewer at
 /// `connect` (gRPC URL); `None` when neither is given.
 pub fn open_stream(
-    app: &str,
+    app: &'static str,
     save: Option<&Path>,
     connect: Option<&str>,
 ) -> Result<Option<RecordingStream>, String> {
@@ -106,7 +106,9 @@ impl Visualiser {
             v.path("model/surface"),
             &Mesh3D::new(v.rest.iter().map(f32s))
                 .with_triangle_indices(v.triangles.iter().copied())
-                .with_albedo_factor(Color::from_unmultiplied_rgba(200, 200, 200, 90)),
+                .with_albedo_factor(rerun::datatypes::Rgba32::from_unmultiplied_rgba(
+                    200, 200, 200, 90,
+                )),
         );
         for s in &model.structures {
             let pts: Vec<[f32; 3]> = s

@@ -1,0 +1,348 @@
+//! [`ModelConfig`]: one point of the speed-versus-accuracy sweep — a registration model
+//! (grid, integration, law, linear solver, penalty schedule) applied on top of a scene.
+
+use serde::Serialize;
+
+use crate::grid::IntegrationMode;
+use crate::linalg::SolverKind;
+use crate::mechanics::LawKind;
+use crate::scene::{validate_scene, LoadedScene, RegistrationSpec, Scene};
+
+/// Changes to a scene's registration model; `None` keeps the scene's value. The scene with
+/// every field `None` and factors 1 is the *default configuration*.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ModelConfig {
+    /// Short name, unique in a sweep (chart label).
+    pub name: String,
+    /// Multiplies the scene's cell size (`None`: 1).
+    pub cell_size_factor: Option<f64>,
+    /// Octree levels on cut cells.
+    pub subdivisions: Option<u32>,
+    /// Integration of cut cells.
+    pub integration: Option<IntegrationMode>,
+    /// Constitutive law.
+    pub law: Option<LawKind>,
+    /// Poisson's ratio.
+    pub poisson_ratio: Option<f64>,
+    /// Linear solver of the Newton steps.
+    pub linear_solver: Option<SolverKind>,
+    /// Steps of the cold frames' penalty ramp.
+    pub penalty_steps: Option<u32>,
+    /// Multiplies both ends of the penalty ramp (the automatic 0.02 E h … 2 E h, or the
+    /// scene's `penalty_start`/`penalty_end`).
+    pub penalty_factor: Option<f64>,
+    /// Grid origin shift in cell units (moves the surface against the grid: cuts cells
+    /// differently).
+    pub origin_offset: Option<[f64; 3]>,
+    /// Coarse-to-fine start of cold frames with this factor on the cell size.
+    pub coarse_to_fine: Option<f64>,
+}
+
+/// The registration model a [`ModelConfig`] resolves to on a scene: what the report shows.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ResolvedConfig {
+    /// Cell edge, mm.
+    pub cell_size_mm: f64,
+    /// Octree levels on cut cells.
+    pub subdivisions: u32,
+    /// Integration of cut cells.
+    pub integration: IntegrationMode,
+    /// Constitutive law.
+    pub law: LawKind,
+    /// Poisson's ratio.
+    pub poisson_ratio: f64,
+    /// Linear solver.
+    pub linear_solver: SolverKind,
+    /// Steps of the cold penalty ramp.
+    pub penalty_steps: u32,
+    /// Factor on the penalty ramp (1: the scene's).
+    pub penalty_factor: f64,
+    /// Grid origin shift, cell units.
+    pub origin_offset: [f64; 3],
+    /// Coarse-to-fine factor on the cell size (`None`: off).
+    pub coarse_to_fine: Option<f64>,
+}
+
+impl ModelConfig {
+    /// The scene as it is, named `default`.
+    pub fn scene_default() -> Self {
+        Self {
+            name: "default".into(),
+            ..Self::default()
+        }
+    }
+
+    /// Whether this is the scene's own model (no change).
+    pub fn is_default(&self) -> bool {
+        Self {
+            name: self.name.clone(),
+            ..Self::default()
+        } == *self
+    }
+
+    /// `scene` with this configuration's changes, validated (the message names the
+    /// configuration and the scene key that became invalid).
+    pub fn apply(&self, scene: &LoadedScene) -> Result<LoadedScene, String> {
+        let mut out = scene.clone();
+        self.apply_to(&mut out.scene, scene.length_scale())?;
+        Ok(out)
+    }
+
+    /// Applies the changes to a scene whose unit is `scale` metres, and validates it (see
+    /// [`ModelConfig::apply`]).
+    pub fn apply_to(&self, s: &mut Scene, scale: f64) -> Result<(), String> {
+        if let Some(f) = self.cell_size_factor {
+            s.grid.cell_size *= f;
+        }
+        if let Some(v) = self.subdivisions {
+            s.grid.subdivisions = v;
+        }
+        if let Some(v) = self.integration {
+            s.grid.integration = v;
+        }
+        if let Some(v) = self.law {
+            s.material.law = v;
+        }
+        if let Some(v) = self.poisson_ratio {
+            s.material.poisson_ratio = v;
+        }
+        if let Some(v) = self.linear_solver {
+            s.solver.linear_solver = v;
+        }
+        if let Some(v) = self.origin_offset {
+            s.grid.origin_offset = v;
+        }
+        if self.penalty_steps.is_some()
+            || self.penalty_factor.is_some()
+            || self.coarse_to_fine.is_some()
+        {
+            let r = s.registration.get_or_insert_with(RegistrationSpec::default);
+            if let Some(v) = self.penalty_steps {
+                r.penalty_steps = v;
+            }
+            if let Some(v) = self.coarse_to_fine {
+                r.coarse_to_fine = Some(v);
+            }
+            if let Some(f) = self.penalty_factor {
+                // The automatic ramp of the non-rigid stage, made explicit, times f.
+                let eh = s.material.young_modulus * s.grid.cell_size * scale;
+                r.penalty_start = Some(f * r.penalty_start.unwrap_or(0.02 * eh));
+                r.penalty_end = Some(f * r.penalty_end.unwrap_or(2.0 * eh));
+            }
+        }
+        let problems = validate_scene(s);
+        if let Some(p) = problems.first() {
+            return Err(format!("configuration `{}`: {p}", self.name));
+        }
+        Ok(())
+    }
+
+    /// What this configuration resolves to on `scene` (call with the result of
+    /// [`ModelConfig::apply`]).
+    pub fn resolved(&self, applied: &LoadedScene) -> ResolvedConfig {
+        let s = &applied.scene;
+        ResolvedConfig {
+            cell_size_mm: s.grid.cell_size * applied.length_scale() * 1e3,
+            subdivisions: s.grid.subdivisions,
+            integration: s.grid.integration,
+            law: s.material.law,
+            poisson_ratio: s.material.poisson_ratio,
+            linear_solver: s.solver.linear_solver,
+            penalty_steps: s
+                .registration
+                .as_ref()
+                .map_or(crate::scene::defaults::penalty_steps(), |r| r.penalty_steps),
+            penalty_factor: self.penalty_factor.unwrap_or(1.0),
+            origin_offset: s.grid.origin_offset,
+            coarse_to_fine: s.registration.as_ref().and_then(|r| r.coarse_to_fine),
+        }
+    }
+}
+
+/// The sweep of `livereg bench`: the default and, one axis at a time, cell size (×0.75, ×1.5,
+/// ×2), subdivision level (1, 2, 4), integration (finite-cell, full-cell), law (neo-Hookean,
+/// SVK, linear, corotated), linear solver (LDLᵀ, Jacobi-CG), penalty ramp (1 and 5 steps),
+/// coarse-to-fine start (cells ×2) — changes already equal to the scene's value are left
+/// out. `quick`: the default, cell ×1.5 and ×2, finite-cell, full-cell and neo-Hookean.
+pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
+    let s = &scene.scene;
+    let named = |name: &str| ModelConfig {
+        name: name.to_string(),
+        ..ModelConfig::default()
+    };
+    let mut out = vec![ModelConfig::scene_default()];
+    let cells: &[f64] = if quick {
+        &[1.5, 2.0]
+    } else {
+        &[0.75, 1.5, 2.0]
+    };
+    for &f in cells {
+        out.push(ModelConfig {
+            cell_size_factor: Some(f),
+            ..named(&format!("cell x{f}"))
+        });
+    }
+    if !quick {
+        for l in [1, 2, 4] {
+            if l != s.grid.subdivisions {
+                out.push(ModelConfig {
+                    subdivisions: Some(l),
+                    ..named(&format!("subdiv {l}"))
+                });
+            }
+        }
+    }
+    for m in [
+        IntegrationMode::WeightedCell,
+        IntegrationMode::FiniteCell,
+        IntegrationMode::FullCell,
+    ] {
+        if m != s.grid.integration {
+            out.push(ModelConfig {
+                integration: Some(m),
+                ..named(m.name())
+            });
+        }
+    }
+    let laws: &[LawKind] = if quick {
+        &[LawKind::NeoHookean]
+    } else {
+        &[
+            LawKind::NeoHookean,
+            LawKind::Svk,
+            LawKind::Linear,
+            LawKind::Corotated,
+        ]
+    };
+    for &l in laws {
+        if l != s.material.law {
+            out.push(ModelConfig {
+                law: Some(l),
+                ..named(law_name(l))
+            });
+        }
+    }
+    if !quick {
+        for k in [SolverKind::Ldlt, SolverKind::JacobiCg] {
+            if k != s.solver.linear_solver {
+                out.push(ModelConfig {
+                    linear_solver: Some(k),
+                    ..named(solver_name(k))
+                });
+            }
+        }
+        let steps = s
+            .registration
+            .as_ref()
+            .map_or(crate::scene::defaults::penalty_steps(), |r| r.penalty_steps);
+        for n in [1, 5] {
+            if n != steps {
+                out.push(ModelConfig {
+                    penalty_steps: Some(n),
+                    ..named(&format!("ramp {n}"))
+                });
+            }
+        }
+        if s.registration
+            .as_ref()
+            .and_then(|r| r.coarse_to_fine)
+            .is_none()
+        {
+            out.push(ModelConfig {
+                coarse_to_fine: Some(2.0),
+                ..named("coarse-to-fine")
+            });
+        }
+    }
+    out
+}
+
+/// The scene-file name of a law.
+pub fn law_name(l: LawKind) -> &'static str {
+    match l {
+        LawKind::Linear => "linear",
+        LawKind::Corotated => "corotated",
+        LawKind::Svk => "svk",
+        LawKind::NeoHookean => "neo-hookean",
+    }
+}
+
+/// The scene-file name of a linear solver.
+pub fn solver_name(k: SolverKind) -> &'static str {
+    match k {
+        SolverKind::Auto => "auto",
+        SolverKind::Cholesky => "cholesky",
+        SolverKind::Ldlt => "ldlt",
+        SolverKind::JacobiCg => "jacobi-cg",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::load_scene;
+
+    fn phantom() -> LoadedScene {
+        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("fixtures/liver_phantom/scene.toml");
+        load_scene(&p).unwrap()
+    }
+
+    #[test]
+    fn default_changes_nothing_and_each_axis_changes_its_key() {
+        let scene = phantom();
+        let d = ModelConfig::scene_default();
+        assert!(d.is_default());
+        assert_eq!(d.apply(&scene).unwrap().scene, scene.scene);
+        let c = ModelConfig {
+            name: "x".into(),
+            cell_size_factor: Some(2.0),
+            law: Some(LawKind::Svk),
+            penalty_factor: Some(10.0),
+            ..ModelConfig::default()
+        };
+        assert!(!c.is_default());
+        let a = c.apply(&scene).unwrap();
+        assert_eq!(a.scene.grid.cell_size, 2.0 * scene.scene.grid.cell_size);
+        assert_eq!(a.scene.material.law, LawKind::Svk);
+        // The automatic ramp 0.02 E h … 2 E h (h of the new grid, metres) times 10.
+        let eh = 4500.0 * 0.030;
+        let r = a.scene.registration.as_ref().unwrap();
+        assert!((r.penalty_start.unwrap() - 10.0 * 0.02 * eh).abs() < 1e-9);
+        assert!((r.penalty_end.unwrap() - 10.0 * 2.0 * eh).abs() < 1e-9);
+        assert_eq!(c.resolved(&a).cell_size_mm, 30.0);
+    }
+
+    #[test]
+    fn an_invalid_change_names_the_configuration_and_key() {
+        let c = ModelConfig {
+            name: "bad".into(),
+            poisson_ratio: Some(0.5),
+            ..ModelConfig::default()
+        };
+        let e = c.apply(&phantom()).unwrap_err();
+        assert!(
+            e.contains("bad") && e.contains("material.poisson_ratio"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn sweep_names_are_unique_and_skip_the_scenes_own_values() {
+        let scene = phantom();
+        for quick in [true, false] {
+            let c = sweep_configs(&scene, quick);
+            let mut names: Vec<&str> = c.iter().map(|c| c.name.as_str()).collect();
+            names.sort();
+            names.dedup();
+            assert_eq!(names.len(), c.len());
+            assert!(c[0].is_default());
+            assert!(c[1..].iter().all(|c| !c.is_default()));
+            // The phantom is weighted-cell and corotated: neither appears as a change.
+            assert!(!names.contains(&"weighted-cell") && !names.contains(&"corotated"));
+            for x in &c {
+                x.apply(&scene).unwrap();
+            }
+        }
+    }
+}

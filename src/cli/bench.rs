@@ -1,0 +1,285 @@
+//! `livereg bench`: the speed-versus-accuracy sweep (issue 5). Every configuration of
+//! [`sweep_configs`] registers the same workloads — the phantom's synthetic scenarios (truth
+//! from a different discretisation and law), or the user's scene, frames and truth — and
+//! `DIR/bench.json`, `DIR/bench.png` and `DIR/bench.svg` show TRE against ms per frame with
+//! the Pareto front.
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::Point3;
+
+use super::progress::bar;
+use super::register::frame_inputs;
+use crate::benchmark::{
+    run_matrix, run_sweep, sweep_configs, Axis, BenchReport, StabilityOptions, StabilityReport,
+    Workload,
+};
+use crate::charts::pareto::write_chart;
+use crate::evaluation::read_truth;
+use crate::scene::{load_scene, LoadedScene};
+use crate::synthetic::{generate_sequence, ScenarioKind, SequenceSpec};
+
+/// Arguments of `livereg bench`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct BenchArgs {
+    /// Where bench.json, bench.png and bench.svg go.
+    #[arg(long, default_value = "bench-out")]
+    pub out: PathBuf,
+    /// A short sweep (6 configurations, one scenario, 3 frames) that finishes in minutes.
+    #[arg(long)]
+    pub quick: bool,
+    /// The scene whose model is varied (default: the bundled phantom, written to DIR/phantom).
+    #[arg(long, value_name = "SCENE")]
+    pub scene: Option<PathBuf>,
+    /// The user's frames (a directory of point files or an MCAP recording) instead of the
+    /// synthetic scenarios; needs `--truth`.
+    #[arg(long, value_name = "PATH", requires = "truth")]
+    pub frames: Option<PathBuf>,
+    /// Truth of `--frames` (the truth format of `livereg eval`).
+    #[arg(long, value_name = "FILE", requires = "frames")]
+    pub truth: Option<PathBuf>,
+    /// Synthetic scenarios to run (comma-separated; default all, `--quick`: tool-push).
+    #[arg(long, value_delimiter = ',')]
+    pub scenarios: Vec<String>,
+    /// Frames per synthetic scenario (default 10, `--quick`: 3).
+    #[arg(long)]
+    pub frame_count: Option<usize>,
+    /// Only these configurations of the sweep (comma-separated names, e.g. `default,finite-cell`).
+    #[arg(long, value_delimiter = ',')]
+    pub only: Vec<String>,
+    /// Run the stability matrix instead of the sweep (writes stability.json and
+    /// stability.md); with `--quick`, its reduced form (two values per axis).
+    #[arg(long, conflicts_with_all = ["frames", "only"])]
+    pub stability: bool,
+}
+
+/// Runs `livereg bench`; prints the table and writes the report and chart (the sweep's
+/// report; `None` for `--stability`).
+pub fn run(args: &BenchArgs) -> Result<Option<BenchReport>, String> {
+    std::fs::create_dir_all(&args.out).map_err(|e| {
+        format!(
+            "{}: cannot create the output directory: {e}",
+            args.out.display()
+        )
+    })?;
+    let scene = match &args.scene {
+        Some(p) => load_scene(p).map_err(|e| e.to_string())?,
+        None => {
+            let dir = args.out.join("phantom");
+            crate::phantom::write_phantom(&dir).map_err(|e| e.to_string())?;
+            load_scene(&dir.join("scene.toml")).map_err(|e| e.to_string())?
+        }
+    };
+    if args.stability {
+        return run_stability(args, &scene).map(|_| None);
+    }
+    let mut configs = sweep_configs(&scene, args.quick);
+    if !args.only.is_empty() {
+        for name in &args.only {
+            if !configs.iter().any(|c| &c.name == name) {
+                return Err(format!(
+                    "--only: no configuration `{name}` (known: {})",
+                    configs
+                        .iter()
+                        .map(|c| c.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ));
+            }
+        }
+        configs.retain(|c| args.only.contains(&c.name));
+    }
+    let workloads = match (&args.frames, &args.truth) {
+        (Some(frames), Some(truth)) => vec![user_workload(frames, truth)?],
+        _ => synthetic_workloads(&scene, &args.scenarios, frame_count(args)?, args.quick, 0)?,
+    };
+    let pb = bar(configs.len() + 1, "bench");
+    let mut progress = |name: &str| {
+        pb.set_message(name.to_string());
+        pb.inc(1);
+    };
+    let report = run_sweep(
+        &scene,
+        &configs,
+        &workloads,
+        true,
+        args.quick,
+        &mut progress,
+    );
+    pb.finish_and_clear();
+    write_report(&report, &args.out)?;
+    print!("{}", report.table());
+    println!(
+        "default on the Pareto front: {}; {:.0} s; artefacts in {}",
+        if report.default_on_front { "yes" } else { "no" },
+        report.wall_s,
+        args.out.display()
+    );
+    Ok(Some(report))
+}
+
+/// `livereg bench --stability`: the matrix on `scene`, written to `stability.json` and
+/// `stability.md` in the output directory.
+pub fn run_stability(args: &BenchArgs, scene: &LoadedScene) -> Result<StabilityReport, String> {
+    let mut options = StabilityOptions::standard(args.quick);
+    if let Some(n) = args.frame_count {
+        if n == 0 {
+            return Err("--frame-count must be >= 1".into());
+        }
+        options.frames = n;
+    }
+    if let Some(name) = args.scenarios.first() {
+        options.scenario = ScenarioKind::from_name(name).ok_or_else(|| {
+            format!(
+                "unknown scenario '{name}' (known: {})",
+                ScenarioKind::ALL.map(|k| k.name()).join(", ")
+            )
+        })?;
+    }
+    let cells: usize = Axis::ALL
+        .iter()
+        .map(|a| a.values(options.reduced).len())
+        .sum::<usize>()
+        * options.methods.len();
+    let pb = bar(cells, "stability");
+    let mut progress = |what: &str| {
+        pb.set_message(what.to_string());
+        pb.inc(1);
+    };
+    let report = run_matrix(scene, &options, &mut progress);
+    pb.finish_and_clear();
+    let json = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
+    let path = args.out.join("stability.json");
+    std::fs::write(&path, json).map_err(|e| format!("{}: {e}", path.display()))?;
+    let table = report.markdown();
+    let path = args.out.join("stability.md");
+    std::fs::write(&path, &table).map_err(|e| format!("{}: {e}", path.display()))?;
+    print!("{table}");
+    println!(
+        "{} cells, {} crashed, {} frames with non-finite output; {:.0} s; artefacts in {}",
+        report.cells.len(),
+        report.crashes,
+        report.non_finite_frames,
+        report.wall_s,
+        args.out.display()
+    );
+    Ok(report)
+}
+
+/// Frames per synthetic scenario.
+fn frame_count(args: &BenchArgs) -> Result<usize, String> {
+    let n = args.frame_count.unwrap_or(if args.quick { 3 } else { 10 });
+    if n == 0 {
+        return Err("--frame-count must be >= 1".into());
+    }
+    Ok(n)
+}
+
+/// Writes `bench.json`, `bench.png` and `bench.svg` into `out`.
+pub fn write_report(report: &BenchReport, out: &Path) -> Result<(), String> {
+    let json = serde_json::to_string_pretty(report).map_err(|e| e.to_string())?;
+    let path = out.join("bench.json");
+    std::fs::write(&path, json).map_err(|e| format!("{}: {e}", path.display()))?;
+    let title = format!(
+        "livereg bench{}: TRE vs ms per frame ({} cores, {})",
+        if report.quick { " --quick" } else { "" },
+        report.machine.cores,
+        report.machine.profile
+    );
+    write_chart(
+        &report.chart_points(),
+        &title,
+        Some(&out.join("bench.png")),
+        Some(&out.join("bench.svg")),
+    )
+}
+
+/// The synthetic scenarios of `scene` (`names`, default all; `--quick`: tool-push) with
+/// `frames` frames each; `seed_offset` is added to each scenario's cloud seed (0: the
+/// defaults of [`SequenceSpec::phantom_default`]).
+pub fn synthetic_workloads(
+    scene: &LoadedScene,
+    names: &[String],
+    frames: usize,
+    quick: bool,
+    seed_offset: u64,
+) -> Result<Vec<Workload>, String> {
+    let kinds: Vec<ScenarioKind> = if names.is_empty() {
+        if quick {
+            vec![ScenarioKind::ToolPush]
+        } else {
+            ScenarioKind::ALL.to_vec()
+        }
+    } else {
+        names
+            .iter()
+            .map(|n| {
+                ScenarioKind::from_name(n).ok_or_else(|| {
+                    format!(
+                        "unknown scenario '{n}' (known: {})",
+                        ScenarioKind::ALL.map(|k| k.name()).join(", ")
+                    )
+                })
+            })
+            .collect::<Result<_, _>>()?
+    };
+    let pb = bar(kinds.len(), "truth");
+    let mut out = Vec::new();
+    for kind in kinds {
+        pb.set_message(kind.name());
+        let mut spec = SequenceSpec::phantom_default(kind);
+        spec.frames = frames;
+        spec.cloud.seed = spec.cloud.seed.wrapping_add(seed_offset);
+        let seq = generate_sequence(scene, &spec).map_err(|e| format!("{}: {e}", kind.name()))?;
+        out.push(Workload::from_sequence(&seq, scene.length_scale()));
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    Ok(out)
+}
+
+/// The user's frames (directory or recording) and truth file as a workload.
+pub fn user_workload(frames: &Path, truth: &Path) -> Result<Workload, String> {
+    let inputs = frame_inputs(frames)?;
+    let mut list = Vec::with_capacity(inputs.len());
+    for input in &inputs {
+        list.push(
+            input
+                .read()
+                .map_err(|(source, e)| format!("{}: frame {source}: {e}", frames.display()))?,
+        );
+    }
+    let records = read_truth(truth).map_err(|e| e.to_string())?;
+    let mut truth_frames = vec![None; list.len()];
+    for r in records {
+        let slot = truth_frames.get_mut(r.frame).ok_or_else(|| {
+            format!(
+                "{}: truth for frame {} but {} has {} frames",
+                truth.display(),
+                r.frame,
+                frames.display(),
+                list.len()
+            )
+        })?;
+        *slot = Some(
+            r.structures
+                .into_iter()
+                .map(|(n, pts)| (n, pts.into_iter().map(Point3::from).collect()))
+                .collect(),
+        );
+    }
+    let truth_frames = truth_frames
+        .into_iter()
+        .enumerate()
+        .map(|(k, t)| t.ok_or_else(|| format!("{}: no truth for frame {k}", truth.display())))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(Workload {
+        name: frames
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "frames".into()),
+        frames: list,
+        truth: truth_frames,
+        max_displacement_mm: None,
+    })
+}

@@ -1,0 +1,225 @@
+//! `livereg bench` (issue 5) as CI runs it: the quick sweep's JSON has finite numbers for
+//! every configuration and a chart; the reduced stability matrix has no crash and no
+//! non-finite output, and every cell whose truth could be simulated has numbers.
+
+use serde_json::Value;
+
+mod common;
+use common::livereg;
+
+fn out_dir(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("livereg-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+/// Every number inside `v` (recursively) is finite; names the path of the first that is not.
+fn assert_numbers_finite(v: &Value, path: &str) {
+    match v {
+        Value::Number(n) => {
+            let x = n.as_f64().unwrap();
+            assert!(x.is_finite(), "{path} = {x}");
+        }
+        Value::Array(a) => a
+            .iter()
+            .enumerate()
+            .for_each(|(i, x)| assert_numbers_finite(x, &format!("{path}[{i}]"))),
+        Value::Object(o) => o
+            .iter()
+            .for_each(|(k, x)| assert_numbers_finite(x, &format!("{path}.{k}"))),
+        _ => {}
+    }
+}
+
+#[test]
+fn quick_sweep_reports_finite_numbers_for_every_configuration_and_draws_the_chart() {
+    let d = out_dir("bench-quick");
+    let (code, stdout, stderr) = livereg(&["bench", "--quick", "--out", d.to_str().unwrap()]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("default"), "{stdout}");
+    let v: Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("bench.json")).unwrap()).unwrap();
+    // serde_json writes NaN/inf as null: a null metric would be a non-finite number.
+    let configs = v["configs"].as_array().unwrap();
+    assert!(configs.len() >= 5, "{v}");
+    for c in configs {
+        let m = &c["metrics"];
+        assert!(
+            m.is_object(),
+            "{} has no numbers: {}",
+            c["name"],
+            c["error"]
+        );
+        for key in [
+            "tre_mean_mm",
+            "tre_p95_mm",
+            "tre_max_mm",
+            "surface_rms_mm",
+            "ms_p50",
+            "ms_p95",
+            "newton_per_frame",
+            "failure_rate",
+        ] {
+            assert!(m[key].is_number(), "{}.{key} = {}", c["name"], m[key]);
+        }
+        assert_numbers_finite(c, c["name"].as_str().unwrap());
+        // A TRE no larger than the rigid baseline's by much, and positive: the model was
+        // really registered (an unregistered liver is ~28 mm off on these frames).
+        let tre = m["tre_mean_mm"].as_f64().unwrap();
+        assert!(tre > 0.0 && tre < 10.0, "{}: TRE {tre} mm", c["name"]);
+        assert_eq!(m["frames"], 3);
+    }
+    assert_numbers_finite(&v["rigid_only"], "rigid_only");
+    assert_eq!(
+        configs.iter().filter(|c| c["default"] == true).count(),
+        1,
+        "exactly one default configuration"
+    );
+    // The front is not empty and the fastest configuration is on it (nothing is faster).
+    let fastest = configs
+        .iter()
+        .min_by(|a, b| {
+            a["metrics"]["ms_p50"]
+                .as_f64()
+                .unwrap()
+                .total_cmp(&b["metrics"]["ms_p50"].as_f64().unwrap())
+        })
+        .unwrap();
+    assert_eq!(fastest["pareto"], true, "{}", fastest["name"]);
+    let png = std::fs::read(d.join("bench.png")).unwrap();
+    assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+    let svg = std::fs::read_to_string(d.join("bench.svg")).unwrap();
+    assert!(svg.contains("<svg") && svg.contains("default"));
+}
+
+#[test]
+fn reduced_stability_matrix_has_no_crash_and_no_non_finite_output() {
+    let d = out_dir("bench-stability");
+    let (code, stdout, stderr) = livereg(&[
+        "bench",
+        "--stability",
+        "--quick",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("| noise |"), "{stdout}");
+    let v: Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("stability.json")).unwrap()).unwrap();
+    assert_eq!(v["crashes"], 0, "{v}");
+    assert_eq!(v["non_finite_frames"], 0, "{v}");
+    let cells = v["cells"].as_array().unwrap();
+    // 7 axes × 2 values × 2 methods.
+    assert_eq!(cells.len(), 28);
+    for c in cells {
+        let what = format!("{} {} {}", c["axis"], c["label"], c["method"]);
+        assert_eq!(c["crashed"], false, "{what}: {}", c["error"]);
+        // Only a truth that could not be simulated excuses a cell from having numbers.
+        if !c["metrics"].is_object() {
+            let e = c["error"].as_str().unwrap_or("");
+            assert!(e.starts_with("truth"), "{what}: {e}");
+            continue;
+        }
+        assert_numbers_finite(c, &what);
+        let tre = c["metrics"]["tre_mean_mm"].as_f64().unwrap();
+        assert!(tre.is_finite() && tre >= 0.0, "{what}: {tre}");
+    }
+    let md = std::fs::read_to_string(d.join("stability.md")).unwrap();
+    for axis in [
+        "noise",
+        "outliers",
+        "visible",
+        "deformation",
+        "grid-offset",
+        "poisson",
+        "penalty",
+    ] {
+        assert!(md.contains(&format!("| {axis} |")), "{axis} missing:\n{md}");
+    }
+}
+
+#[test]
+fn calibrate_picks_the_cheapest_model_meeting_the_target_and_it_holds_on_fresh_frames() {
+    let d = out_dir("calibrate");
+    livereg::phantom::write_phantom(&d).unwrap();
+    let scene = d.join("scene.toml");
+    let target = 2.5;
+    let (code, stdout, stderr) = livereg(&[
+        "calibrate",
+        scene.to_str().unwrap(),
+        "--target-tre",
+        &target.to_string(),
+        "--quick",
+        "--frames",
+        "3",
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    let v: Value = serde_json::from_str(stdout.trim()).unwrap();
+    // The prediction meets the target, and so do the fresh frames (other seeds and loads).
+    assert!(
+        v["predicted"]["tre_mean_mm"].as_f64().unwrap() <= target,
+        "{v}"
+    );
+    let fresh = v["validated"]["tre_mean_mm"].as_f64().unwrap();
+    assert!(fresh <= target, "fresh frames: {fresh} mm > {target} mm");
+    assert_eq!(v["validated_meets_goal"], true);
+    // The chosen one is the cheapest of the candidates that met the target.
+    let chosen_ms = v["predicted"]["ms_p50"].as_f64().unwrap();
+    for c in v["candidates"].as_array().unwrap() {
+        let m = &c["metrics"];
+        if m["tre_mean_mm"].as_f64().unwrap() <= target && m["failed_frames"] == 0 {
+            assert!(
+                m["ms_p50"].as_f64().unwrap() >= chosen_ms,
+                "{} is cheaper",
+                c["name"]
+            );
+        }
+    }
+    // The written scene loads and holds the chosen model.
+    let written = std::path::PathBuf::from(v["scene"].as_str().unwrap());
+    assert_eq!(written, d.join("scene.calibrated.toml"));
+    let loaded = livereg::scene::load_scene(&written).unwrap();
+    let cell_mm = loaded.scene.grid.cell_size; // the phantom is in mm
+    assert!(
+        (cell_mm - v["config"]["cell_size_mm"].as_f64().unwrap()).abs() < 1e-9,
+        "{cell_mm}"
+    );
+    assert_eq!(
+        loaded.scene.grid.integration.name(),
+        v["config"]["integration"].as_str().unwrap()
+    );
+    // The rest of the scene is unchanged: structures, fixed regions, camera.
+    let original = livereg::scene::load_scene(&scene).unwrap();
+    assert_eq!(loaded.scene.model, original.scene.model);
+    assert_eq!(loaded.scene.boundary, original.scene.boundary);
+    assert_eq!(loaded.scene.registration, original.scene.registration);
+}
+
+#[test]
+fn calibrate_and_bench_reject_bad_options_with_a_reason() {
+    let d = out_dir("calibrate-bad");
+    livereg::phantom::write_phantom(&d).unwrap();
+    let scene = d.join("scene.toml");
+    let s = scene.to_str().unwrap();
+    for (args, needle) in [
+        (vec!["calibrate", s, "--target-tre", "-1"], "--target-tre"),
+        (vec!["calibrate", s], "--target-tre"),
+        (
+            vec!["calibrate", "/nonexistent/scene.toml", "--budget-ms", "50"],
+            "nonexistent",
+        ),
+        (
+            vec!["bench", "--only", "nope", "--out", d.to_str().unwrap()],
+            "nope",
+        ),
+        (
+            vec!["bench", "--scenarios", "nope", "--out", d.to_str().unwrap()],
+            "nope",
+        ),
+    ] {
+        let (code, _, stderr) = livereg(&args);
+        assert_ne!(code, 0, "{args:?}");
+        assert!(stderr.contains(needle), "{args:?}: {stderr}");
+        assert!(!stderr.contains("panicked"), "{stderr}");
+    }
+}
