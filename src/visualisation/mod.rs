@@ -36,10 +36,20 @@ pub fn open_stream(
     let builder = rerun::RecordingStreamBuilder::new(app);
     match (save, connect) {
         (Some(_), Some(_)) => Err("give --rerun or --rerun-connect, not both".into()),
-        (Some(p), None) => builder
-            .save(p)
-            .map(Some)
-            .map_err(|e| format!("{}: cannot write the rerun file: {e}", p.display())),
+        (Some(p), None) => {
+            if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
+                std::fs::create_dir_all(dir).map_err(|e| {
+                    format!(
+                        "{}: cannot create the rerun file's directory: {e}",
+                        dir.display()
+                    )
+                })?;
+            }
+            builder
+                .save(p)
+                .map(Some)
+                .map_err(|e| format!("{}: cannot write the rerun file: {e}", p.display()))
+        }
         (None, Some(url)) => builder
             .connect_grpc_opts(url.to_string())
             .map(Some)
