@@ -5,15 +5,15 @@
 //! first third ([`SequenceSpec::ramp_fraction`] = 1/3: full load at frame 16) and then holds;
 //! every frame's cloud gets fresh noise and outliers (its own seed). The truth of the frames
 //! after the ramp is the same state exactly, so any movement of the registered targets there
-//! is the registration's own: noise response, or drift. The phantom's own grid (15 mm,
-//! 865 nodes): 35–70 s in the dev profile on a shared 2-core machine, no coarsening needed.
+//! is the registration's own: noise response, or drift. The phantom's own grid (22.5 mm,
+//! 345 nodes): 25–70 s in the dev profile on a shared 2-core machine, no coarsening needed.
 //!
 //! Run: `cargo test --test session_stability -- --nocapture` (prints the per-frame table).
 
 use std::time::Instant;
 
 use livereg::scene::load_scene;
-use livereg::session::{Frame, FrameResult, Session};
+use livereg::session::{recovery_settings, Frame, FrameResult, Session};
 use livereg::synthetic::{generate_sequence, load_fraction, ScenarioKind, SequenceSpec};
 use nalgebra::Point3;
 
@@ -103,14 +103,28 @@ fn fifty_frames_hold_still_after_the_load_stops() {
         assert!(r.surface_rms.is_finite() && r.wall_ms.is_finite());
         assert_eq!(r.warm, k > 0, "frame {k}");
         let caps = if k == 0 { cold } else { warm };
-        let max_icp = caps.penalty_steps * caps.max_icp_iterations;
+        // A frame the recovery ladder retried (flag `recovered:…` or `recovery_failed`) may
+        // also spend up to two recovery attempts (smaller steps, then a robust law).
+        let retried = r
+            .flags
+            .iter()
+            .any(|f| f.starts_with("recovered:") || f == "recovery_failed");
+        let recovery = recovery_settings(&cold);
+        let max_icp = caps.penalty_steps * caps.max_icp_iterations
+            + if retried {
+                2 * recovery.penalty_steps * recovery.max_icp_iterations
+            } else {
+                0
+            };
         assert!(
             r.icp_iterations >= 1 && r.icp_iterations <= max_icp,
-            "frame {k}: {} ICP iterations, cap {max_icp}",
-            r.icp_iterations
+            "frame {k}: {} ICP iterations, cap {max_icp} (flags {:?})",
+            r.icp_iterations,
+            r.flags
         );
         assert!(
-            r.newton_iterations <= r.icp_iterations * caps.newton_iterations,
+            r.newton_iterations
+                <= r.icp_iterations * caps.newton_iterations.max(recovery.newton_iterations),
             "frame {k}: {} Newton iterations for {} ICP iterations (cap {} each)",
             r.newton_iterations,
             r.icp_iterations,

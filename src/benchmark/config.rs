@@ -306,11 +306,11 @@ mod tests {
         assert_eq!(a.scene.grid.cell_size, 2.0 * scene.scene.grid.cell_size);
         assert_eq!(a.scene.material.law, LawKind::Svk);
         // The automatic ramp 0.02 E h … 2 E h (h of the new grid, metres) times 10.
-        let eh = 4500.0 * 0.030;
+        let eh = 4500.0 * 2.0 * scene.scene.grid.cell_size * 1e-3;
         let r = a.scene.registration.as_ref().unwrap();
         assert!((r.penalty_start.unwrap() - 10.0 * 0.02 * eh).abs() < 1e-9);
         assert!((r.penalty_end.unwrap() - 10.0 * 2.0 * eh).abs() < 1e-9);
-        assert_eq!(c.resolved(&a).cell_size_mm, 30.0);
+        assert!((c.resolved(&a).cell_size_mm - 2.0 * scene.scene.grid.cell_size).abs() < 1e-9);
     }
 
     #[test]

@@ -308,9 +308,8 @@ pub fn run_matrix(
                         // Deformation: scale the load by the wanted over the default
                         // displacement (the response is not linear: the table shows what
                         // was reached).
-                        match base_disp {
-                            Some(d) => spec.magnitude *= value * 10.0 / d,
-                            None => {}
+                        if let Some(d) = base_disp {
+                            spec.magnitude *= value * 10.0 / d;
                         }
                     }
                 }

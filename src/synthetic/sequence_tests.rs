@@ -105,10 +105,10 @@ fn default_truth_is_not_the_registration_model() {
     let scene = phantom();
     let truth = TruthModel::default();
     assert!(!truth.same_as_scene(scene));
-    // Spelled out: the phantom registers on 15 mm weighted cells with ν = 0.45; the truth is
+    // Spelled out: the phantom registers on 22.5 mm weighted cells with ν = 0.45; the truth is
     // 10 mm finite cells (2 octree levels), ν = 0.49, with an elastic bed.
     let g = &scene.scene.grid;
-    assert_eq!(g.cell_size * scene.length_scale(), 0.015);
+    assert!((g.cell_size * scene.length_scale() - 0.0225).abs() < 1e-15);
     assert_eq!(g.integration, IntegrationMode::WeightedCell);
     assert_eq!(scene.scene.material.poisson_ratio, 0.45);
     assert_eq!(truth.cell_size, 0.010);
@@ -124,7 +124,7 @@ fn default_truth_is_not_the_registration_model() {
     assert_eq!(applied.scene.material.poisson_ratio, 0.49);
     // The check can fail: the scene's own discretisation is recognised.
     let same = TruthModel {
-        cell_size: 0.015,
+        cell_size: g.cell_size * scene.length_scale(),
         subdivisions: g.subdivisions,
         integration: g.integration,
         law: scene.scene.material.law,
@@ -143,7 +143,7 @@ fn default_truth_is_not_the_registration_model() {
 #[test]
 fn truth_differs_from_the_registration_models_own_solution() {
     // Same load and the same supports (ligament box and elastic bed), solved by the scene's
-    // own model (15 mm weighted cells, ν = 0.45): the surfaces differ by a fraction of a
+    // own model (22.5 mm weighted cells, ν = 0.45): the surfaces differ by a fraction of a
     // millimetre up to a millimetre — the registration model cannot reproduce the truth
     // exactly even knowing the load and the bed (it knows neither).
     let seq = shared();
