@@ -160,7 +160,7 @@ impl ModelConfig {
 }
 
 /// The sweep of `livereg bench`: the default and, one axis at a time, cell size (×0.75, ×1.5,
-/// ×2), subdivision level (1, 2, 4), integration (finite-cell, full-cell), law (neo-Hookean,
+/// ×2), subdivision level (1 to 4), integration (finite-cell, full-cell), law (neo-Hookean,
 /// SVK, linear, corotated), linear solver (LDLᵀ, Jacobi-CG), penalty ramp (1 and 5 steps),
 /// coarse-to-fine start (cells ×2) — changes already equal to the scene's value are left
 /// out. `quick`: the default, cell ×1.5 and ×2, finite-cell, full-cell and neo-Hookean.
@@ -183,7 +183,7 @@ pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
         });
     }
     if !quick {
-        for l in [1, 2, 4] {
+        for l in [1, 2, 3, 4] {
             if l != s.grid.subdivisions {
                 out.push(ModelConfig {
                     subdivisions: Some(l),

@@ -372,7 +372,7 @@ fn scene_file_follows_the_contract() {
     assert_eq!(st[1]["name"].as_str(), Some("tumour"));
     assert_eq!(st[1]["mesh"].as_str(), Some("tumour.obj"));
     assert_eq!(get("grid.cell_size").as_float(), Some(22.5));
-    assert_eq!(get("grid.subdivisions").as_integer(), Some(3));
+    assert_eq!(get("grid.subdivisions").as_integer(), Some(2));
     assert_eq!(get("grid.integration").as_str(), Some("weighted-cell"));
     assert_eq!(get("material.law").as_str(), Some("corotated"));
     assert_eq!(get("material.young_modulus").as_float(), Some(4500.0));

@@ -111,11 +111,12 @@ points = "{TARGETS_FILE}"
 name = "tumour"
 mesh = "{TUMOUR_FILE}"
 
-# 22.5 mm cells: in `livereg bench` (docs/bench.md) they register as accurately as 15 mm cells
-# (mean TRE 1.24 mm on the three scenarios) in a quarter of the time per frame.
+# 22.5 mm cells, 2 octree levels on cut cells: in `livereg bench` (docs/bench.md) they register
+# as accurately as 15 mm cells or 3 levels (mean TRE 1.22 mm on the three scenarios) in a
+# quarter of the time per frame.
 [grid]
 cell_size = 22.5
-subdivisions = 3
+subdivisions = 2
 integration = "weighted-cell"
 
 [material]
