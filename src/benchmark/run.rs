@@ -67,6 +67,8 @@ pub struct FrameSample {
     pub tre_mm: Vec<f64>,
     /// Wall time, ms.
     pub wall_ms: f64,
+    /// Whether the frame started from the previous frame's state (a warm frame).
+    pub warm: bool,
     /// Newton iterations.
     pub newton_iterations: usize,
     /// Non-rigid ICP iterations.
@@ -162,6 +164,7 @@ pub fn run_workload(session: &mut Session, w: &Workload, scale: f64) -> Vec<Fram
         out.push(FrameSample {
             tre_mm,
             wall_ms: r.wall_ms,
+            warm: r.warm,
             newton_iterations: r.newton_iterations,
             icp_iterations: r.icp_iterations,
             surface_rms_mm: r.surface_rms * scale * 1e3,
@@ -193,6 +196,11 @@ pub struct Metrics {
     pub ms_p95: f64,
     /// See `ms_p50`.
     pub ms_mean: f64,
+    /// Median and 95th percentile wall time of the warm frames (those starting from the
+    /// previous frame's state: what a running session costs), ms; 0 without warm frames.
+    pub warm_ms_p50: f64,
+    /// See `warm_ms_p50`.
+    pub warm_ms_p95: f64,
     /// Mean Newton iterations per frame.
     pub newton_per_frame: f64,
     /// Mean non-rigid ICP iterations per frame.
@@ -228,6 +236,12 @@ impl Metrics {
         tre.sort_by(f64::total_cmp);
         let mut ms: Vec<f64> = samples.iter().map(|s| s.wall_ms).collect();
         ms.sort_by(f64::total_cmp);
+        let mut warm_ms: Vec<f64> = samples
+            .iter()
+            .filter(|s| s.warm)
+            .map(|s| s.wall_ms)
+            .collect();
+        warm_ms.sort_by(f64::total_cmp);
         let n = samples.len().max(1) as f64;
         let mean = |v: &[f64]| {
             if v.is_empty() {
@@ -259,6 +273,8 @@ impl Metrics {
             ms_p50: pct(&ms, 0.5),
             ms_p95: pct(&ms, 0.95),
             ms_mean: mean(&ms),
+            warm_ms_p50: pct(&warm_ms, 0.5),
+            warm_ms_p95: pct(&warm_ms, 0.95),
             newton_per_frame: samples.iter().map(|s| s.newton_iterations).sum::<usize>() as f64 / n,
             icp_per_frame: samples.iter().map(|s| s.icp_iterations).sum::<usize>() as f64 / n,
             failed_frames: failed,
@@ -287,6 +303,8 @@ impl Metrics {
             self.ms_p50,
             self.ms_p95,
             self.ms_mean,
+            self.warm_ms_p50,
+            self.warm_ms_p95,
             self.newton_per_frame,
             self.icp_per_frame,
             self.failure_rate,

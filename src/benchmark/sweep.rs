@@ -119,7 +119,7 @@ impl BenchReport {
     /// A text table of the configurations (mm, ms), Pareto members starred.
     pub fn table(&self) -> String {
         let mut s = format!(
-            "{:<16} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>7} {:>7} {:>6} {:>6}\n",
+            "{:<16} {:>7} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>7} {:>7} {:>6} {:>6}\n",
             "config",
             "nodes",
             "TRE mm",
@@ -127,6 +127,8 @@ impl BenchReport {
             "max mm",
             "ms p50",
             "ms p95",
+            "warm p50",
+            "warm p95",
             "newton",
             "MiB",
             "fail",
@@ -134,7 +136,7 @@ impl BenchReport {
         );
         let row = |name: &str, m: &Metrics, front: &str| {
             format!(
-                "{:<16} {:>7} {:>8.2} {:>8.2} {:>8.2} {:>8.1} {:>8.1} {:>7.1} {:>7} {:>6} {:>6}\n",
+                "{:<16} {:>7} {:>8.2} {:>8.2} {:>8.2} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>7.1} {:>7} {:>6} {:>6}\n",
                 name,
                 m.nodes,
                 m.tre_mean_mm,
@@ -142,6 +144,8 @@ impl BenchReport {
                 m.tre_max_mm,
                 m.ms_p50,
                 m.ms_p95,
+                m.warm_ms_p50,
+                m.warm_ms_p95,
                 m.newton_per_frame,
                 m.peak_rss_mib.map_or("-".into(), |v| format!("{v:.0}")),
                 m.failed_frames,
