@@ -118,8 +118,9 @@ pub struct StabilityOptions {
 
 impl StabilityOptions {
     /// The matrix of the docs (`reduced = false`) or of CI (`reduced = true`): tool-push,
-    /// weighted-cell, finite-cell and full-cell integration (reduced: weighted- and
-    /// full-cell), 4 frames (reduced: 2).
+    /// weighted-cell, finite-cell and full-cell integration and weighted-cell with a
+    /// coarse-to-fine start (cells ×2) (reduced: weighted- and full-cell), 4 frames
+    /// (reduced: 2).
     pub fn standard(reduced: bool) -> Self {
         let method = |m: IntegrationMode| ModelConfig {
             name: m.name().into(),
@@ -131,6 +132,14 @@ impl StabilityOptions {
             methods.push(method(IntegrationMode::FiniteCell));
         }
         methods.push(method(IntegrationMode::FullCell));
+        if !reduced {
+            methods.push(ModelConfig {
+                name: "weighted-cell, coarse start".into(),
+                integration: Some(IntegrationMode::WeightedCell),
+                coarse_to_fine: Some(2.0),
+                ..ModelConfig::default()
+            });
+        }
         Self {
             scenario: ScenarioKind::ToolPush,
             frames: if reduced { 2 } else { 4 },

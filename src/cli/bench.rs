@@ -128,13 +128,9 @@ pub fn run_stability(args: &BenchArgs, scene: &LoadedScene) -> Result<StabilityR
         }
         options.frames = n;
     }
-    if let Some(name) = args.scenarios.first() {
-        options.scenario = ScenarioKind::from_name(name).ok_or_else(|| {
-            format!(
-                "unknown scenario '{name}' (known: {})",
-                ScenarioKind::ALL.map(|k| k.name()).join(", ")
-            )
-        })?;
+    if !args.scenarios.is_empty() {
+        // The matrix disturbs one scenario: the first named.
+        options.scenario = ScenarioKind::parse_list(&args.scenarios)?[0];
     }
     let cells: usize = Axis::ALL
         .iter()
@@ -204,24 +200,10 @@ pub fn synthetic_workloads(
     quick: bool,
     seed_offset: u64,
 ) -> Result<Vec<Workload>, String> {
-    let kinds: Vec<ScenarioKind> = if names.is_empty() {
-        if quick {
-            vec![ScenarioKind::ToolPush]
-        } else {
-            ScenarioKind::ALL.to_vec()
-        }
+    let kinds = if names.is_empty() && quick {
+        vec![ScenarioKind::ToolPush]
     } else {
-        names
-            .iter()
-            .map(|n| {
-                ScenarioKind::from_name(n).ok_or_else(|| {
-                    format!(
-                        "unknown scenario '{n}' (known: {})",
-                        ScenarioKind::ALL.map(|k| k.name()).join(", ")
-                    )
-                })
-            })
-            .collect::<Result<_, _>>()?
+        ScenarioKind::parse_list(names)?
     };
     let pb = bar(kinds.len(), "truth");
     let mut out = Vec::new();

@@ -63,20 +63,7 @@ pub fn run_with(
     if frames == 0 {
         return Err("--frames must be >= 1".into());
     }
-    let kinds: Vec<ScenarioKind> = if only.is_empty() {
-        ScenarioKind::ALL.to_vec()
-    } else {
-        only.iter()
-            .map(|n| {
-                ScenarioKind::from_name(n).ok_or_else(|| {
-                    format!(
-                        "unknown scenario '{n}' (known: {})",
-                        ScenarioKind::ALL.map(|k| k.name()).join(", ")
-                    )
-                })
-            })
-            .collect::<Result<_, _>>()?
-    };
+    let kinds = ScenarioKind::parse_list(only)?;
     let phantom_dir = out.join("phantom");
     crate::phantom::write_phantom(&phantom_dir).map_err(|e| e.to_string())?;
     let loaded = load_scene(&phantom_dir.join("scene.toml")).map_err(|e| e.to_string())?;

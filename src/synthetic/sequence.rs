@@ -110,6 +110,25 @@ impl ScenarioKind {
         Self::ALL.into_iter().find(|k| k.name() == name)
     }
 
+    /// The scenarios called `names`, or every scenario when `names` is empty; an unknown name
+    /// is an error that lists the known ones.
+    pub fn parse_list(names: &[String]) -> Result<Vec<Self>, String> {
+        if names.is_empty() {
+            return Ok(Self::ALL.to_vec());
+        }
+        names
+            .iter()
+            .map(|n| {
+                Self::from_name(n).ok_or_else(|| {
+                    format!(
+                        "unknown scenario '{n}' (known: {})",
+                        Self::ALL.map(|k| k.name()).join(", ")
+                    )
+                })
+            })
+            .collect()
+    }
+
     /// Unit of [`SequenceSpec::magnitude`] for this scenario: `"Pa"` (pressure, traction) or
     /// `"deg"` (tilt angle).
     pub fn magnitude_unit(self) -> &'static str {
