@@ -242,8 +242,8 @@ fn bad_frames_are_rejected_and_leave_no_trace_on_the_phantom() {
         r.times.newton_ms,
         r.icp_iterations
     );
-    // Bounded time: thinned to the limit, the frame costs what a 20,000-point frame costs
-    // (~1 s in the dev profile here, ~25× a normal frame's cloud); 15 s is a ceiling with
+    // Bounded time: thinned to the limit, the frame costs what a 5,000-point frame costs
+    // (~0.2 s in the dev profile here, ~5× a normal frame's cloud); 15 s is a ceiling with
     // room for a loaded 2-core machine. The checks and the thinning themselves are cheap.
     assert!(r.wall_ms < 15_000.0, "{:.0} ms", r.wall_ms);
     assert!(r.times.prepare_ms < 1_000.0, "{:.0} ms", r.times.prepare_ms);

@@ -476,7 +476,7 @@ pub struct RegistrationSpec {
     /// flagged `time_budget` (`None`: no budget); > 0.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub time_budget_ms: Option<f64>,
-    /// Clouds with more points are thinned to at most this many (default 20 000); ≥ 3.
+    /// Clouds with more points are thinned to at most this many (default 5 000); ≥ 3.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_cloud_points: Option<u32>,
     /// Coarse-to-fine start: a cold frame (the first, or after a reset or failure) is first
