@@ -84,6 +84,11 @@ pub struct ServerConfig {
     pub insecure_loopback_dev: bool,
     /// Where uploaded scenes are kept while their session lives (created if missing).
     pub data_dir: PathBuf,
+    /// Whether every session is recorded to `<recordings_dir>/<session id>.mcap` (default
+    /// true; see docs/recording.md).
+    pub record: bool,
+    /// Where session recordings go (default `<data_dir>/recordings`; created if missing).
+    pub recordings_dir: Option<PathBuf>,
     /// Frames registered at the same time (CPU-bound; default: the number of cores).
     pub worker_threads: usize,
     /// Threads of the async runtime that handles the network (default 2).
@@ -113,6 +118,8 @@ impl Default for ServerConfig {
             token_file: None,
             insecure_loopback_dev: false,
             data_dir: std::env::temp_dir().join("livereg-server"),
+            record: true,
+            recordings_dir: None,
             worker_threads: std::thread::available_parallelism()
                 .map(|n| n.get())
                 .unwrap_or(2),
@@ -138,6 +145,8 @@ pub const ENV_VARS: &[(&str, &str)] = &[
     ),
     ("LIVEREG_TOKEN_FILE", "token_file"),
     ("LIVEREG_DATA_DIR", "data_dir"),
+    ("LIVEREG_RECORD", "record (`true`/`false`)"),
+    ("LIVEREG_RECORDINGS_DIR", "recordings_dir"),
     ("LIVEREG_WORKER_THREADS", "worker_threads"),
     ("LIVEREG_IO_THREADS", "io_threads"),
     ("LIVEREG_LOG", "log_filter"),
@@ -183,6 +192,13 @@ pub fn parse_token_list<'a>(items: impl Iterator<Item = &'a str>) -> Vec<TokenEn
 }
 
 impl ServerConfig {
+    /// Where session recordings go: `recordings_dir`, or `<data_dir>/recordings`.
+    pub fn recordings_path(&self) -> PathBuf {
+        self.recordings_dir
+            .clone()
+            .unwrap_or_else(|| self.data_dir.join("recordings"))
+    }
+
     /// Reads a TOML configuration file (unknown keys are errors naming the key).
     pub fn from_file(path: &Path) -> Result<Self, String> {
         let text = std::fs::read_to_string(path)
@@ -216,6 +232,12 @@ impl ServerConfig {
         }
         if let Some(v) = get("LIVEREG_DATA_DIR") {
             self.data_dir = PathBuf::from(v);
+        }
+        if let Some(v) = get("LIVEREG_RECORD") {
+            self.record = parse_num("LIVEREG_RECORD", &v)?;
+        }
+        if let Some(v) = get("LIVEREG_RECORDINGS_DIR") {
+            self.recordings_dir = Some(PathBuf::from(v));
         }
         if let Some(v) = get("LIVEREG_WORKER_THREADS") {
             self.worker_threads = parse_num("LIVEREG_WORKER_THREADS", &v)?;
@@ -335,6 +357,17 @@ impl ServerConfig {
                 self.log_format
             ));
         }
+        if let Some(d) = &self.recordings_dir {
+            if d.as_os_str().is_empty() {
+                return Err("recordings_dir must not be empty (leave it out for `<data_dir>/recordings`, or set `record = false` to record nothing)".into());
+            }
+            if self.record && d.is_file() {
+                return Err(format!(
+                    "recordings_dir {} is a file, not a directory",
+                    d.display()
+                ));
+            }
+        }
         if self.tls.is_some() {
             return Err("TLS is configured, but this build does not terminate TLS itself yet: terminate TLS in front of the server (Kubernetes ingress, a reverse proxy; see docs/server.md) and remove `tls`".into());
         }
@@ -370,6 +403,23 @@ mod tests {
             .apply_env(|k| (k == "LIVEREG_MAX_FPS").then(|| "fast".to_string()))
             .unwrap_err();
         assert!(err.contains("LIVEREG_MAX_FPS"), "{err}");
+        assert!(c.record);
+        assert_eq!(c.recordings_path(), c.data_dir.join("recordings"));
+        c.apply_env(|k| match k {
+            "LIVEREG_RECORD" => Some("false".to_string()),
+            "LIVEREG_RECORDINGS_DIR" => Some("/srv/rec".to_string()),
+            _ => None,
+        })
+        .unwrap();
+        assert!(!c.record);
+        assert_eq!(c.recordings_path(), PathBuf::from("/srv/rec"));
+        let err = c
+            .apply_env(|k| (k == "LIVEREG_RECORD").then(|| "maybe".to_string()))
+            .unwrap_err();
+        assert!(err.contains("LIVEREG_RECORD"), "{err}");
+        c.recordings_dir = Some(PathBuf::new());
+        assert!(c.validate().unwrap_err().contains("recordings_dir"));
+        c.recordings_dir = None;
         let unknown = toml::from_str::<ServerConfig>("bnid = \"x\"").unwrap_err();
         assert!(unknown.to_string().contains("bnid"));
     }

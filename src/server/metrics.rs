@@ -91,6 +91,11 @@ const COUNTERS: &[(&str, &str, &str)] = &[
         "code",
     ),
     (
+        "livereg_recording_errors_total",
+        "Session recording failures by stage (create, write, finish); the session goes on, unrecorded from there.",
+        "stage",
+    ),
+    (
         "livereg_sessions_closed_total",
         "Sessions closed, by reason (client, idle, shutdown, failed).",
         "reason",

@@ -130,6 +130,11 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
     let tokens = config.all_tokens()?;
     std::fs::create_dir_all(config.data_dir.join("sessions"))
         .map_err(|e| format!("data_dir {}: cannot create: {e}", config.data_dir.display()))?;
+    if config.record {
+        let rec = config.recordings_path();
+        std::fs::create_dir_all(&rec)
+            .map_err(|e| format!("recordings_dir {}: cannot create: {e}", rec.display()))?;
+    }
     let (tx, rx) = watch::channel(false);
     let auth = auth::Authenticator::new(&tokens, config.insecure_loopback_dev);
     let state = Arc::new(AppState::new(config.clone(), auth, rx.clone()));

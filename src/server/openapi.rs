@@ -99,7 +99,8 @@ pub fn document() -> Value {
               "frames_registered": {"type": "integer"}, "frames_failed": {"type": "integer"},
               "frames_skipped": {"type": "integer"}, "frames_rejected": {"type": "integer"},
               "age_s": {"type": "number"}, "warm": {"type": "boolean"},
-              "stream": {"type": "string", "description": "Relative URL of the session's WebSocket."}
+              "stream": {"type": "string", "description": "Relative URL of the session's WebSocket."},
+              "recording": {"type": ["string", "null"], "description": "Path of the session's MCAP recording on the server; null when not recorded."}
             }
           },
           "SessionList": {"type": "object", "required": ["sessions"],

@@ -54,6 +54,10 @@ pub struct SessionInfo {
     pub warm: bool,
     /// Relative URL of the WebSocket stream.
     pub stream: String,
+    /// Path of the session's MCAP recording on the server (`null` when not recorded:
+    /// `record = false`, or the file could not be created).
+    #[serde(default)]
+    pub recording: Option<String>,
 }
 
 impl SessionInfo {
@@ -73,6 +77,7 @@ impl SessionInfo {
             age_s: h.created.elapsed().as_secs_f64(),
             warm: h.is_warm(),
             stream: format!("/v1/sessions/{}/stream", h.id),
+            recording: h.info.recording.as_ref().map(|p| p.display().to_string()),
         }
     }
 }

@@ -7,6 +7,8 @@ use std::time::Instant;
 
 use tokio::sync::{oneshot, watch, Notify, Semaphore};
 
+use crate::recording::{Recorder, RecordingMeta, SceneFiles};
+
 use super::auth::{Authenticator, Owner};
 use super::codec::Incoming;
 use super::config::ServerConfig;
@@ -16,6 +18,30 @@ use super::metrics::Metrics;
 use super::registry::{new_session_id, Registry, SessionInfo};
 use super::upload::{build_session, materialize, SceneUpload};
 use super::worker::{run_worker, Completed, Job, ModelInfo, Outcome, Reply, SessionHandle};
+
+/// Opens the recording of session `id` (scene `loaded`, uploaded as `upload`) at `path`.
+fn open_recording(
+    path: &std::path::Path,
+    loaded: &crate::scene::LoadedScene,
+    upload: &SceneUpload,
+    id: &str,
+) -> Result<Recorder, String> {
+    let files = SceneFiles::from_loaded(loaded).map_err(|e| e.to_string())?;
+    let meta = RecordingMeta {
+        command: "serve".into(),
+        budget_ms: upload.budget_ms,
+        rigid_only: upload.rigid_only,
+        notes: [("session".to_string(), id.to_string())].into(),
+    };
+    Recorder::create(
+        path,
+        &files,
+        &meta,
+        loaded.length_scale(),
+        loaded.scene.units.as_str(),
+    )
+    .map_err(|e| e.to_string())
+}
 
 /// Everything the front ends share.
 #[derive(Debug)]
@@ -124,11 +150,25 @@ impl AppState {
         let limits = self.config.limits.clone();
         let t = Instant::now();
         let d = dir.clone();
+        let record_to = self
+            .config
+            .record
+            .then(|| self.config.recordings_path().join(format!("{id}.mcap")));
+        let (sid, metrics) = (id.clone(), self.metrics.clone());
         let built = tokio::task::spawn_blocking(move || {
             std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
                 let loaded = materialize(&upload, &d, &limits)?;
                 let session = build_session(&loaded, &upload)?;
+                let recorder = record_to.and_then(|path| {
+                    open_recording(&path, &loaded, &upload, &sid)
+                        .inspect_err(|e| {
+                            metrics.inc("livereg_recording_errors_total", "create", 1);
+                            tracing::error!(session = %sid, error = %e, "cannot record the session; it is served unrecorded");
+                        })
+                        .ok()
+                });
                 let info = ModelInfo {
+                    recording: recorder.as_ref().map(|r| r.path().to_path_buf()),
                     units: loaded.scene.units.as_str().to_string(),
                     length_scale: loaded.length_scale(),
                     surface_vertices: session.model.surface.vertices.len(),
@@ -140,7 +180,7 @@ impl AppState {
                         .map(|s| s.name.clone())
                         .collect(),
                 };
-                Ok::<_, ApiError>((session, info))
+                Ok::<_, ApiError>((session, recorder, info))
             }))
             .unwrap_or_else(|_| {
                 Err(ApiError::internal(
@@ -151,7 +191,7 @@ impl AppState {
         .await
         .map_err(|e| ApiError::internal(format!("session build task: {e}")))
         .and_then(|r| r);
-        let (session, info) = match built {
+        let (session, recorder, info) = match built {
             Ok(x) => x,
             Err(e) => {
                 let _ = std::fs::remove_dir_all(&dir);
@@ -171,6 +211,7 @@ impl AppState {
         tokio::spawn(run_worker(
             handle.clone(),
             session,
+            recorder,
             self.slots.clone(),
             self.metrics.clone(),
         ));

@@ -20,6 +20,7 @@ use super::codec::Incoming;
 use super::error::ApiError;
 use super::limits::RateLimiter;
 use super::metrics::Metrics;
+use crate::recording::{now_ns, Recorder};
 use crate::session::{FrameResult, Session};
 
 /// A registered frame with its timings.
@@ -105,6 +106,8 @@ pub struct ModelInfo {
     pub surface_triangles: usize,
     /// Structure names in scene order.
     pub structures: Vec<String>,
+    /// The session's recording (`None` when not recorded).
+    pub recording: Option<std::path::PathBuf>,
 }
 
 /// Frame counters of a session.
@@ -319,11 +322,74 @@ fn ms_since(t: Instant) -> f64 {
 /// The worker of one session: waits for frames, takes a registration slot, registers the
 /// newest frame on the blocking pool and delivers the outcome; ends when the session is
 /// closed and its mailbox empty (or if registration panicked, which closes the session).
+///
+/// With a `recorder`, each registered frame and its result are recorded on the blocking
+/// thread right after registration, before the result is delivered (the recorder flushes
+/// after every result, so a killed server leaves every frame whose result a client saw); the
+/// recording is finished when the worker ends. A recording failure is logged and counted
+/// (`livereg_recording_errors_total`) and ends the recording, never the session.
 pub async fn run_worker(
     handle: Arc<SessionHandle>,
     session: Session,
+    recorder: Option<Recorder>,
     slots: Arc<Semaphore>,
     metrics: Arc<Metrics>,
+) {
+    let mut recorder = recorder;
+    serve_frames(&handle, session, &mut recorder, slots, &metrics).await;
+    if let Some(rec) = recorder.take() {
+        let id = handle.id.clone();
+        let finished = tokio::task::spawn_blocking(move || rec.finish()).await;
+        match finished {
+            Ok(Ok(stats)) => tracing::info!(
+                session = %id,
+                frames = stats.frames,
+                bytes = stats.bytes,
+                write_ms = stats.write_ms,
+                "recording finished"
+            ),
+            Ok(Err(e)) => {
+                metrics.inc("livereg_recording_errors_total", "finish", 1);
+                tracing::error!(session = %id, error = %e, "recording could not be finished");
+            }
+            Err(e) => {
+                metrics.inc("livereg_recording_errors_total", "finish", 1);
+                tracing::error!(session = %id, error = %e, "recording finish task failed");
+            }
+        }
+    }
+    finish(&handle);
+}
+
+/// Records `frame` (received at `received_ns`) and its `result`; on failure the recorder is
+/// dropped (its file keeps every frame recorded before) and the failure logged and counted.
+fn record(
+    recorder: &mut Option<Recorder>,
+    frame: &crate::session::Frame,
+    received_ns: u64,
+    result: &FrameResult,
+    session: &str,
+    metrics: &Metrics,
+) {
+    let Some(rec) = recorder.as_mut() else {
+        return;
+    };
+    let r = rec
+        .record_frame(frame, received_ns)
+        .and_then(|()| rec.record_result(result));
+    if let Err(e) = r {
+        metrics.inc("livereg_recording_errors_total", "write", 1);
+        tracing::error!(session = %session, error = %e, "recording failed; the session goes on unrecorded");
+        *recorder = None;
+    }
+}
+
+async fn serve_frames(
+    handle: &Arc<SessionHandle>,
+    session: Session,
+    recorder: &mut Option<Recorder>,
+    slots: Arc<Semaphore>,
+    metrics: &Arc<Metrics>,
 ) {
     let mut session = Some(session);
     loop {
@@ -332,48 +398,49 @@ pub async fn run_worker(
             let notified = handle.wake.notified();
             match handle.state() {
                 Some(true) => break,
-                Some(false) => return finish(&handle),
+                Some(false) => return,
                 None => notified.await,
             }
         }
         let Ok(permit) = slots.clone().acquire_owned().await else {
-            return finish(&handle);
+            return;
         };
         // The newest frame, taken only now that a slot is ours.
         let Some(job) = handle.take() else {
             continue;
         };
         let Some(mut s) = session.take() else {
-            return finish(&handle);
+            return;
         };
         let queue_ms = ms_since(job.received);
+        let received_ns =
+            now_ns().saturating_sub(job.received.elapsed().as_nanos().min(u64::MAX as u128) as u64);
         if handle.reset_requested.swap(false, Ordering::Relaxed) {
             s.reset();
         }
         let frame = job.incoming.frame;
+        let mut rec = recorder.take();
+        let (id, m) = (handle.id.clone(), metrics.clone());
         let joined = tokio::task::spawn_blocking(move || {
             let r = std::panic::catch_unwind(AssertUnwindSafe(|| s.register(&frame)));
-            (s, r)
+            if let Ok(result) = &r {
+                // Before the result is delivered: on disk once the client sees it.
+                record(&mut rec, &frame, received_ns, result, &id, &m);
+            }
+            (s, rec, r)
         })
         .await;
         drop(permit);
         let (s, result) = match joined {
-            Ok((s, Ok(r))) => (s, r),
-            Ok((_, Err(_))) | Err(_) => {
-                tracing::error!(session = %handle.id, "registration panicked; the session is closed");
-                metrics.inc("livereg_frame_failures_total", "panic", 1);
-                metrics.inc("livereg_sessions_closed_total", "failed", 1);
-                handle.close();
-                fail(
-                    job.reply,
-                    ApiError::internal("registration failed unexpectedly; the session was closed (please report this frame)"),
-                );
-                // Refuse whatever else is waiting.
-                while let Some(j) = handle.take() {
-                    fail(j.reply, ApiError::internal("the session was closed"));
-                }
-                return finish(&handle);
+            Ok((s, rec, Ok(r))) => {
+                *recorder = rec;
+                (s, r)
             }
+            Ok((_, rec, Err(_))) => {
+                *recorder = rec;
+                return fail_session(handle, job.reply, metrics);
+            }
+            Err(_) => return fail_session(handle, job.reply, metrics),
         };
         handle.warm.store(s.is_warm(), Ordering::Relaxed);
         session = Some(s);
@@ -415,6 +482,24 @@ pub async fn run_worker(
                 }
             }
         }
+    }
+}
+
+/// Registration panicked: the session is closed, this frame and any waiting one refused.
+fn fail_session(handle: &SessionHandle, reply: Reply, metrics: &Metrics) {
+    tracing::error!(session = %handle.id, "registration panicked; the session is closed");
+    metrics.inc("livereg_frame_failures_total", "panic", 1);
+    metrics.inc("livereg_sessions_closed_total", "failed", 1);
+    handle.close();
+    fail(
+        reply,
+        ApiError::internal(
+            "registration failed unexpectedly; the session was closed (please report this frame)",
+        ),
+    );
+    // Refuse whatever else is waiting.
+    while let Some(j) = handle.take() {
+        fail(j.reply, ApiError::internal("the session was closed"));
     }
 }
 

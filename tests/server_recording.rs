@@ -1,0 +1,244 @@
+//! Every served session writes one MCAP recording (issue 6): a WebSocket session on the
+//! phantom is read back frame for frame and replays with zero difference; a `livereg serve`
+//! killed (SIGKILL) in the middle of a stream leaves a recording holding every frame whose
+//! result the client had received.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use livereg::recording::Recording;
+use livereg::synthetic::{generate_sequence, ScenarioKind, SequenceSpec};
+use serde_json::Value;
+
+#[path = "../examples/client/lib.rs"]
+mod client;
+mod server_support;
+
+use client::*;
+use server_support::*;
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// The phantom scene (written to `dir`) and `n` tool-push frames in scene units.
+fn phantom_case(dir: &Path, n: usize) -> Vec<Vec<[f64; 3]>> {
+    livereg::phantom::write_phantom(dir).unwrap();
+    let loaded = livereg::scene::load_scene(&dir.join("scene.toml")).unwrap();
+    let scale = loaded.length_scale();
+    let mut spec = SequenceSpec::phantom_default(ScenarioKind::ToolPush);
+    spec.frames = n;
+    let seq = generate_sequence(&loaded, &spec).unwrap();
+    seq.frames
+        .iter()
+        .map(|f| {
+            f.cloud
+                .iter()
+                .map(|p| [p.x / scale, p.y / scale, p.z / scale])
+                .collect()
+        })
+        .collect()
+}
+
+/// Checks that the recording's result `k` is the result the client received.
+fn assert_recorded(rec: &Recording, k: usize, got: &Value) {
+    assert_eq!(rec.frames[k].frame, k);
+    assert_eq!(rec.results[k].record.frame, k);
+    let recorded = serde_json::to_value(&rec.results[k].record).unwrap();
+    same(&recorded, got, &format!("frame {k}")).unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_served_session_is_recorded_and_replays_identically() {
+    const N: usize = 3;
+    let case = temp_dir("rec-phantom");
+    let frames = phantom_case(&case, N);
+    let cfg = test_config("rec-phantom");
+    let recordings = cfg.data_dir.join("recordings");
+    let server = start(cfg).await;
+    let addr = server.http_addr;
+    let scene = SceneFiles::read(&case.join("scene.toml")).unwrap();
+
+    // The create response names the recording.
+    let (boundary, body) = scene.multipart();
+    let ct = format!("multipart/form-data; boundary={boundary}");
+    let auth = format!("Bearer {TOKEN_A}");
+    let r = http(
+        addr,
+        "POST",
+        "/v1/sessions",
+        &[("Content-Type", &ct), ("Authorization", &auth)],
+        &body,
+    )
+    .await
+    .unwrap();
+    assert_eq!(r.status, 201, "{}", String::from_utf8_lossy(&r.body));
+    let info = r.json();
+    let id = info["id"].as_str().unwrap().to_string();
+    let path = PathBuf::from(info["recording"].as_str().expect("recording path"));
+    assert_eq!(path, recordings.join(format!("{id}.mcap")));
+    assert!(path.is_file());
+
+    let mut ws = WsClient::connect(addr, &id, TOKEN_A).await.unwrap();
+    let mut got = Vec::new();
+    for (k, pts) in frames.iter().enumerate() {
+        ws.send_json(k as u64, &format!("f{k}"), pts).await.unwrap();
+        match ws.next().await {
+            Some(WsEvent::Result(v)) => got.push(v),
+            other => panic!("frame {k}: {other:?}"),
+        }
+    }
+    ws.close().await;
+    let status = http_close_session(addr, TOKEN_A, &id).await.unwrap();
+    assert_eq!(status["recording"], info["recording"]);
+    // Shutdown waits for the session's worker, which finishes the recording.
+    server.shutdown().await.unwrap();
+
+    let rec = Recording::open(&path).unwrap();
+    assert!(rec.finished, "{}", rec.describe());
+    assert_eq!(rec.frames.len(), N);
+    assert_eq!(rec.results.len(), N);
+    assert_eq!(rec.session.command, "serve");
+    assert_eq!(rec.session.notes.get("session"), Some(&id));
+    for (k, v) in got.iter().enumerate() {
+        assert_recorded(&rec, k, v);
+        assert_eq!(rec.frames[k].points.len(), 3 * frames[k].len());
+        assert_eq!(
+            rec.results[k].surface.len(),
+            3 * info["surface_vertices"].as_u64().unwrap() as usize
+        );
+    }
+
+    // Replay through this build: zero difference.
+    let c = path.clone();
+    let o = tokio::task::spawn_blocking(move || {
+        Command::new(env!("CARGO_BIN_EXE_livereg"))
+            .args(["replay", s(&c), "--json"])
+            .output()
+            .unwrap()
+    })
+    .await
+    .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "replay: {stderr}");
+    let report: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(report["frames"], N, "{report}");
+    assert_eq!(report["identical"], true, "{report}");
+    let _ = std::fs::remove_dir_all(&case);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn recording_can_be_turned_off() {
+    let case = small_case("rec-off", 1);
+    let mut cfg = test_config("rec-off");
+    cfg.record = false;
+    let data = cfg.data_dir.clone();
+    let server = start(cfg).await;
+    let scene = SceneFiles::read(&case.join("scene.toml")).unwrap();
+    let id = http_create_session(server.http_addr, TOKEN_A, &scene)
+        .await
+        .unwrap();
+    let status = http_close_session(server.http_addr, TOKEN_A, &id)
+        .await
+        .unwrap();
+    assert!(status["recording"].is_null(), "{status}");
+    server.shutdown().await.unwrap();
+    assert!(!data.join("recordings").exists());
+}
+
+/// The `http_addr` of the `listening` line of a JSON-logging `livereg serve`.
+fn listening_addr(line: &str) -> Option<std::net::SocketAddr> {
+    let v: Value = serde_json::from_str(line).ok()?;
+    if v["fields"]["message"] != "listening" {
+        return None;
+    }
+    v["fields"]["http_addr"].as_str()?.parse().ok()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_killed_server_leaves_every_frame_whose_result_was_sent() {
+    const FRAMES: usize = 40;
+    const KILL_AFTER: usize = 3; // the result of frame 3 received, then SIGKILL
+    let case = small_case("rec-kill", FRAMES);
+    let frames = read_frames(&case.join("frames")).unwrap();
+    let dir = temp_dir("rec-kill-server");
+    let recordings = dir.join("my-recordings");
+    let config = dir.join("serve.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "bind = \"127.0.0.1:0\"\ndata_dir = {:?}\nrecordings_dir = {:?}\nworker_threads = 1\nlog_format = \"json\"\nlog_filter = \"info\"\n[[tokens]]\nname = \"room-a\"\ntoken = \"{TOKEN_A}\"\n[limits]\nmax_frames_per_second = 1000.0\n",
+            s(&dir.join("data")),
+            s(&recordings)
+        ),
+    )
+    .unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_livereg"))
+        .args(["serve", "--config", s(&config), "--grpc-bind", "off"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stderr = child.stderr.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut sent = false;
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            if !sent {
+                if let Some(a) = listening_addr(&line) {
+                    let _ = tx.send(a);
+                    sent = true;
+                }
+            }
+        }
+    });
+    let addr = rx
+        .recv_timeout(Duration::from_secs(60))
+        .expect("livereg serve logs its address");
+
+    let scene = SceneFiles::read(&case.join("scene.toml")).unwrap();
+    let id = http_create_session(addr, TOKEN_A, &scene).await.unwrap();
+    let path = recordings.join(format!("{id}.mcap"));
+    let mut ws = WsClient::connect(addr, &id, TOKEN_A).await.unwrap();
+    let mut got = Vec::new();
+    let t0 = Instant::now();
+    for (k, (name, pts)) in frames.iter().enumerate() {
+        ws.send_json(k as u64, name, pts).await.unwrap();
+        match ws.next().await {
+            Some(WsEvent::Result(v)) => got.push(v),
+            other => panic!("frame {k}: {other:?}"),
+        }
+        if k == KILL_AFTER {
+            // Send the next frame so the server is busy with it, then kill.
+            ws.send_json(k as u64 + 1, &frames[k + 1].0, &frames[k + 1].1)
+                .await
+                .unwrap();
+            child.kill().unwrap(); // SIGKILL
+            break;
+        }
+    }
+    child.wait().unwrap();
+    assert_eq!(got.len(), KILL_AFTER + 1);
+    assert!(t0.elapsed() < Duration::from_secs(300));
+
+    let rec = Recording::open(&path).unwrap();
+    assert!(!rec.finished, "killed before finishing: {}", rec.describe());
+    assert!(
+        rec.complete_frames() >= got.len(),
+        "{} results received, {}",
+        got.len(),
+        rec.describe()
+    );
+    for (k, v) in got.iter().enumerate() {
+        assert_recorded(&rec, k, v);
+    }
+    eprintln!(
+        "server kill test: {} results received at the kill; {}",
+        got.len(),
+        rec.describe()
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_dir_all(&case);
+}
