@@ -8,7 +8,7 @@ use serde::Serialize;
 
 use super::memory;
 use super::workload::Workload;
-use crate::evaluation::percentile;
+use crate::evaluation::Summary;
 use crate::scene::LoadedScene;
 use crate::session::{FrameResult, Session, BEFORE_RECOVERY};
 
@@ -232,49 +232,46 @@ impl Metrics {
     /// Summarises `samples` (no sample: zero frames, NaN-free zeros and infinite TRE are
     /// never produced: an empty set gives zeros).
     pub fn of(samples: &[FrameSample], build: &BuildInfo) -> Self {
-        let mut tre: Vec<f64> = samples.iter().flat_map(|s| s.tre_mm.clone()).collect();
-        tre.sort_by(f64::total_cmp);
-        let mut ms: Vec<f64> = samples.iter().map(|s| s.wall_ms).collect();
-        ms.sort_by(f64::total_cmp);
-        let mut warm_ms: Vec<f64> = samples
-            .iter()
-            .filter(|s| s.warm)
-            .map(|s| s.wall_ms)
-            .collect();
-        warm_ms.sort_by(f64::total_cmp);
-        let n = samples.len().max(1) as f64;
-        let mean = |v: &[f64]| {
-            if v.is_empty() {
-                0.0
-            } else {
-                v.iter().sum::<f64>() / v.len() as f64
-            }
+        let stats = |v: Vec<f64>| {
+            Summary::of(&v).unwrap_or(Summary {
+                count: 0,
+                mean: 0.0,
+                median: 0.0,
+                p95: 0.0,
+                max: 0.0,
+            })
         };
-        let pct = |v: &[f64], p: f64| if v.is_empty() { 0.0 } else { percentile(v, p) };
-        let mut causes = BTreeMap::new();
-        for s in samples {
-            for c in &s.causes {
-                *causes.entry(*c).or_insert(0) += 1;
+        let tre = stats(samples.iter().flat_map(|s| s.tre_mm.clone()).collect());
+        let ms = stats(samples.iter().map(|s| s.wall_ms).collect());
+        let warm_ms = stats(
+            samples
+                .iter()
+                .filter(|s| s.warm)
+                .map(|s| s.wall_ms)
+                .collect(),
+        );
+        let n = samples.len().max(1) as f64;
+        let count = |causes: &mut dyn Iterator<Item = &Cause>| {
+            let mut out = BTreeMap::new();
+            for c in causes {
+                *out.entry(*c).or_insert(0) += 1;
             }
-        }
+            out
+        };
+        let causes = count(&mut samples.iter().flat_map(|s| &s.causes));
+        let recovered_causes = count(&mut samples.iter().flat_map(|s| &s.recovered_causes));
         let failed = samples.iter().filter(|s| s.failed()).count();
-        let mut recovered_causes = BTreeMap::new();
-        for s in samples {
-            for c in &s.recovered_causes {
-                *recovered_causes.entry(*c).or_insert(0) += 1;
-            }
-        }
         Self {
             frames: samples.len(),
-            tre_mean_mm: mean(&tre),
-            tre_p95_mm: pct(&tre, 0.95),
-            tre_max_mm: tre.last().copied().unwrap_or(0.0),
+            tre_mean_mm: tre.mean,
+            tre_p95_mm: tre.p95,
+            tre_max_mm: tre.max,
             surface_rms_mm: samples.iter().map(|s| s.surface_rms_mm).sum::<f64>() / n,
-            ms_p50: pct(&ms, 0.5),
-            ms_p95: pct(&ms, 0.95),
-            ms_mean: mean(&ms),
-            warm_ms_p50: pct(&warm_ms, 0.5),
-            warm_ms_p95: pct(&warm_ms, 0.95),
+            ms_p50: ms.median,
+            ms_p95: ms.p95,
+            ms_mean: ms.mean,
+            warm_ms_p50: warm_ms.median,
+            warm_ms_p95: warm_ms.p95,
             newton_per_frame: samples.iter().map(|s| s.newton_iterations).sum::<usize>() as f64 / n,
             icp_per_frame: samples.iter().map(|s| s.icp_iterations).sum::<usize>() as f64 / n,
             failed_frames: failed,
