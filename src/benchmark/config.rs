@@ -36,6 +36,8 @@ pub struct ModelConfig {
     pub origin_offset: Option<[f64; 3]>,
     /// Coarse-to-fine start of cold frames with this factor on the cell size.
     pub coarse_to_fine: Option<f64>,
+    /// Fictitious-domain weight α of cut cells' outside parts (`grid.min_fraction`).
+    pub min_fraction: Option<f64>,
 }
 
 /// The registration model a [`ModelConfig`] resolves to on a scene: what the report shows.
@@ -61,6 +63,8 @@ pub struct ResolvedConfig {
     pub origin_offset: [f64; 3],
     /// Coarse-to-fine factor on the cell size (`None`: off).
     pub coarse_to_fine: Option<f64>,
+    /// Fictitious-domain weight α of cut cells' outside parts.
+    pub min_fraction: f64,
 }
 
 impl ModelConfig {
@@ -112,6 +116,9 @@ impl ModelConfig {
         if let Some(v) = self.origin_offset {
             s.grid.origin_offset = v;
         }
+        if let Some(v) = self.min_fraction {
+            s.grid.min_fraction = v;
+        }
         if self.penalty_steps.is_some()
             || self.penalty_factor.is_some()
             || self.coarse_to_fine.is_some()
@@ -155,15 +162,16 @@ impl ModelConfig {
             penalty_factor: self.penalty_factor.unwrap_or(1.0),
             origin_offset: s.grid.origin_offset,
             coarse_to_fine: s.registration.as_ref().and_then(|r| r.coarse_to_fine),
+            min_fraction: s.grid.min_fraction,
         }
     }
 }
 
 /// The sweep of `livereg bench`: the default and, one axis at a time, cell size (×0.75, ×1.5,
-/// ×2), subdivision level (1 to 4), integration (finite-cell, full-cell), law (neo-Hookean,
-/// SVK, linear, corotated), linear solver (LDLᵀ, Jacobi-CG), penalty ramp (1 and 5 steps),
-/// coarse-to-fine start (cells ×2) — changes already equal to the scene's value are left
-/// out. `quick`: the default, cell ×1.5 and ×2, finite-cell, full-cell and neo-Hookean.
+/// ×2), subdivision level (1 to 4), integration (finite-cell, full-cell), fictitious weight α
+/// (10⁻⁴, 10⁻³, 10⁻², 3·10⁻²), law (neo-Hookean, SVK, linear, corotated), linear solver (LDLᵀ,
+/// Jacobi-CG), penalty ramp (1 and 5 steps), coarse-to-fine start (cells ×2) — changes
+/// already equal to the scene's value are left out. `quick`: the default, cell ×1.5 and ×2, finite-cell, full-cell and neo-Hookean.
 pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
     let s = &scene.scene;
     let named = |name: &str| ModelConfig {
@@ -202,6 +210,16 @@ pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
                 integration: Some(m),
                 ..named(m.name())
             });
+        }
+    }
+    if !quick {
+        for a in [1e-4, 1e-3, 1e-2, 3e-2] {
+            if a != s.grid.min_fraction {
+                out.push(ModelConfig {
+                    min_fraction: Some(a),
+                    ..named(&format!("alpha {a:e}"))
+                });
+            }
         }
     }
     let laws: &[LawKind] = if quick {

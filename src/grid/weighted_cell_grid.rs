@@ -37,7 +37,7 @@ impl Default for GridOptions {
             cell_size: 0.01,
             subdivisions: 3,
             mode: IntegrationMode::WeightedCell,
-            min_fraction: 1e-4,
+            min_fraction: 1e-2,
             origin_offset: [0.0; 3],
         }
     }

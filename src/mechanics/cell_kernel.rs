@@ -35,6 +35,9 @@ pub enum Need {
     Force,
     /// Energy, internal force and tangent.
     Tangent,
+    /// Energy, internal force and the tangent made positive semi-definite per integration
+    /// point ([`Material::response_projected`]): a descent direction for Newton.
+    ProjectedTangent,
 }
 
 /// Energy (J), internal force (N) and tangent (N/m) of one cell.
@@ -128,8 +131,12 @@ fn point_contribution(
             out.energy += w * energy;
             add_force(&p, &g, w, &mut out.force);
         }
-        Need::Tangent => {
-            let r = material.response(&f, part)?;
+        Need::Tangent | Need::ProjectedTangent => {
+            let r = if need == Need::ProjectedTangent {
+                material.response_projected(&f, part)?
+            } else {
+                material.response(&f, part)?
+            };
             out.energy += w * r.energy;
             add_force(&r.pk1, &g, w, &mut out.force);
             // M_a[i][3k+L] = Σ_J g_aJ A[3i+J][3k+L]; K_ab[i][k] = Σ_L M_a[i][3k+L] g_bL.

@@ -27,6 +27,11 @@ pub struct NewtonSettings {
     pub line_search: bool,
     /// Linear solver.
     pub linear_solver: SolverKind,
+    /// Assemble the positive semi-definite projected tangent
+    /// ([`Need::ProjectedTangent`]) instead of the exact one: every step is a descent
+    /// direction and the factorisation needs no diagonal shift; convergence is quadratic
+    /// wherever nothing was clamped.
+    pub projected_tangent: bool,
 }
 
 impl Default for NewtonSettings {
@@ -39,6 +44,7 @@ impl Default for NewtonSettings {
             max_bisections: 6,
             line_search: true,
             linear_solver: SolverKind::Auto,
+            projected_tangent: true,
         }
     }
 }
@@ -418,7 +424,12 @@ impl NewtonSolver {
                 let e = if reuse {
                     problem.evaluate(u, load, Need::Force, Some(&mut r), None)?
                 } else {
-                    problem.evaluate(u, load, Need::Tangent, Some(&mut r), Some(&mut k))?
+                    let need = if s.projected_tangent {
+                        Need::ProjectedTangent
+                    } else {
+                        Need::Tangent
+                    };
+                    problem.evaluate(u, load, need, Some(&mut r), Some(&mut k))?
                 };
                 let rn = norm(&r);
                 if !rn.is_finite() || !e.potential.is_finite() {

@@ -29,8 +29,11 @@ pub struct NonRigidSettings {
     pub max_icp_iterations: usize,
     /// Newton iterations per ICP iteration.
     pub newton_iterations: usize,
-    /// A penalty step ends when no imposed target moves by more than this between ICP
-    /// iterations, m.
+    /// A penalty step ends when the pulled surface points moved by at most this (root mean
+    /// square, m) during the last ICP iteration: the displacement stopped changing (thesis
+    /// alg. 3). An RMS, not a maximum: with a noisy cloud single pairs keep switching between
+    /// neighbouring cloud points (measured on the phantom at 1 mm noise: the largest target
+    /// jump stays at 2–9 mm after 10 iterations while the surface moves by 0.1–0.4 mm RMS).
     pub tolerance: f64,
     /// Pairs farther apart than mean + this × standard deviation are outliers (thesis: 2).
     pub outlier_sigma: f64,
@@ -62,7 +65,7 @@ impl Default for NonRigidSettings {
             penalty_steps: 3,
             max_icp_iterations: 10,
             newton_iterations: 2,
-            tolerance: 2e-4,
+            tolerance: 5e-4,
             outlier_sigma: 2.0,
             max_pair_distance: None,
             reject_rim: true,
@@ -277,7 +280,9 @@ impl NonRigidIcp {
                 } else {
                     k0 * (k1 / k0).powf(step as f64 / (steps - 1) as f64)
                 };
-                let mut previous: Option<Vec<(usize, Point3<f64>)>> = None;
+                // Surface positions at the start of the previous ICP iteration.
+                let mut previous: Option<Vec<Point3<f64>>> = None;
+                let mut solver_settled = false;
                 let mut step_converged = false;
                 for _ in 0..settings.max_icp_iterations {
                     if deadline.is_some_and(|d| Instant::now() >= d) && report.icp_iterations > 0 {
@@ -330,18 +335,20 @@ impl NonRigidIcp {
                     .ok_or(NonRigidError::NoCorrespondence)?;
                     report.sources = pairs.sources.len();
                     report.surface_rms = pairs.rms;
-                    // Convergence: the imposed targets stopped moving.
-                    let converged = previous.as_ref().is_some_and(|prev| {
-                        let prev: std::collections::HashMap<usize, Point3<f64>> =
-                            prev.iter().copied().collect();
-                        pairs
-                            .sources
-                            .iter()
-                            .zip(&pairs.targets)
-                            .map(|(i, t)| prev.get(i).map_or(f64::INFINITY, |p| (t - p).norm()))
-                            .fold(0.0, f64::max)
-                            <= settings.tolerance
-                    });
+                    // Convergence: the pulled surface stopped moving (RMS over the pulled
+                    // points of their motion during the last iteration).
+                    // A solver that only made shortened steps has not moved the surface
+                    // because it could not, not because it is done.
+                    let converged = solver_settled
+                        && previous.as_ref().is_some_and(|prev| {
+                            let n = pairs.sources.len().max(1) as f64;
+                            let sum: f64 = pairs
+                                .sources
+                                .iter()
+                                .map(|&i| (x[i] - prev[i]).norm_squared())
+                                .sum();
+                            (sum / n).sqrt() <= settings.tolerance
+                        });
                     report.timings.pairing_ms += ms(t);
                     if converged {
                         step_converged = true;
@@ -370,13 +377,14 @@ impl NonRigidIcp {
                         .newton
                         .improve(&mut model.problem, u, settings.newton_iterations);
                     report.newton_iterations += r.iterations;
+                    solver_settled = r.failure.is_none() && r.steps.iter().all(|&a| a >= 0.5);
                     if let Some((outcome, msg)) = r.failure {
                         report.warnings.push(format!("{}: {msg}", outcome.name()));
                         // A stale factorisation is the first suspect.
                         self.newton.invalidate_factorization();
                     }
                     report.timings.newton_ms += ms(t);
-                    previous = Some(pairs.sources.iter().copied().zip(pairs.targets).collect());
+                    previous = Some(x);
                 }
                 report.converged &= step_converged;
             }

@@ -141,7 +141,7 @@ fn contract_example_parses_with_documented_defaults() {
     assert_eq!(s.grid.cell_size, 0.01);
     assert_eq!(s.grid.subdivisions, 4);
     assert_eq!(s.grid.integration, IntegrationMode::WeightedCell);
-    assert_eq!(s.grid.min_fraction, 1e-4);
+    assert_eq!(s.grid.min_fraction, 1e-2);
     assert_eq!(s.grid.origin_offset, [0.0; 3]);
 
     assert_eq!(s.material.law, LawKind::NeoHookean);
@@ -177,6 +177,7 @@ fn contract_example_parses_with_documented_defaults() {
             max_bisections: 6,
             line_search: true,
             linear_solver: SolverKind::Auto,
+            projected_tangent: true,
             penalty_stiffness: None,
         }
     );

@@ -367,6 +367,12 @@ pub struct SolverSpec {
     /// Linear solver (default `"auto"`).
     #[serde(default)]
     pub linear_solver: SolverKind,
+    /// Newton steps use the tangent made positive semi-definite per integration point
+    /// (corotated law: compressed points' twist modes clamped), so that every step is a
+    /// descent direction and the Cholesky factorisation does not fail (default true);
+    /// `false`: the exact tangent.
+    #[serde(default = "defaults::yes")]
+    pub projected_tangent: bool,
     /// Penalty stiffness of Dirichlet springs in N/m, for fixed regions without their own
     /// `stiffness`. `None` (default): automatic. Finite and > 0 when given.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -383,6 +389,7 @@ impl Default for SolverSpec {
             max_bisections: defaults::max_bisections(),
             line_search: true,
             linear_solver: SolverKind::Auto,
+            projected_tangent: true,
             penalty_stiffness: None,
         }
     }
@@ -513,7 +520,7 @@ pub mod defaults {
     }
     /// `grid.min_fraction`.
     pub fn min_fraction() -> f64 {
-        1e-4
+        1e-2
     }
     /// `material.density`, kg/m³.
     pub fn density() -> f64 {

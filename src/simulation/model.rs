@@ -113,6 +113,7 @@ pub fn newton_settings(scene: &Scene) -> NewtonSettings {
         max_bisections: s.max_bisections as usize,
         line_search: s.line_search,
         linear_solver: s.linear_solver,
+        projected_tangent: s.projected_tangent,
     }
 }
 

@@ -32,6 +32,16 @@
 //! finite (large, regularised) closer to the singular set: no error, no NaN.
 //! Energy and `P` are never regularised.
 //!
+//! **Projected tangent.** The twist modes `T_a = R [v_a]ₓ / √2` (`v_a` the
+//! eigenvectors of `G`, eigenvalues `g_a`) are eigenvectors of `A` with
+//! eigenvalues `e_a = 2μ + 2c / g_a`. Under compression (`c < 0`, pair sums
+//! `g_a < 2`) they turn negative and `A` is indefinite: the Newton step of the
+//! assembled tangent then need not be a descent direction, and the sparse
+//! Cholesky factorisation fails. [`Law::response_projected`] clamps them,
+//! `A⁺ = A − Σ_{e_a<0} e_a T_a T_aᵀ` (a positive semi-definite tangent, the
+//! "definiteness fix" of Teran et al. 2005 / McAdams et al. 2011); it is the
+//! exact tangent wherever no `e_a` is negative.
+//!
 //! `pk2` (`S = F⁻¹P = V diag(2μ(1 − 1/σᵢ) + λ(tr S − 3)/σᵢ) Vᵀ`) and
 //! `material_tangent` need `F⁻¹`: they return [`MaterialError::Inverted`]
 //! when `|σ₃| ≤ 1e-12 σ₁` (numerically singular `F`). Inverted but regular `F`
@@ -321,6 +331,91 @@ fn in_basis(v: &Mat3, d: &Vector3<f64>) -> Mat3 {
     v * Mat3::from_diagonal(d) * v.transpose()
 }
 
+/// `A⁺ = A − Σ_{e_a<0} e_a T_a T_aᵀ` for the twist modes of `F` (see the module docs):
+/// subtracts the negative part of `c m G⁻¹ mᵀ + 2μ 𝕀` on the rotation subspace from
+/// `tangent`. `c = λ(tr S − 3) − 2μ`. Nothing to do when `c ≥ 0` (every `e_a ≥ 2μ`).
+fn clamp_twist_modes(p: Lame, f: &Mat3, r: &Mat3, c: f64, tangent: &mut Tangent9) {
+    if c >= 0.0 {
+        return;
+    }
+    // G = tr S I − sym(S), S = RᵀF; its eigenvectors are the twist axes.
+    let s = r.tr_mul(f);
+    let tr = s.trace();
+    let mut g = (s + s.transpose()) * -0.5;
+    for i in 0..3 {
+        g[(i, i)] += tr;
+    }
+    let (ga, v) = sym_eigen_desc(g);
+    for a in 0..3 {
+        let e = 2.0 * p.mu + 2.0 * c / ga[a].max(PAIR_SUM_FLOOR);
+        if e >= 0.0 {
+            continue;
+        }
+        let axis: Vector3<f64> = v.column(a).into_owned();
+        let t = r * axis.cross_matrix() * std::f64::consts::FRAC_1_SQRT_2;
+        // Row-major flattening, as in Tangent9: index 3i + J.
+        let mut flat = [0.0f64; 9];
+        for i in 0..3 {
+            for j in 0..3 {
+                flat[3 * i + j] = t[(i, j)];
+            }
+        }
+        for (row, &x) in flat.iter().enumerate() {
+            for (col, &y) in flat.iter().enumerate() {
+                tangent[(row, col)] -= e * x * y;
+            }
+        }
+    }
+}
+
+/// Energy, `P` and the exact tangent (see the module docs), with the twist modes clamped
+/// when `projected`.
+#[inline(always)]
+fn response_with(p: Lame, f: &Mat3, projected: bool) -> PointResponse {
+    let (r, g_inv) = rotation_and_g_inv(f);
+    let (energy, pk1, t) = energy_and_pk1(p, f, &r);
+    let c = p.lambda * t - 2.0 * p.mu;
+    // A[(3i+J),(3k+L)] = 2μ δ_ik δ_JL + λ R_iJ R_kL + c m_iJ · G⁻¹ m_kL with
+    // m_iJ = e_J × r_i (r_i the i-th row of R). Writing M_i = [r_i]ₓ (its
+    // rows are the m_iJ), block (i, k) of the last term is c M_i G⁻¹ M_kᵀ,
+    // whose row J is r_k × (row J of P_i), where
+    // P_i = c [r_i]ₓ G⁻¹ = [r_i × cg_0 | r_i × cg_1 | r_i × cg_2]
+    // and cg_a are the columns of c G⁻¹.
+    let ra: [[f64; 3]; 3] = r.transpose().into(); // ra[i] = r_i
+    let cg: [[f64; 3]; 3] = (g_inv * c).into(); // cg[a] = column a
+    let mut pt = [[[0.0f64; 3]; 3]; 3]; // pt[i][a] = column a of P_i
+    for i in 0..3 {
+        for a in 0..3 {
+            pt[i][a] = cross(&ra[i], &cg[a]);
+        }
+    }
+    let (mu2, la) = (2.0 * p.mu, p.lambda);
+    // column-major storage: cols[3k+L][3i+J]
+    let mut cols = [[0.0f64; 9]; 9];
+    for i in 0..3 {
+        for j in 0..3 {
+            let prow = [pt[i][0][j], pt[i][1][j], pt[i][2][j]];
+            let lr = la * ra[i][j];
+            for k in 0..3 {
+                let x = cross(&ra[k], &prow);
+                for l in 0..3 {
+                    cols[3 * k + l][3 * i + j] = x[l] + lr * ra[k][l];
+                }
+            }
+            cols[3 * i + j][3 * i + j] += mu2;
+        }
+    }
+    let mut tangent = Tangent9::from_data(nalgebra::ArrayStorage(cols));
+    if projected {
+        clamp_twist_modes(p, f, &r, c, &mut tangent);
+    }
+    PointResponse {
+        energy,
+        pk1,
+        tangent,
+    }
+}
+
 impl Law for Corotated {
     fn energy(p: Lame, f: &Mat3) -> Result<f64, MaterialError> {
         Ok(energy_and_pk1(p, f, &rotation(f)).0)
@@ -337,45 +432,12 @@ impl Law for Corotated {
 
     #[inline]
     fn response(p: Lame, f: &Mat3) -> Result<PointResponse, MaterialError> {
-        let (r, g_inv) = rotation_and_g_inv(f);
-        let (energy, pk1, t) = energy_and_pk1(p, f, &r);
-        let c = p.lambda * t - 2.0 * p.mu;
-        // A[(3i+J),(3k+L)] = 2μ δ_ik δ_JL + λ R_iJ R_kL + c m_iJ · G⁻¹ m_kL with
-        // m_iJ = e_J × r_i (r_i the i-th row of R). Writing M_i = [r_i]ₓ (its
-        // rows are the m_iJ), block (i, k) of the last term is c M_i G⁻¹ M_kᵀ,
-        // whose row J is r_k × (row J of P_i), where
-        // P_i = c [r_i]ₓ G⁻¹ = [r_i × cg_0 | r_i × cg_1 | r_i × cg_2]
-        // and cg_a are the columns of c G⁻¹.
-        let ra: [[f64; 3]; 3] = r.transpose().into(); // ra[i] = r_i
-        let cg: [[f64; 3]; 3] = (g_inv * c).into(); // cg[a] = column a
-        let mut pt = [[[0.0f64; 3]; 3]; 3]; // pt[i][a] = column a of P_i
-        for i in 0..3 {
-            for a in 0..3 {
-                pt[i][a] = cross(&ra[i], &cg[a]);
-            }
-        }
-        let (mu2, la) = (2.0 * p.mu, p.lambda);
-        // column-major storage: cols[3k+L][3i+J]
-        let mut cols = [[0.0f64; 9]; 9];
-        for i in 0..3 {
-            for j in 0..3 {
-                let prow = [pt[i][0][j], pt[i][1][j], pt[i][2][j]];
-                let lr = la * ra[i][j];
-                for k in 0..3 {
-                    let x = cross(&ra[k], &prow);
-                    for l in 0..3 {
-                        cols[3 * k + l][3 * i + j] = x[l] + lr * ra[k][l];
-                    }
-                }
-                cols[3 * i + j][3 * i + j] += mu2;
-            }
-        }
-        let tangent = Tangent9::from_data(nalgebra::ArrayStorage(cols));
-        Ok(PointResponse {
-            energy,
-            pk1,
-            tangent,
-        })
+        Ok(response_with(p, f, false))
+    }
+
+    #[inline]
+    fn response_projected(p: Lame, f: &Mat3) -> Result<PointResponse, MaterialError> {
+        Ok(response_with(p, f, true))
     }
 
     /// `S = F⁻¹P = V diag(2μ(1 − 1/σᵢ) + λ(tr S − 3)/σᵢ) Vᵀ`.
@@ -535,5 +597,50 @@ mod tests {
         let w = m.energy(&f, Part::Full).unwrap();
         let expect = 2.0 * (1.0 + 0.25 + 2.25) + 1.5 * 0.0;
         assert!((w - expect).abs() < 1e-12, "{w} vs {expect}");
+    }
+
+    /// The projected tangent equals the exact one with its negative eigenvalues set to zero,
+    /// computed independently by a full 9×9 symmetric eigen-decomposition; and it is the
+    /// exact tangent where the exact one has no negative eigenvalue.
+    #[test]
+    fn corotated_projected_tangent_is_the_clamped_exact_tangent() {
+        let m = Material::from_young_poisson(LawKind::Corotated, 4500.0, 0.49).unwrap();
+        let q1 = rot(Vector3::new(1.0, 2.0, 3.0), 0.7);
+        let q2 = rot(Vector3::new(-2.0, 0.5, 1.0), 1.9);
+        let cases = [
+            (Vector3::new(0.9, 0.85, 0.95), true), // compressed: twist modes negative
+            (Vector3::new(1.1, 0.7, 0.98), true),  // mixed
+            (Vector3::new(1.0, 1.0, -0.2), true),  // inverted
+            (Vector3::new(1.2, 1.15, 1.1), false), // stretched: nothing to clamp
+        ];
+        for (d, expect_clamp) in cases {
+            let f = q1 * Mat3::from_diagonal(&d) * q2;
+            for part in [Part::Full, Part::Shear, Part::Volumetric] {
+                let exact = m.response(&f, part).unwrap().tangent;
+                let projected = m.response_projected(&f, part).unwrap().tangent;
+                let eig = nalgebra::SymmetricEigen::new(exact);
+                let clamped = eig.eigenvectors
+                    * Tangent9::from_diagonal(&eig.eigenvalues.map(|e| e.max(0.0)))
+                    * eig.eigenvectors.transpose();
+                let scale = exact.norm().max(m.mu);
+                let err = (projected - clamped).norm() / scale;
+                assert!(err < 1e-9, "{d:?} {part:?}: projected vs clamped {err:e}");
+                let min = nalgebra::SymmetricEigen::new(projected).eigenvalues.min();
+                assert!(
+                    min >= -1e-9 * scale,
+                    "{d:?} {part:?}: min eigenvalue {min:e}"
+                );
+                let changed = (projected - exact).norm() / scale > 1e-12;
+                if part == Part::Full {
+                    assert_eq!(
+                        changed, expect_clamp,
+                        "{d:?}: clamping expected {expect_clamp}"
+                    );
+                }
+                if !expect_clamp {
+                    assert!(!changed, "{d:?} {part:?}: stretched tangent changed");
+                }
+            }
+        }
     }
 }

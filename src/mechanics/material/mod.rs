@@ -127,6 +127,11 @@ trait Law {
     fn energy_pk1(p: Lame, f: &Mat3) -> Result<(f64, Mat3), MaterialError>;
     /// Energy, P and ∂P/∂F in one pass.
     fn response(p: Lame, f: &Mat3) -> Result<PointResponse, MaterialError>;
+    /// As `response`, with a positive semi-definite tangent where the exact one is
+    /// indefinite (by default: the exact tangent).
+    fn response_projected(p: Lame, f: &Mat3) -> Result<PointResponse, MaterialError> {
+        Self::response(p, f)
+    }
     /// Second Piola–Kirchhoff stress (Pa).
     fn pk2(p: Lame, f: &Mat3) -> Result<Mat3, MaterialError>;
     /// Material tangent dS/dE in Voigt form (Pa).
@@ -254,6 +259,22 @@ impl Material {
             LawKind::Corotated => corotated::Corotated::response(p, f),
             LawKind::Svk => svk::Svk::response(p, f),
             LawKind::NeoHookean => neo_hookean::NeoHookean::response(p, f),
+        }
+    }
+
+    /// [`Material::response`] with the tangent made positive semi-definite where the exact
+    /// one is not, for Newton steps that must be descent directions and sparse Cholesky
+    /// factorisations that must not fail. Corotated: the twist modes' negative eigenvalues
+    /// (compressed points) are clamped to 0 (see `corotated.rs`); the tangent is exact
+    /// wherever none is negative. Other laws: the exact tangent. Energy and `P` are
+    /// unchanged.
+    #[inline]
+    pub fn response_projected(&self, f: &Mat3, part: Part) -> Result<PointResponse, MaterialError> {
+        check_finite(f)?;
+        let p = self.lame(part);
+        match self.law {
+            LawKind::Corotated => corotated::Corotated::response_projected(p, f),
+            _ => self.response(f, part),
         }
     }
 
