@@ -38,6 +38,8 @@ pub struct ModelConfig {
     pub coarse_to_fine: Option<f64>,
     /// Fictitious-domain weight α of cut cells' outside parts (`grid.min_fraction`).
     pub min_fraction: Option<f64>,
+    /// Median/MAD pruning of non-rigid pairs (`registration.robust_pruning`).
+    pub robust_pruning: Option<bool>,
 }
 
 /// The registration model a [`ModelConfig`] resolves to on a scene: what the report shows.
@@ -65,6 +67,8 @@ pub struct ResolvedConfig {
     pub coarse_to_fine: Option<f64>,
     /// Fictitious-domain weight α of cut cells' outside parts.
     pub min_fraction: f64,
+    /// Median/MAD pruning of non-rigid pairs (else mean + 2σ).
+    pub robust_pruning: bool,
 }
 
 impl ModelConfig {
@@ -122,8 +126,12 @@ impl ModelConfig {
         if self.penalty_steps.is_some()
             || self.penalty_factor.is_some()
             || self.coarse_to_fine.is_some()
+            || self.robust_pruning.is_some()
         {
             let r = s.registration.get_or_insert_with(RegistrationSpec::default);
+            if let Some(v) = self.robust_pruning {
+                r.robust_pruning = v;
+            }
             if let Some(v) = self.penalty_steps {
                 r.penalty_steps = v;
             }
@@ -163,15 +171,17 @@ impl ModelConfig {
             origin_offset: s.grid.origin_offset,
             coarse_to_fine: s.registration.as_ref().and_then(|r| r.coarse_to_fine),
             min_fraction: s.grid.min_fraction,
+            robust_pruning: s.registration.as_ref().is_none_or(|r| r.robust_pruning),
         }
     }
 }
 
 /// The sweep of `livereg bench`: the default and, one axis at a time, cell size (×0.75, ×1.5,
 /// ×2), subdivision level (1 to 4), integration (finite-cell, full-cell), fictitious weight α
-/// (10⁻⁴, 10⁻³, 10⁻², 3·10⁻²), law (neo-Hookean, SVK, linear, corotated), linear solver (LDLᵀ,
-/// Jacobi-CG), penalty ramp (1 and 5 steps), coarse-to-fine start (cells ×2) — changes
-/// already equal to the scene's value are left out. `quick`: the default, cell ×1.5 and ×2, finite-cell, full-cell and neo-Hookean.
+/// (10⁻⁴, 10⁻³, 10⁻², 3·10⁻², 10⁻¹), law (neo-Hookean, SVK, linear, corotated), linear solver (LDLᵀ,
+/// Jacobi-CG), penalty ramp (1 and 5 steps), the other pair-pruning rule (mean + 2σ or
+/// median/MAD), coarse-to-fine start (cells ×2) — changes already equal to the scene's value
+/// are left out. `quick`: the default, cell ×1.5 and ×2, finite-cell, full-cell and neo-Hookean.
 pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
     let s = &scene.scene;
     let named = |name: &str| ModelConfig {
@@ -213,7 +223,7 @@ pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
         }
     }
     if !quick {
-        for a in [1e-4, 1e-3, 1e-2, 3e-2] {
+        for a in [1e-4, 1e-3, 1e-2, 3e-2, 1e-1] {
             if a != s.grid.min_fraction {
                 out.push(ModelConfig {
                     min_fraction: Some(a),
@@ -261,6 +271,15 @@ pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
                 });
             }
         }
+        let robust = s.registration.as_ref().is_none_or(|r| r.robust_pruning);
+        out.push(ModelConfig {
+            robust_pruning: Some(!robust),
+            ..named(if robust {
+                "mean-2sigma pruning"
+            } else {
+                "median-mad pruning"
+            })
+        });
         if s.registration
             .as_ref()
             .and_then(|r| r.coarse_to_fine)

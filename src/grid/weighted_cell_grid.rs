@@ -23,9 +23,10 @@ pub struct GridOptions {
     pub subdivisions: u32,
     /// How cut cells are integrated.
     pub mode: IntegrationMode,
-    /// Fictitious-domain weight α ∈ [0, 0.5): the part of a cut cell outside the surface is
-    /// integrated with weight α instead of 0, so that nodes of cells with a tiny inside volume
-    /// keep a stiffness of at least α times a full cell's and the system stays non-singular.
+    /// Fictitious-domain weight α ∈ [0, 0.5) (default 1e-2, see docs/mechanics.md): the part
+    /// of a cut cell outside the surface is integrated with weight α instead of 0, so that
+    /// nodes of cells with a tiny inside volume keep a stiffness of at least α times a full
+    /// cell's and the system stays non-singular.
     pub min_fraction: f64,
     /// Shift of the grid origin, in cells, each component in `[0, 1)`: moves where cells are cut.
     pub origin_offset: [f64; 3],

@@ -93,9 +93,12 @@ pub struct PairingRule {
     /// Blending α of eq. 5.4: weight of the source's own nearest cloud point; `1 − α` goes to
     /// the mean of the cloud points whose nearest source it is.
     pub alpha: f64,
-    /// Pairs farther than mean + this × standard deviation (of the pair distances of the same
-    /// direction) are outliers; the thesis uses 2.
+    /// Pairs farther than centre + this × spread (of the pair distances of the same
+    /// direction) are outliers; the thesis uses 2 with the mean and standard deviation.
     pub outlier_sigma: f64,
+    /// Centre and spread are the median and the normal-consistent median absolute deviation
+    /// (1.4826 MAD) instead of the mean and standard deviation; see [`robust_threshold`].
+    pub robust: bool,
     /// Pairs farther than this, metres, are dropped too (`None`: no cap).
     pub max_pair_distance: Option<f64>,
 }
@@ -130,6 +133,27 @@ pub fn rejection_threshold(d: &[f64], sigma: f64) -> f64 {
     mean + sigma * var.sqrt()
 }
 
+/// Median + `sigma` × 1.4826 × median absolute deviation of `d`: the robust counterpart of
+/// [`rejection_threshold`] (1.4826 MAD estimates the standard deviation of normal data). Gross
+/// outliers move the mean and inflate the standard deviation — with 30 % of a cloud uniform in
+/// a box around the organ, mean + 2σ of the cloud→model distances lies beyond most outliers and
+/// keeps them — while the median and the MAD stay those of the inliers up to 50 % outliers.
+pub fn robust_threshold(d: &[f64], sigma: f64) -> f64 {
+    if d.is_empty() {
+        return 0.0;
+    }
+    let median = |v: &mut Vec<f64>| {
+        let m = v.len() / 2;
+        let (_, x, _) = v.select_nth_unstable_by(m, f64::total_cmp);
+        *x
+    };
+    let mut v = d.to_vec();
+    let med = median(&mut v);
+    let mut dev: Vec<f64> = d.iter().map(|x| (x - med).abs()).collect();
+    let mad = median(&mut dev);
+    med + sigma * 1.4826 * mad
+}
+
 /// Pairs the candidate vertices `candidates` (indices into `x`, current positions in metres)
 /// with `cloud` both ways and blends the directions by eq. 5.4:
 /// `d(i) = α [c(N(i)) − x(i)] + (1 − α) mean_{j ∈ V(i)} [c(j) − x(i)]`, with `N(i)` the nearest
@@ -162,8 +186,15 @@ pub fn pair(
         })
         .collect();
     let dists: Vec<f64> = forward.iter().map(|p| p.2).collect();
-    let limit = rejection_threshold(&dists, rule.outlier_sigma)
-        .min(rule.max_pair_distance.unwrap_or(f64::INFINITY));
+    let threshold = |d: &[f64]| {
+        if rule.robust {
+            robust_threshold(d, rule.outlier_sigma)
+        } else {
+            rejection_threshold(d, rule.outlier_sigma)
+        }
+        .min(rule.max_pair_distance.unwrap_or(f64::INFINITY))
+    };
+    let limit = threshold(&dists);
     let kept: Vec<(usize, usize, f64)> = forward.into_iter().filter(|p| p.2 <= limit).collect();
     if kept.len() < 3 {
         return None;
@@ -171,8 +202,7 @@ pub fn pair(
     let sources = IndexedPoints::new(kept.iter().map(|p| x[p.0]).collect())?;
     let back: Vec<(usize, f64)> = cloud.points.iter().map(|q| sources.nearest(q)).collect();
     let back_dists: Vec<f64> = back.iter().map(|b| b.1).collect();
-    let back_limit = rejection_threshold(&back_dists, rule.outlier_sigma)
-        .min(rule.max_pair_distance.unwrap_or(f64::INFINITY));
+    let back_limit = threshold(&back_dists);
     let mut sum = vec![Vector3::zeros(); kept.len()];
     let mut count = vec![0usize; kept.len()];
     let mut cloud_used = 0;
@@ -217,8 +247,44 @@ mod tests {
         PairingRule {
             alpha,
             outlier_sigma: 2.0,
+            robust: false,
             max_pair_distance: None,
         }
+    }
+
+    /// With 30 % gross outliers the median/MAD limit stays at the inliers' scale while
+    /// mean + 2σ admits most outliers; on outlier-free normal data the two agree (the MAD
+    /// estimates σ).
+    #[test]
+    fn robust_threshold_ignores_gross_outliers() {
+        // Inliers: half-normal distances, σ = 1 mm (Box–Muller on a fixed xorshift stream).
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        let mut uniform = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        let inliers: Vec<f64> = (0..700)
+            .map(|_| {
+                let (u1, u2) = (uniform(), uniform());
+                1e-3 * ((-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()).abs()
+            })
+            .collect();
+        let outliers: Vec<f64> = (0..300).map(|i| 5e-3 + 45e-3 * i as f64 / 299.0).collect();
+        let all: Vec<f64> = inliers.iter().chain(&outliers).copied().collect();
+        let robust = robust_threshold(&all, 2.0);
+        let classic = rejection_threshold(&all, 2.0);
+        let kept = |limit: f64| outliers.iter().filter(|&&d| d <= limit).count();
+        assert!(kept(robust) <= 15, "robust keeps {} outliers", kept(robust));
+        assert!(kept(classic) >= 200, "mean + 2σ keeps {}", kept(classic));
+        // Outlier-free: both limits estimate the same mean/median + 2σ within 25 %.
+        let (r, c) = (
+            robust_threshold(&inliers, 2.0),
+            rejection_threshold(&inliers, 2.0),
+        );
+        assert!((r - c).abs() <= 0.25 * c, "robust {r} vs classic {c}");
+        assert_eq!(robust_threshold(&[], 2.0), 0.0);
     }
 
     #[test]

@@ -37,6 +37,10 @@ pub struct NonRigidSettings {
     pub tolerance: f64,
     /// Pairs farther apart than mean + this × standard deviation are outliers (thesis: 2).
     pub outlier_sigma: f64,
+    /// Prune with the median and MAD instead of the mean and standard deviation
+    /// ([`robust_threshold`](super::correspondences::robust_threshold)): robust to gross
+    /// outliers (default true).
+    pub robust_pruning: bool,
     /// Pairs farther apart than this (m) are dropped as well: with a partial cloud, visible
     /// model points beyond the seen patch would otherwise be dragged onto its rim. `None`: no cap.
     pub max_pair_distance: Option<f64>,
@@ -67,6 +71,7 @@ impl Default for NonRigidSettings {
             newton_iterations: 2,
             tolerance: 5e-4,
             outlier_sigma: 2.0,
+            robust_pruning: true,
             max_pair_distance: None,
             reject_rim: true,
             visibility_interval: 1,
@@ -248,6 +253,7 @@ impl NonRigidIcp {
         let rule = PairingRule {
             alpha: settings.alpha,
             outlier_sigma: settings.outlier_sigma,
+            robust: settings.robust_pruning,
             max_pair_distance: settings.max_pair_distance,
         };
         let fixed_sets = model.problem.springs.len();

@@ -491,6 +491,10 @@ pub struct RegistrationSpec {
     /// starts from its prolongated displacement (`None`, default: off); in `(1, 4]`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub coarse_to_fine: Option<f64>,
+    /// Non-rigid pairs are pruned at median + 2 × 1.4826 MAD of their distances (default
+    /// true); `false`: at mean + 2σ as in the thesis, which gross outliers defeat.
+    #[serde(default = "defaults::yes")]
+    pub robust_pruning: bool,
 }
 
 impl Default for RegistrationSpec {
@@ -508,6 +512,7 @@ impl Default for RegistrationSpec {
             time_budget_ms: None,
             max_cloud_points: None,
             coarse_to_fine: None,
+            robust_pruning: true,
         }
     }
 }

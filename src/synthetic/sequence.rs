@@ -181,6 +181,10 @@ pub struct TruthModel {
     /// Without it the phantom, held only by its ligament box, swings almost rigidly under any
     /// load. Default [`DEFAULT_BED_STIFFNESS`]; 0: no bed.
     pub bed_stiffness: f64,
+    /// Fictitious-domain weight α of the truth's cut cells (default 1e-4, the finite cell
+    /// method's usual small value): fixed here, so that the ground truth does not move when
+    /// the registration model's `grid.min_fraction` default does.
+    pub min_fraction: f64,
 }
 
 impl Default for TruthModel {
@@ -193,13 +197,15 @@ impl Default for TruthModel {
             poisson_ratio: 0.49,
             young_modulus: None,
             bed_stiffness: DEFAULT_BED_STIFFNESS,
+            min_fraction: 1e-4,
         }
     }
 }
 
 impl TruthModel {
     /// Whether this truth would be discretised exactly like `scene`'s own model (same cell
-    /// size, subdivisions, integration, law, ν and E, and no elastic bed): then a registration
+    /// size, subdivisions, integration, fictitious weight, law, ν and E, and no elastic bed):
+    /// then a registration
     /// would be graded against itself.
     pub fn same_as_scene(&self, scene: &LoadedScene) -> bool {
         let s = &scene.scene;
@@ -207,6 +213,7 @@ impl TruthModel {
         (h - self.cell_size).abs() <= 1e-12 * h.max(self.cell_size)
             && s.grid.subdivisions == self.subdivisions
             && s.grid.integration == self.integration
+            && s.grid.min_fraction == self.min_fraction
             && s.material.law == self.law
             && s.material.poisson_ratio == self.poisson_ratio
             && self
@@ -226,6 +233,7 @@ impl TruthModel {
         s.grid.cell_size = self.cell_size / scene.length_scale();
         s.grid.subdivisions = self.subdivisions;
         s.grid.integration = self.integration;
+        s.grid.min_fraction = self.min_fraction;
         s.material.law = self.law;
         s.material.poisson_ratio = self.poisson_ratio;
         if let Some(e) = self.young_modulus {

@@ -131,6 +131,7 @@ fn default_truth_is_not_the_registration_model() {
         poisson_ratio: 0.45,
         young_modulus: None,
         bed_stiffness: 0.0,
+        min_fraction: g.min_fraction,
     };
     assert!(same.same_as_scene(scene));
     assert!(!TruthModel {
