@@ -38,7 +38,7 @@ pub struct ModelConfig {
     pub coarse_to_fine: Option<f64>,
     /// Fictitious-domain weight α of cut cells' outside parts (`grid.min_fraction`).
     pub min_fraction: Option<f64>,
-    /// Median/MAD pruning of non-rigid pairs (`registration.robust_pruning`).
+    /// Median/MAD pruning of rigid ICP pairs (`registration.robust_pruning`).
     pub robust_pruning: Option<bool>,
 }
 
@@ -67,7 +67,7 @@ pub struct ResolvedConfig {
     pub coarse_to_fine: Option<f64>,
     /// Fictitious-domain weight α of cut cells' outside parts.
     pub min_fraction: f64,
-    /// Median/MAD pruning of non-rigid pairs (else mean + 2σ).
+    /// Median/MAD pruning of rigid ICP pairs (else mean + 2σ).
     pub robust_pruning: bool,
 }
 
@@ -171,7 +171,7 @@ impl ModelConfig {
             origin_offset: s.grid.origin_offset,
             coarse_to_fine: s.registration.as_ref().and_then(|r| r.coarse_to_fine),
             min_fraction: s.grid.min_fraction,
-            robust_pruning: s.registration.as_ref().is_none_or(|r| r.robust_pruning),
+            robust_pruning: s.registration.as_ref().is_some_and(|r| r.robust_pruning),
         }
     }
 }
@@ -271,7 +271,7 @@ pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
                 });
             }
         }
-        let robust = s.registration.as_ref().is_none_or(|r| r.robust_pruning);
+        let robust = s.registration.as_ref().is_some_and(|r| r.robust_pruning);
         out.push(ModelConfig {
             robust_pruning: Some(!robust),
             ..named(if robust {

@@ -6,8 +6,9 @@
 //! `max_correspondence_distance` are dropped, then (trimmed ICP) all but the best
 //! `trim_fraction` of the cloud, then those farther than mean + `outlier_sigma` · standard
 //! deviation of the remaining pair distances (the thesis's "twice the standard deviation" rule,
-//! read as a band above the mean, re-applied to the fresh pair distances every iteration); the
-//! kept pairs give the update:
+//! read as a band above the mean, re-applied to the fresh pair distances every iteration; with
+//! `robust_pruning`, median + `outlier_sigma` · 1.4826 MAD instead); the kept
+//! pairs give the update:
 //!
 //! - [`IcpMetric::PointToPlane`] (default): one Gauss–Newton step of the linearised
 //!   small-rotation least squares `Σ ((ω × (pᵢ − c) + t + pᵢ − qᵢ) · nᵢ)²` (6×6 normal equations,
@@ -32,6 +33,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 use thiserror::Error;
 
+use crate::registration::correspondences::{rejection_threshold, robust_threshold};
 use crate::registration::{kabsch, ModelTarget, RigidTransform};
 
 /// What can go wrong in rigid registration. Messages say what is wrong and where.
@@ -124,6 +126,11 @@ pub struct RigidIcp {
     /// Reject pairs farther than mean + `k` · standard deviation of the pair distances
     /// (thesis: twice the standard deviation, default `Some(2.0)`); `None` keeps them; > 0.
     pub outlier_sigma: Option<f64>,
+    /// The band of `outlier_sigma` is median + `k` · 1.4826 MAD of the pair distances instead
+    /// of mean + `k` · σ ([`robust_threshold`](super::correspondences::robust_threshold)):
+    /// gross outliers do not widen it. Default false (the thesis's rule); see
+    /// `registration.robust_pruning` in docs/scene.md for what it measured.
+    pub robust_pruning: bool,
     /// Trimmed ICP: keep only the closest `fraction` of the cloud's pairs each iteration
     /// (before the sigma rule), for clouds that overlap the model only partly, e.g. `Some(0.4)`
     /// when about half the cloud lies on the model. Default `None`; in (0, 1].
@@ -143,6 +150,7 @@ impl Default for RigidIcp {
             rotation_tolerance: 1e-5,
             translation_tolerance: 1e-6,
             outlier_sigma: Some(2.0),
+            robust_pruning: false,
             trim_fraction: None,
             max_correspondence_distance: None,
             min_inliers: 3,
@@ -398,14 +406,12 @@ impl RigidIcp {
             }
         }
         if let (Some(k), true) = (self.outlier_sigma, keep.len() > 1) {
-            let n = keep.len() as f64;
-            let mean = keep.iter().map(|&i| pairs[i].1.sqrt()).sum::<f64>() / n;
-            let var = keep
-                .iter()
-                .map(|&i| (pairs[i].1.sqrt() - mean).powi(2))
-                .sum::<f64>()
-                / n;
-            let limit = mean + k * var.sqrt();
+            let d: Vec<f64> = keep.iter().map(|&i| pairs[i].1.sqrt()).collect();
+            let limit = if self.robust_pruning {
+                robust_threshold(&d, k)
+            } else {
+                rejection_threshold(&d, k)
+            };
             let limit2 = limit * limit;
             keep.retain(|&i| pairs[i].1 <= limit2);
         }

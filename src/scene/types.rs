@@ -491,9 +491,10 @@ pub struct RegistrationSpec {
     /// starts from its prolongated displacement (`None`, default: off); in `(1, 4]`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub coarse_to_fine: Option<f64>,
-    /// Non-rigid pairs are pruned at median + 2 × 1.4826 MAD of their distances (default
-    /// true); `false`: at mean + 2σ as in the thesis, which gross outliers defeat.
-    #[serde(default = "defaults::yes")]
+    /// Rigid ICP prunes its pairs at median + 2 × 1.4826 MAD of their distances when true;
+    /// default false: at mean + 2σ as in the thesis, which gross outliers defeat. (The
+    /// non-rigid stage keeps mean + 2σ: see `NonRigidSettings::robust_pruning`.)
+    #[serde(default)]
     pub robust_pruning: bool,
 }
 
@@ -512,7 +513,7 @@ impl Default for RegistrationSpec {
             time_budget_ms: None,
             max_cloud_points: None,
             coarse_to_fine: None,
-            robust_pruning: true,
+            robust_pruning: false,
         }
     }
 }

@@ -86,8 +86,8 @@ impl SessionSettings {
                 n.alpha = r.alpha;
                 n.penalty_end = r.penalty_end;
                 n.max_pair_distance = r.max_pair_distance.map(|d| d * scale);
-                n.robust_pruning = r.robust_pruning;
             }
+            s.rigid.robust_pruning = r.robust_pruning;
             s.cold.penalty_start = r.penalty_start;
             s.cold.penalty_steps = r.penalty_steps as usize;
             s.cold.max_icp_iterations = r.max_icp_iterations as usize;
