@@ -350,6 +350,41 @@ mod tests {
         assert!((c.resolved(&a).cell_size_mm - 2.0 * scene.scene.grid.cell_size).abs() < 1e-9);
     }
 
+    /// α and the pruning rule reach the scene keys the session reads, and the report shows them.
+    #[test]
+    fn alpha_and_pruning_change_their_scene_keys() {
+        let scene = phantom();
+        assert!(!scene
+            .scene
+            .registration
+            .as_ref()
+            .is_some_and(|r| r.robust_pruning));
+        let c = ModelConfig {
+            name: "x".into(),
+            min_fraction: Some(1e-3),
+            robust_pruning: Some(true),
+            ..ModelConfig::default()
+        };
+        let a = c.apply(&scene).unwrap();
+        assert_eq!(a.scene.grid.min_fraction, 1e-3);
+        assert!(a.scene.registration.as_ref().unwrap().robust_pruning);
+        let r = c.resolved(&a);
+        assert_eq!((r.min_fraction, r.robust_pruning), (1e-3, true));
+        let settings = crate::session::SessionSettings::from_scene(&a.scene, a.length_scale());
+        assert!(settings.rigid.robust_pruning);
+        assert!(!settings.warm.robust_pruning && !settings.cold.robust_pruning);
+        let bad = ModelConfig {
+            name: "bad alpha".into(),
+            min_fraction: Some(0.5),
+            ..ModelConfig::default()
+        };
+        let e = bad.apply(&scene).unwrap_err();
+        assert!(
+            e.contains("bad alpha") && e.contains("grid.min_fraction"),
+            "{e}"
+        );
+    }
+
     #[test]
     fn an_invalid_change_names_the_configuration_and_key() {
         let c = ModelConfig {
@@ -377,6 +412,8 @@ mod tests {
             assert!(c[1..].iter().all(|c| !c.is_default()));
             // The phantom is weighted-cell and corotated: neither appears as a change.
             assert!(!names.contains(&"weighted-cell") && !names.contains(&"corotated"));
+            // Nor does its own fictitious weight (the default 1e-2) as an α row.
+            assert!(!names.contains(&"alpha 1e-2"));
             for x in &c {
                 x.apply(&scene).unwrap();
             }
