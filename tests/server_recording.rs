@@ -62,20 +62,9 @@ async fn a_served_session_is_recorded_and_replays_identically() {
     let scene = SceneFiles::read(&case.join("scene.toml")).unwrap();
 
     // The create response names the recording.
-    let (boundary, body) = scene.multipart();
-    let ct = format!("multipart/form-data; boundary={boundary}");
-    let auth = format!("Bearer {TOKEN_A}");
-    let r = http(
-        addr,
-        "POST",
-        "/v1/sessions",
-        &[("Content-Type", &ct), ("Authorization", &auth)],
-        &body,
-    )
-    .await
-    .unwrap();
-    assert_eq!(r.status, 201, "{}", String::from_utf8_lossy(&r.body));
-    let info = r.json();
+    let info = http_create_session_info(addr, TOKEN_A, &scene)
+        .await
+        .unwrap();
     let id = info["id"].as_str().unwrap().to_string();
     let path = PathBuf::from(info["recording"].as_str().expect("recording path"));
     assert_eq!(path, recordings.join(format!("{id}.mcap")));

@@ -183,6 +183,19 @@ impl SceneFiles {
 
 /// Creates a session over HTTP (multipart upload); returns its id.
 pub async fn http_create_session(addr: SocketAddr, token: &str, scene: &SceneFiles) -> Res<String> {
+    http_create_session_info(addr, token, scene).await?["id"]
+        .as_str()
+        .map(str::to_string)
+        .ok_or("no id".into())
+}
+
+/// Creates a session over HTTP (multipart upload); returns the whole create response (the
+/// session description: id, recording path, model size, …).
+pub async fn http_create_session_info(
+    addr: SocketAddr,
+    token: &str,
+    scene: &SceneFiles,
+) -> Res<Value> {
     let (boundary, body) = scene.multipart();
     let ct = format!("multipart/form-data; boundary={boundary}");
     let auth = format!("Bearer {token}");
@@ -201,10 +214,7 @@ pub async fn http_create_session(addr: SocketAddr, token: &str, scene: &SceneFil
             String::from_utf8_lossy(&r.body)
         ));
     }
-    r.json()["id"]
-        .as_str()
-        .map(str::to_string)
-        .ok_or("no id".into())
+    Ok(r.json())
 }
 
 /// Closes a session over HTTP.
