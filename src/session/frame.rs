@@ -51,6 +51,20 @@ pub enum FrameError {
         /// The limit, mm.
         limit_mm: f64,
     },
+    /// The held pose no longer fits the cloud and rigid ICP found no other pose that
+    /// converged with an RMS under the no-match limit: the frame is rejected rather than
+    /// registered at a pose that may be wrong.
+    #[error(
+        "the cloud no longer fits the held pose (RMS {held_rms_mm:.1} mm) and no pose was \
+         re-acquired: rigid ICP did not converge under {limit_mm:.1} mm from the held pose \
+         or from the cloud's centroid shift"
+    )]
+    PoseLost {
+        /// RMS distance of the cloud to the model at the held pose, mm.
+        held_rms_mm: f64,
+        /// The no-match limit, mm.
+        limit_mm: f64,
+    },
     /// The non-rigid stage failed.
     #[error("non-rigid registration: {0}")]
     NonRigid(String),
@@ -68,7 +82,7 @@ impl FrameError {
             FrameError::Empty => "empty",
             FrameError::NonFinite { .. } => "non-finite",
             FrameError::Rigid(_) => "rigid",
-            FrameError::NoMatch { .. } => "no-match",
+            FrameError::NoMatch { .. } | FrameError::PoseLost { .. } => "no-match",
             FrameError::NonRigid(_) => "non-rigid",
             FrameError::NonFiniteState => "non-finite-state",
         }

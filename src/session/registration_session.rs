@@ -12,7 +12,7 @@ use crate::mesh::TriSurface;
 use crate::registration::correspondences::rejection_threshold;
 use crate::registration::non_rigid_icp::{NonRigidReport, NonRigidTimings};
 use crate::registration::{
-    IndexedPoints, ModelTarget, NonRigidIcp, NonRigidSettings, Prolongation, RigidIcp,
+    IcpResult, IndexedPoints, ModelTarget, NonRigidIcp, NonRigidSettings, Prolongation, RigidIcp,
     RigidTransform,
 };
 use crate::scene::{LoadedScene, PoseUpdate, RigidMode};
@@ -27,6 +27,9 @@ struct GoodState {
     model_to_cloud: RigidTransform,
     /// Whether a frame has succeeded since the start or the last reset.
     registered: bool,
+    /// The last good frame's cloud as registered (metres, cloud frame, after thinning): its
+    /// centroid and fit are where a lost pose is searched first ([`Session::reacquire_pose`]).
+    cloud: Option<Vec<Point3<f64>>>,
 }
 
 /// Registers a stream of frames to one model, carrying the state from frame to frame.
@@ -131,6 +134,7 @@ impl Session {
                 u,
                 model_to_cloud: RigidTransform::identity(),
                 registered: false,
+                cloud: None,
             },
             frames: 0,
             coarse: None,
@@ -144,6 +148,7 @@ impl Session {
             u: vec![0.0; self.model.problem.dofs()],
             model_to_cloud: RigidTransform::identity(),
             registered: false,
+            cloud: None,
         };
         self.non_rigid_cold.invalidate();
         self.non_rigid_warm.invalidate();
@@ -244,6 +249,7 @@ impl Session {
                     u: done.u,
                     model_to_cloud: done.model_to_cloud,
                     registered: true,
+                    cloud: Some(done.cloud),
                 };
                 result.model_to_cloud = done.model_to_cloud;
                 result.converged = done.converged;
@@ -352,10 +358,10 @@ impl Session {
                 (self.good.model_to_cloud, 0)
             } else {
                 flags.push("pose_reacquired".into());
-                self.track_pose(&cloud)?
+                self.reacquire_pose(&cloud, rms)?
             }
         } else {
-            self.track_pose(&cloud)?
+            self.track_pose(&cloud, self.good.model_to_cloud.inverse())?
         };
         times.rigid_ms = ms(t);
 
@@ -370,6 +376,7 @@ impl Session {
                 factorizations: 0,
                 surface_rms: 0.0,
                 used_points: cloud.len(),
+                cloud,
                 sources: 0,
                 warnings: Vec::new(),
             });
@@ -494,6 +501,7 @@ impl Session {
             factorizations: report.factorizations,
             surface_rms: report.surface_rms,
             used_points: cloud.len(),
+            cloud,
             sources: report.sources,
             warnings: report.warnings,
         })
@@ -548,7 +556,85 @@ impl Session {
     /// Rigid ICP of `cloud` (metres, cloud frame) to the current deformed surface from the
     /// last pose (or the identity fit when the rigid stage is off); rejects a cloud whose fit
     /// leaves an RMS above [`SessionSettings::max_rigid_rms`].
-    fn track_pose(&self, cloud: &[Point3<f64>]) -> Result<(RigidTransform, usize), FrameError> {
+    fn track_pose(
+        &self,
+        cloud: &[Point3<f64>],
+        start: RigidTransform,
+    ) -> Result<(RigidTransform, usize), FrameError> {
+        let r = self.rigid_fit(cloud, start)?;
+        if r.rms > self.settings.max_rigid_rms {
+            return Err(FrameError::NoMatch {
+                rms_mm: r.rms * 1e3,
+                limit_mm: self.settings.max_rigid_rms * 1e3,
+            });
+        }
+        Ok((r.model_to_cloud, r.iterations))
+    }
+
+    /// The pose searched again when the held one no longer fits (its RMS `held_rms`, metres,
+    /// is above [`SessionSettings::pose_reacquire_rms`]): rigid ICP from the held pose, and
+    /// from the held pose shifted by the motion of the cloud's centroid since the last good
+    /// frame (a bumped or moved camera, or a liver moved by more than ICP's basin of attraction:
+    /// from the held pose alone, a 1 m jump ended in a wrong minimum turned by ~96° whose RMS
+    /// passed the no-match limit). The converged fit with the smallest RMS wins. A re-acquired
+    /// pose must have converged: if neither start converges below
+    /// [`SessionSettings::max_rigid_rms`], the frame is rejected (`no-match`) and the session
+    /// keeps its state, instead of committing a pose that may be wrong.
+    fn reacquire_pose(
+        &self,
+        cloud: &[Point3<f64>],
+        held_rms: f64,
+    ) -> Result<(RigidTransform, usize), FrameError> {
+        let held = self.good.model_to_cloud.inverse();
+        let mut starts = vec![held];
+        if let Some(previous) = &self.good.cloud {
+            let shift = centroid(cloud) - centroid(previous);
+            if shift.norm() > 0.0 {
+                let shifted = held.compose(&RigidTransform::from_translation(-shift));
+                // The same view moved as a whole: at the shifted pose the cloud fits the model
+                // as well as the last frame's cloud did at the held pose (plus the noise of a
+                // new frame), and that pose is kept as it is. A view that also turned fits
+                // worse, and is searched by ICP from there.
+                let fit = self.pose_rms(previous, &self.good.model_to_cloud);
+                let shifted_fit = self.pose_rms(cloud, &shifted.inverse());
+                if shifted_fit <= SAME_VIEW_FIT_RATIO * fit + SAME_VIEW_FIT_SLACK {
+                    return Ok((shifted.inverse(), 0));
+                }
+                starts.push(shifted);
+            }
+        }
+        let mut best: Option<IcpResult> = None;
+        let mut iterations = 0;
+        let mut last_error = None;
+        for start in starts {
+            match self.rigid_fit(cloud, start) {
+                Ok(r) => {
+                    iterations += r.iterations;
+                    let usable = r.converged && r.rms <= self.settings.max_rigid_rms;
+                    if usable && best.as_ref().is_none_or(|b| r.rms < b.rms) {
+                        best = Some(r);
+                    }
+                }
+                Err(e) => last_error = Some(e),
+            }
+        }
+        match (best, last_error) {
+            (Some(r), _) => Ok((r.model_to_cloud, iterations)),
+            (None, Some(e)) if iterations == 0 => Err(e),
+            (None, _) => Err(FrameError::PoseLost {
+                held_rms_mm: held_rms * 1e3,
+                limit_mm: self.settings.max_rigid_rms * 1e3,
+            }),
+        }
+    }
+
+    /// Rigid ICP of `cloud` (metres, cloud frame) to the current deformed surface from the
+    /// cloud → model motion `start`.
+    fn rigid_fit(
+        &self,
+        cloud: &[Point3<f64>],
+        start: RigidTransform,
+    ) -> Result<IcpResult, FrameError> {
         let deformed = TriSurface::new(
             self.model.surface_embedding.positions(&self.good.u),
             self.model.surface.triangles.clone(),
@@ -564,21 +650,10 @@ impl Session {
                 },
                 RigidTransform::identity(),
             ),
-            RigidMode::Icp => (
-                self.settings.rigid.clone(),
-                self.good.model_to_cloud.inverse(),
-            ),
+            RigidMode::Icp => (self.settings.rigid.clone(), start),
         };
-        let r = icp
-            .register(&target, cloud, Some(initial))
-            .map_err(|e| FrameError::Rigid(e.to_string()))?;
-        if r.rms > self.settings.max_rigid_rms {
-            return Err(FrameError::NoMatch {
-                rms_mm: r.rms * 1e3,
-                limit_mm: self.settings.max_rigid_rms * 1e3,
-            });
-        }
-        Ok((r.model_to_cloud, r.iterations))
+        icp.register(&target, cloud, Some(initial))
+            .map_err(|e| FrameError::Rigid(e.to_string()))
     }
 
     /// RMS distance (metres) from the points of `cloud` (metres, cloud frame), taken to the
@@ -586,12 +661,17 @@ impl Session {
     /// tangent plane at the nearest vertex, so the vertex spacing does not count — after the
     /// mean + 2σ outlier rule: how well the held pose still fits.
     fn held_pose_rms(&self, cloud: &[Point3<f64>]) -> f64 {
+        self.pose_rms(cloud, &self.good.model_to_cloud)
+    }
+
+    /// [`Session::held_pose_rms`] at the model → cloud pose `model_to_cloud`.
+    fn pose_rms(&self, cloud: &[Point3<f64>], model_to_cloud: &RigidTransform) -> f64 {
         let x = self.model.surface_embedding.positions(&self.good.u);
         let normals = TriSurface::vertex_normals_at(&x, &self.model.surface.triangles);
         let Some(vertices) = IndexedPoints::new(x) else {
             return f64::INFINITY;
         };
-        let to_model = self.good.model_to_cloud.inverse();
+        let to_model = model_to_cloud.inverse();
         let d: Vec<f64> = cloud
             .iter()
             .map(|p| {
@@ -609,6 +689,26 @@ impl Session {
     }
 }
 
+/// A re-acquired pose that is the held one shifted by the cloud centroid's motion is kept
+/// without ICP when the cloud's fit there is at most this times the last frame's fit at the
+/// held pose, plus [`SAME_VIEW_FIT_SLACK`].
+const SAME_VIEW_FIT_RATIO: f64 = 1.2;
+/// See [`SAME_VIEW_FIT_RATIO`], metres (a new frame's noise changes the fit by a fraction of
+/// a millimetre).
+const SAME_VIEW_FIT_SLACK: f64 = 0.5e-3;
+
+/// Mean of `points` (non-empty).
+fn centroid(points: &[Point3<f64>]) -> Point3<f64> {
+    let n = points.len().max(1) as f64;
+    Point3::from(
+        points
+            .iter()
+            .map(|p| p.coords)
+            .sum::<nalgebra::Vector3<f64>>()
+            / n,
+    )
+}
+
 /// A successful frame's new state and counters.
 struct Done {
     u: Vec<f64>,
@@ -620,6 +720,7 @@ struct Done {
     factorizations: usize,
     surface_rms: f64,
     used_points: usize,
+    cloud: Vec<Point3<f64>>,
     sources: usize,
     warnings: Vec<String>,
 }
