@@ -49,6 +49,7 @@ async fn run_load(
         hz: 30.0,
         duration: Duration::from_secs_f64(seconds),
         binary: true,
+        binary_results: false,
     };
     let rep = load_test(server.http_addr, TOKEN_A, &scene, frames, &spec)
         .await

@@ -180,3 +180,191 @@ async fn rust_and_python_clients_round_trip_100_frames_equal_to_register() {
     server.shutdown().await.unwrap();
     eprintln!("round trips: {:.1} s", t0.elapsed().as_secs_f64());
 }
+
+/// `a` and `b` equal up to `b`'s rounding to f32 (half an f32 ulp, 2⁻²⁴ relative) plus the
+/// run-to-run spread of registration (1e-6 scene units, as `same`).
+fn close_f32(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-6 + b.abs() * f64::from(f32::EPSILON) / 2.0 * 1.0001
+}
+
+/// The arrays of points `got` (a binary result) and `want` (a JSON result): same lengths, each
+/// coordinate [`close_f32`], and every coordinate of `got` an f32 (it came through f32).
+fn assert_points_f32(got: &serde_json::Value, want: &serde_json::Value, at: &str) {
+    let (g, w) = (got.as_array().unwrap(), want.as_array().unwrap());
+    assert_eq!(g.len(), w.len(), "{at}: point counts");
+    assert!(!g.is_empty(), "{at}: no points");
+    for (i, (p, q)) in g.iter().zip(w).enumerate() {
+        for k in 0..3 {
+            let (a, b) = (p[k].as_f64().unwrap(), q[k].as_f64().unwrap());
+            assert!(close_f32(a, b), "{at}[{i}][{k}]: {a} against {b}");
+            assert_eq!(f64::from(a as f32), a, "{at}[{i}][{k}]: {a} is not an f32");
+        }
+    }
+}
+
+/// A binary result (decoded to the JSON shape) against the JSON result of the same frame: the
+/// same keys, the same metadata, the same surface and structures to f32 precision.
+fn assert_binary_matches_json(got: &serde_json::Value, want: &serde_json::Value) {
+    let at = format!("frame {}", want["frame"]);
+    let keys = |v: &serde_json::Value| {
+        let mut k: Vec<String> = v.as_object().unwrap().keys().cloned().collect();
+        k.sort();
+        k
+    };
+    assert_eq!(keys(got), keys(want), "{at}: keys");
+    for key in ["type", "seq", "frame", "source", "converged", "skipped"] {
+        assert_eq!(got[key], want[key], "{at}.{key}");
+    }
+    same(&want["rigid"], &got["rigid"], &format!("{at}.rigid")).unwrap();
+    for key in [
+        "icp_iterations",
+        "newton_iterations",
+        "surface_rms",
+        "flags",
+        "error",
+    ] {
+        same(
+            &want["diagnostics"][key],
+            &got["diagnostics"][key],
+            &format!("{at}.diagnostics.{key}"),
+        )
+        .unwrap();
+    }
+    assert_points_f32(&got["surface"], &want["surface"], &format!("{at}.surface"));
+    let ws = want["structures"].as_object().unwrap();
+    assert_eq!(keys(&got["structures"]), keys(&want["structures"]));
+    for (name, pts) in ws {
+        assert_points_f32(
+            &got["structures"][name],
+            pts,
+            &format!("{at}.structures.{name}"),
+        );
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn binary_results_equal_json_results_to_f32_precision() {
+    const N: usize = 12;
+    let case = small_case("binary-results", N);
+    let server = start(test_config("binary-results")).await;
+    let addr = server.http_addr;
+    let scene = SceneFiles::read(&case.join("scene.toml")).unwrap();
+    let frames = read_frames(&case.join("frames")).unwrap();
+
+    // A bad `results` value or an unknown parameter is refused before the upgrade.
+    let id = http_create_session(addr, TOKEN_A, &scene).await.unwrap();
+    let auth = format!("Bearer {TOKEN_A}");
+    for (query, names) in [("results=xml", "xml"), ("result=binary", "result")] {
+        let r = http(
+            addr,
+            "GET",
+            &format!("/v1/sessions/{id}/stream?{query}"),
+            &[("Authorization", &auth)],
+            b"",
+        )
+        .await
+        .unwrap();
+        assert_eq!(r.status, 400, "{query}");
+        let msg = r.json()["error"]["message"].as_str().unwrap().to_string();
+        assert!(msg.contains(names), "{query}: {msg}");
+    }
+
+    // The same binary frames (f32) with JSON results and with binary results, each in its own
+    // session; then the Python client with binary results.
+    let (json, _) = ws_lockstep_with(addr, &id, TOKEN_A, &frames, true, false)
+        .await
+        .unwrap();
+    http_close_session(addr, TOKEN_A, &id).await.unwrap();
+    let id = http_create_session(addr, TOKEN_A, &scene).await.unwrap();
+    let (binary, _) = ws_lockstep_with(addr, &id, TOKEN_A, &frames, true, true)
+        .await
+        .unwrap();
+    http_close_session(addr, TOKEN_A, &id).await.unwrap();
+    assert_eq!(json.len(), N);
+    assert_eq!(binary.len(), N);
+    for (b, j) in binary.iter().zip(&json) {
+        assert_binary_matches_json(b, j);
+    }
+    // The frames bend the body: the comparison is not between rest shapes.
+    assert_ne!(json[0]["surface"], json[3]["surface"]);
+
+    let python = std::process::Command::new("python3")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !python {
+        eprintln!("SKIPPED the Python client: python3 is not installed");
+        server.shutdown().await.unwrap();
+        return;
+    }
+    let script = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/clients/python/livereg_client.py"
+    );
+    let token_file = case.join("token.txt");
+    std::fs::write(&token_file, format!("room-a:{TOKEN_A}\n")).unwrap();
+    let out = case.join("python-binary.jsonl");
+    let args: Vec<String> = vec![
+        script.into(),
+        "--url".into(),
+        format!("http://{addr}"),
+        "--token-file".into(),
+        token_file.display().to_string(),
+        "roundtrip".into(),
+        "--scene".into(),
+        case.join("scene.toml").display().to_string(),
+        "--frames".into(),
+        case.join("frames").display().to_string(),
+        "--out".into(),
+        out.display().to_string(),
+        "--transport".into(),
+        "ws-binary".into(),
+        "--binary-results".into(),
+    ];
+    let o = tokio::task::spawn_blocking(move || {
+        std::process::Command::new("python3")
+            .args(&args)
+            .output()
+            .unwrap()
+    })
+    .await
+    .unwrap();
+    assert!(
+        o.status.success(),
+        "python client failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let py: Vec<serde_json::Value> = std::fs::read_to_string(&out)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(py.len(), N);
+    for (p, j) in py.iter().zip(&json) {
+        assert_binary_matches_json(p, j);
+    }
+
+    // The Python decoder on a message of the server's encoder, whole and truncated.
+    let msg: livereg::server::codec::ResultMessage =
+        serde_json::from_value(json[5].clone()).unwrap();
+    let bytes = livereg::server::result_codec::encode_binary_result(&msg).unwrap();
+    let file = case.join("result.bin");
+    let decode = |b: &[u8]| {
+        std::fs::write(&file, b).unwrap();
+        std::process::Command::new("python3")
+            .args([script, "decode-result", file.to_str().unwrap()])
+            .output()
+            .unwrap()
+    };
+    let o = decode(&bytes);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let decoded: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_binary_matches_json(&decoded, &json[5]);
+    for cut in [bytes.len() - 1, bytes.len() / 2, 10] {
+        let o = decode(&bytes[..cut]);
+        assert_eq!(o.status.code(), Some(1), "truncated to {cut}");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("binary result:"), "truncated to {cut}: {err}");
+    }
+    server.shutdown().await.unwrap();
+}

@@ -181,6 +181,9 @@ async fn disconnects_newest_wins_and_graceful_shutdown() {
                 break;
             }
             WsEvent::Error(..) => {}
+            other @ (WsEvent::BinaryResult(_) | WsEvent::Undecodable(_)) => {
+                panic!("a JSON-results stream sent {other:?}")
+            }
         }
     }
     assert!(got_result, "the frame in flight was not finished");

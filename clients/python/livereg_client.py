@@ -11,12 +11,16 @@ hashlib) for streams. Lengths are in the scene's units; results are in the cloud
     with c.stream(sid) as ws:                           # WebSocket: newest frame wins
         ws.send_frame([[x, y, z], ...], seq=1)          # JSON; send_frame_binary for f32
         msg = ws.recv()                                 # {"type": "result", ...} or error
+    with c.stream(sid, binary_results=True) as ws:      # results in the binary encoding,
+        ...                                             # decoded by recv() to the same dict
     c.close_session(sid)
 
 Command line (used by the tests):
 
     python3 livereg_client.py --url http://127.0.0.1:8080 --token-file tokens.txt \\
-        roundtrip --scene SCENE --frames DIR --out results.jsonl --transport ws|ws-binary|http
+        roundtrip --scene SCENE --frames DIR --out results.jsonl --transport ws|ws-binary|http \\
+        [--binary-results]
+    python3 livereg_client.py decode-result FILE    # a binary result message -> JSON on stdout
 """
 
 import argparse
@@ -32,7 +36,7 @@ import urllib.error
 import urllib.parse
 import urllib.request
 
-__all__ = ["Client", "LiveregError", "WebSocket", "encode_binary_frame"]
+__all__ = ["Client", "LiveregError", "WebSocket", "decode_binary_result", "encode_binary_frame"]
 
 _WS_GUID = "258EAFA5-E914-47DA-95CA-C5AB0DC85B11"
 
@@ -57,6 +61,65 @@ def encode_binary_frame(points, seq=0, camera=None):
     flat = [c for p in points for c in p]
     out.append(struct.pack("<%df" % len(flat), *flat))
     return b"".join(out)
+
+
+_RESULT_MAGIC = b"LVRR"
+_RESULT_HEADER = 20
+
+
+def decode_binary_result(data):
+    """Decodes a binary result message (docs/server.md, "Binary result encoding") into the
+    dict a JSON result gives: the metadata plus "surface" and "structures" ({name: points}),
+    coordinates as floats (f32 precision, scene units, cloud frame). Raises ValueError saying
+    what is wrong on a truncated, corrupted or inconsistent message."""
+    data = bytes(data)
+    if len(data) < _RESULT_HEADER:
+        raise ValueError("binary result: %d bytes is shorter than the %d-byte header"
+                         % (len(data), _RESULT_HEADER))
+    if data[:4] != _RESULT_MAGIC:
+        raise ValueError("binary result: does not start with the magic `LVRR`")
+    if data[4] != 1:
+        raise ValueError("binary result: version %d is not supported (this decoder reads "
+                         "version 1)" % data[4])
+    if data[5:8] != b"\0\0\0":
+        raise ValueError("binary result: unknown flags or non-zero reserved bytes")
+    m, v, s = struct.unpack_from("<III", data, 8)
+    counts_end = _RESULT_HEADER + 4 * s
+    if counts_end > len(data):
+        raise ValueError("binary result: %d bytes cannot hold the counts of the %d structures "
+                         "its header announces" % (len(data), s))
+    counts = struct.unpack_from("<%dI" % s, data, _RESULT_HEADER)
+    expected = counts_end + m + 12 * (v + sum(counts))
+    if expected != len(data):
+        raise ValueError("binary result: %d bytes, but its header announces %d bytes of "
+                         "metadata, %d surface vertices and %d structures of %s points: "
+                         "expected %d bytes" % (len(data), m, v, s, list(counts), expected))
+    try:
+        meta = json.loads(data[counts_end:counts_end + m].decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as e:
+        raise ValueError("binary result: malformed metadata JSON: %s" % e) from None
+    if not isinstance(meta, dict) or meta.get("type") != "result":
+        raise ValueError("binary result: the metadata is not a result object")
+    names = meta.pop("structure_names", None)
+    if not isinstance(names, list) or len(names) != s:
+        raise ValueError("binary result: the metadata names %s structures, the header counts %d"
+                         % (len(names) if isinstance(names, list) else "no", s))
+    if len(set(map(str, names))) != s:
+        raise ValueError("binary result: a structure name appears twice")
+
+    def points(start, n):
+        flat = struct.unpack_from("<%df" % (3 * n), data, start)
+        return [list(flat[i:i + 3]) for i in range(0, 3 * n, 3)]
+
+    at = counts_end + m
+    meta["surface"] = points(at, v)
+    at += 12 * v
+    structures = {}
+    for name, c in zip(names, counts):
+        structures[str(name)] = points(at, c)
+        at += 12 * c
+    meta["structures"] = structures
+    return meta
 
 
 def _scene_files(scene_path):
@@ -169,18 +232,25 @@ class Client:
         return self._request("POST", "/v1/sessions/%s/frames" % sid,
                              encode_binary_frame(points, seq), "application/octet-stream")
 
-    def stream(self, sid):
-        """A WebSocket stream of the session (use as a context manager)."""
-        return WebSocket(self.url, "/v1/sessions/%s/stream" % sid, self.token, self.timeout)
+    def stream(self, sid, binary_results=False):
+        """A WebSocket stream of the session (use as a context manager). With binary_results
+        the server sends results in the binary result encoding (f32 coordinates, much smaller
+        than JSON); recv() decodes them to the same dict as a JSON result."""
+        path = "/v1/sessions/%s/stream" % sid
+        if binary_results:
+            path += "?results=binary"
+        return WebSocket(self.url, path, self.token, self.timeout, binary_results)
 
     def health(self):
         return self._request("GET", "/healthz")
 
 
 class WebSocket:
-    """A minimal RFC 6455 client (no extensions, ws:// only): text and binary messages."""
+    """A minimal RFC 6455 client (no extensions, ws:// only): text and binary messages.
+    binary_results: binary messages are binary results, decoded by recv()."""
 
-    def __init__(self, url, path, token, timeout=60.0):
+    def __init__(self, url, path, token, timeout=60.0, binary_results=False):
+        self.binary_results = binary_results
         u = urllib.parse.urlparse(url)
         if u.scheme != "http":
             raise ValueError("this stdlib WebSocket client speaks ws:// (http) only")
@@ -268,7 +338,9 @@ class WebSocket:
         self.send_binary(encode_binary_frame(points, seq, camera))
 
     def recv(self):
-        """The next message as a dict; {"type": "close", "code": n} when the server closes."""
+        """The next message as a dict; {"type": "close", "code": n} when the server closes.
+        Binary messages are decoded results when the stream asked for binary results (a
+        corrupted one raises ValueError), else {"type": "binary", "data": bytes}."""
         data, first_op = b"", None
         while True:
             b1, b2 = self._read(2)
@@ -301,6 +373,8 @@ class WebSocket:
             if fin:
                 if first_op == 0x1:
                     return json.loads(data.decode("utf-8"))
+                if self.binary_results:
+                    return decode_binary_result(data)
                 return {"type": "binary", "data": data}
 
     def close(self):
@@ -338,7 +412,7 @@ def _roundtrip(client, args):
             pts = _read_points(os.path.join(args.frames, name))
             results.append(client.register(sid, pts, seq=k, source=name))
     else:
-        with client.stream(sid) as ws:
+        with client.stream(sid, binary_results=args.binary_results) as ws:
             for k, name in enumerate(names):
                 pts = _read_points(os.path.join(args.frames, name))
                 if args.transport == "ws-binary":
@@ -367,6 +441,10 @@ def main(argv=None):
     r.add_argument("--frames", required=True)
     r.add_argument("--out", required=True)
     r.add_argument("--transport", choices=["ws", "ws-binary", "http"], default="ws")
+    r.add_argument("--binary-results", action="store_true",
+                   help="WebSocket: results in the binary result encoding (f32 coordinates)")
+    d = sub.add_parser("decode-result", help="decode a binary result message file to JSON")
+    d.add_argument("file")
     sub.add_parser("health")
     args = p.parse_args(argv)
     token = os.environ.get("LIVEREG_TOKEN")
@@ -377,7 +455,19 @@ def main(argv=None):
     client = Client(args.url, token)
     try:
         if args.cmd == "roundtrip":
+            if args.binary_results and args.transport == "http":
+                print("livereg_client: --binary-results is for the WebSocket transports",
+                      file=sys.stderr)
+                return 2
             _roundtrip(client, args)
+        elif args.cmd == "decode-result":
+            with open(args.file, "rb") as f:
+                raw = f.read()
+            try:
+                print(json.dumps(decode_binary_result(raw)))
+            except ValueError as e:
+                print("livereg_client: %s" % e, file=sys.stderr)
+                return 1
         else:
             print(json.dumps(client.health()))
     except LiveregError as e:

@@ -9,9 +9,10 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt, StreamExt};
-use livereg::server::codec::encode_binary_frame;
+use livereg::server::codec::{encode_binary_frame, ResultMessage};
 use livereg::server::proto;
 use livereg::server::proto::registration_client::RegistrationClient;
+use livereg::server::result_codec::decode_binary_result;
 use serde_json::Value;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
@@ -243,6 +244,7 @@ pub struct WsClient {
     ws: tokio_tungstenite::WebSocketStream<
         tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>,
     >,
+    binary_results: bool,
 }
 
 /// What the server said on a stream.
@@ -250,6 +252,12 @@ pub struct WsClient {
 pub enum WsEvent {
     /// A result (the JSON object, `type` = `result`).
     Result(Value),
+    /// A result sent in the binary result encoding (streams opened with binary results),
+    /// decoded; coordinates are f32 widened to f64.
+    BinaryResult(Box<ResultMessage>),
+    /// A message the client could not decode (a corrupted binary result, text that is not
+    /// JSON), with the reason.
+    Undecodable(String),
     /// A refused frame: seq, code, message.
     Error(u64, String, String),
     /// The server closed the stream with this code.
@@ -257,9 +265,24 @@ pub enum WsEvent {
 }
 
 impl WsClient {
-    /// Opens `ws://addr/v1/sessions/{id}/stream` with the token.
+    /// Opens `ws://addr/v1/sessions/{id}/stream` with the token (JSON results).
     pub async fn connect(addr: SocketAddr, id: &str, token: &str) -> Res<Self> {
-        let mut req = format!("ws://{addr}/v1/sessions/{id}/stream")
+        Self::connect_with(addr, id, token, false).await
+    }
+
+    /// Opens the stream, asking for binary results (`?results=binary`) when `binary_results`.
+    pub async fn connect_with(
+        addr: SocketAddr,
+        id: &str,
+        token: &str,
+        binary_results: bool,
+    ) -> Res<Self> {
+        let query = if binary_results {
+            "?results=binary"
+        } else {
+            ""
+        };
+        let mut req = format!("ws://{addr}/v1/sessions/{id}/stream{query}")
             .into_client_request()
             .map_err(|e| e.to_string())?;
         req.headers_mut().insert(
@@ -269,7 +292,7 @@ impl WsClient {
         let (ws, _) = tokio_tungstenite::connect_async(req)
             .await
             .map_err(|e| format!("websocket connect: {e}"))?;
-        Ok(Self { ws })
+        Ok(Self { ws, binary_results })
     }
 
     /// Sends a frame as JSON.
@@ -301,7 +324,10 @@ impl WsClient {
         loop {
             match self.ws.next().await? {
                 Ok(Message::Text(t)) => {
-                    let v: Value = serde_json::from_str(&t).ok()?;
+                    let v: Value = match serde_json::from_str(&t) {
+                        Ok(v) => v,
+                        Err(e) => return Some(WsEvent::Undecodable(format!("text message: {e}"))),
+                    };
                     return Some(match v["type"].as_str() {
                         Some("result") => WsEvent::Result(v),
                         _ => WsEvent::Error(
@@ -309,6 +335,12 @@ impl WsClient {
                             v["error"]["code"].as_str().unwrap_or("").to_string(),
                             v["error"]["message"].as_str().unwrap_or("").to_string(),
                         ),
+                    });
+                }
+                Ok(Message::Binary(b)) if self.binary_results => {
+                    return Some(match decode_binary_result(&b) {
+                        Ok(r) => WsEvent::BinaryResult(Box::new(r)),
+                        Err(e) => WsEvent::Undecodable(e.to_string()),
                     });
                 }
                 Ok(Message::Close(f)) => {
@@ -475,8 +507,17 @@ pub fn pct(sorted: &[f64], p: f64) -> f64 {
     sorted[k]
 }
 
+/// The JSON object of a decoded binary result: the shape of a JSON result message (`type`,
+/// the results.jsonl fields, `surface`, `seq`, …), coordinates at f32 precision.
+pub fn binary_result_to_json(r: &ResultMessage) -> Value {
+    let mut v = serde_json::to_value(r).unwrap_or(Value::Null);
+    v["type"] = "result".into();
+    v
+}
+
 /// Streams `frames` over one WebSocket in lock step (send, wait for the result): the results
-/// in order, and per frame (end-to-end ms, registration wall ms).
+/// in order, and per frame (end-to-end ms, registration wall ms). Frames in the binary
+/// encoding when `binary`; JSON results.
 pub async fn ws_lockstep(
     addr: SocketAddr,
     id: &str,
@@ -484,7 +525,22 @@ pub async fn ws_lockstep(
     frames: &[(String, Vec<[f64; 3]>)],
     binary: bool,
 ) -> Res<(Vec<Value>, Vec<(f64, f64)>)> {
-    let mut ws = WsClient::connect(addr, id, token).await?;
+    ws_lockstep_with(addr, id, token, frames, binary, false).await
+}
+
+/// [`ws_lockstep`] with the choice of result encoding: `binary_results` opens the stream with
+/// `?results=binary`; the decoded results are returned as JSON objects of the JSON shape
+/// ([`binary_result_to_json`]). The end-to-end time ends once the result is decoded (into a
+/// `serde_json::Value` for JSON results, a [`ResultMessage`] for binary ones).
+pub async fn ws_lockstep_with(
+    addr: SocketAddr,
+    id: &str,
+    token: &str,
+    frames: &[(String, Vec<[f64; 3]>)],
+    binary: bool,
+    binary_results: bool,
+) -> Res<(Vec<Value>, Vec<(f64, f64)>)> {
+    let mut ws = WsClient::connect_with(addr, id, token, binary_results).await?;
     let mut results = Vec::new();
     let mut times = Vec::new();
     for (k, (name, pts)) in frames.iter().enumerate() {
@@ -504,6 +560,11 @@ pub async fn ws_lockstep(
                 times.push((e2e, v["wall_ms"].as_f64().unwrap_or(0.0)));
                 results.push(v);
             }
+            Some(WsEvent::BinaryResult(r)) => {
+                let e2e = t.elapsed().as_secs_f64() * 1e3;
+                times.push((e2e, r.record.wall_ms));
+                results.push(binary_result_to_json(&r));
+            }
             other => return Err(format!("frame {k}: expected a result, got {other:?}")),
         }
     }
@@ -522,6 +583,8 @@ pub struct LoadSpec {
     pub duration: Duration,
     /// Send frames in the binary encoding.
     pub binary: bool,
+    /// Ask for results in the binary result encoding (`?results=binary`).
+    pub binary_results: bool,
 }
 
 /// What a load run measured.
@@ -636,12 +699,12 @@ async fn one_session(
     frames: &[(String, Vec<[f64; 3]>)],
     spec: &LoadSpec,
 ) -> Res<SessionRun> {
-    let mut ws = WsClient::connect(addr, id, token).await?;
+    let mut ws = WsClient::connect_with(addr, id, token, spec.binary_results).await?;
     // Warm-up: the cold first frame.
     let t = Instant::now();
     ws.send_json(0, &frames[0].0, &frames[0].1).await?;
     match ws.next().await {
-        Some(WsEvent::Result(_)) => {}
+        Some(WsEvent::Result(_) | WsEvent::BinaryResult(_)) => {}
         other => return Err(format!("warm-up: {other:?}")),
     }
     let warmup_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -690,29 +753,46 @@ async fn one_session(
     let mut last_seq = 0;
     while last_seq < n && Instant::now() < deadline {
         let msg = tokio::time::timeout(Duration::from_secs(30), rx.next()).await;
-        let Ok(Some(Ok(Message::Text(t)))) = msg else {
-            if matches!(msg, Ok(Some(Ok(_)))) {
-                continue;
-            }
-            break;
-        };
         let now = Instant::now();
-        let v: Value = serde_json::from_str(&t).map_err(|e| e.to_string())?;
-        let seq = v["seq"].as_u64().unwrap_or(0);
-        if v["type"] == "result" {
-            let sent = sent_at.lock().ok().and_then(|m| m.get(&seq).copied());
-            if let Some(s) = sent {
-                run.e2e.push((now - s).as_secs_f64() * 1e3);
+        // (seq, wall ms, skipped, registration error) of a result; text that is not a result.
+        let result = match msg {
+            Ok(Some(Ok(Message::Text(t)))) => {
+                let v: Value = serde_json::from_str(&t).map_err(|e| e.to_string())?;
+                if v["type"] == "result" {
+                    (
+                        v["seq"].as_u64().unwrap_or(0),
+                        v["wall_ms"].as_f64().unwrap_or(0.0),
+                        v["skipped"].as_u64().unwrap_or(0),
+                        v["diagnostics"]["error"].as_str().map(str::to_string),
+                    )
+                } else {
+                    run.errors.push(t.to_string());
+                    continue;
+                }
             }
-            run.wall.push(v["wall_ms"].as_f64().unwrap_or(0.0));
-            run.skipped += v["skipped"].as_u64().unwrap_or(0);
-            if let Some(e) = v["diagnostics"]["error"].as_str() {
-                run.errors.push(format!("frame {seq}: {e}"));
+            Ok(Some(Ok(Message::Binary(b)))) if spec.binary_results => {
+                let r = decode_binary_result(&b).map_err(|e| e.to_string())?;
+                (
+                    r.seq,
+                    r.record.wall_ms,
+                    r.skipped,
+                    r.record.diagnostics.error,
+                )
             }
-            last_seq = seq;
-        } else {
-            run.errors.push(t.to_string());
+            Ok(Some(Ok(_))) => continue,
+            _ => break,
+        };
+        let (seq, wall_ms, skipped, error) = result;
+        let sent = sent_at.lock().ok().and_then(|m| m.get(&seq).copied());
+        if let Some(s) = sent {
+            run.e2e.push((now - s).as_secs_f64() * 1e3);
         }
+        run.wall.push(wall_ms);
+        run.skipped += skipped;
+        if let Some(e) = error {
+            run.errors.push(format!("frame {seq}: {e}"));
+        }
+        last_seq = seq;
         // The last frame was sent and an answer for a frame after all earlier ones arrived:
         // once the sender is done, stop when the newest frame is answered.
         if sender.is_finished() && last_seq == n {

@@ -5,11 +5,14 @@
 //! # writes the results (results.jsonl lines plus the surface) to --out
 //! cargo run --release --example client -- stream --http 127.0.0.1:8080 --grpc 127.0.0.1:50051 \
 //!     --token-file tokens.txt --scene fixtures/liver_phantom/scene.toml --frames FRAMES_DIR \
-//!     --transport ws|ws-binary|grpc --out results.jsonl
+//!     --transport ws|ws-binary|grpc [--binary-results] --out results.jsonl
 //! # load: N sessions streaming at HZ for SECONDS over WebSocket (loopback only)
 //! cargo run --release --example client -- load --http 127.0.0.1:8080 --token-file tokens.txt \
-//!     --scene SCENE --frames FRAMES_DIR --sessions 8 --hz 30 --seconds 20
+//!     --scene SCENE --frames FRAMES_DIR --sessions 8 --hz 30 --seconds 20 [--binary] \
+//!     [--binary-results]
 //! ```
+//! `--binary-results` opens the WebSocket with `?results=binary`: results come back in the
+//! compact binary result encoding (f32 coordinates; docs/server.md) instead of JSON.
 //! The token is read from `--token-file` (first line, `name:token` or `token`) or the
 //! `LIVEREG_TOKEN` environment variable.
 
@@ -61,6 +64,10 @@ enum Cmd {
         /// Where to write the results (one JSON object per line).
         #[arg(long)]
         out: Option<PathBuf>,
+        /// WebSocket transports: ask for results in the binary result encoding (f32
+        /// coordinates) instead of JSON.
+        #[arg(long)]
+        binary_results: bool,
     },
     /// Concurrent sessions at a fixed frame rate.
     Load {
@@ -75,6 +82,9 @@ enum Cmd {
         /// Send frames in the binary encoding.
         #[arg(long)]
         binary: bool,
+        /// Ask for results in the binary result encoding (f32 coordinates) instead of JSON.
+        #[arg(long)]
+        binary_results: bool,
     },
 }
 
@@ -147,17 +157,29 @@ async fn run(args: Args) -> Res<()> {
             common,
             transport,
             out,
+            binary_results,
         } => {
             let token = token(&common)?;
             let scene = SceneFiles::read(&common.scene)?;
             let frames = read_frames(&common.frames)?;
             let (results, times) = match transport.as_str() {
+                "grpc" if binary_results => {
+                    return Err(
+                        "--binary-results is for the WebSocket transports (ws, ws-binary)".into(),
+                    )
+                }
                 "grpc" => grpc_stream(&common, &token, &frames, &scene).await?,
                 "ws" | "ws-binary" => {
                     let id = http_create_session(common.http, &token, &scene).await?;
-                    let r =
-                        ws_lockstep(common.http, &id, &token, &frames, transport == "ws-binary")
-                            .await?;
+                    let r = ws_lockstep_with(
+                        common.http,
+                        &id,
+                        &token,
+                        &frames,
+                        transport == "ws-binary",
+                        binary_results,
+                    )
+                    .await?;
                     http_close_session(common.http, &token, &id).await?;
                     r
                 }
@@ -180,7 +202,8 @@ async fn run(args: Args) -> Res<()> {
             println!(
                 "{}",
                 serde_json::json!({
-                    "transport": transport, "frames": results.len(),
+                    "transport": transport, "binary_results": binary_results,
+                    "frames": results.len(),
                     "cold_first_frame_ms": times.first().map(|t| t.0),
                     "e2e_p50_ms": pct(&e2e, 0.5), "e2e_p95_ms": pct(&e2e, 0.95),
                     "registration_p50_ms": pct(&wall, 0.5),
@@ -195,6 +218,7 @@ async fn run(args: Args) -> Res<()> {
             hz,
             seconds,
             binary,
+            binary_results,
         } => {
             if !common.http.ip().is_loopback() {
                 return Err("the load test only targets loopback addresses".into());
@@ -207,6 +231,7 @@ async fn run(args: Args) -> Res<()> {
                 hz,
                 duration: Duration::from_secs_f64(seconds.clamp(0.1, 600.0)),
                 binary,
+                binary_results,
             };
             let rep = load_test(common.http, &token, &scene, &frames, &spec).await?;
             println!(

@@ -6,6 +6,7 @@
 //! - [`upload`]: scenes uploaded with their files; [`worker`]: per-session registration on
 //!   the blocking pool with a newest-wins mailbox; [`service`]: the operations and shared state;
 //! - [`http`], [`ws`], [`grpc`]: the front ends; [`codec`]: frame and result encodings;
+//!   [`result_codec`]: the compact binary result encoding of WebSocket streams;
 //! - [`metrics`]: Prometheus; [`openapi`]: the HTTP API's document; [`error`]: one error type.
 //!
 //! The server uses the session, scene and evaluation layers (and the mesh reader to check
@@ -21,6 +22,7 @@ pub mod limits;
 pub mod metrics;
 pub mod openapi;
 pub mod registry;
+pub mod result_codec;
 pub mod service;
 pub mod upload;
 pub mod worker;

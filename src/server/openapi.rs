@@ -215,8 +215,13 @@ pub fn document() -> Value {
           "parameters": [id_param()],
           "get": {
             "summary": "WebSocket: frames in (JSON text or binary), results out as they finish (`{\"type\":\"result\",...}` with `skipped`, or `{\"type\":\"error\",\"seq\",\"error\"}`).",
+            "description": "With `results=binary` each result is a binary message instead: the header (magic `LVRR`, version 1, metadata length, surface vertex count, structure count and points per structure, u32 little-endian), the result's JSON without `surface` and `structures` (plus `structure_names`), then the surface vertices and each structure's points as little-endian f32 x, y, z (docs/server.md, \"Binary result encoding\"). Errors stay JSON text messages.",
+            "parameters": [{"name": "results", "in": "query", "required": false,
+              "description": "Encoding of the results: `json` (text messages, the default) or `binary` (binary messages, f32 coordinates).",
+              "schema": {"type": "string", "enum": ["json", "binary"], "default": "json"}}],
             "responses": session_errors(m(json!({
               "101": {"description": "Switching to the WebSocket protocol."},
+              "400": error_response("Unknown query parameter, or a `results` value other than json or binary."),
               "426": error_response("Not a WebSocket upgrade request."),
               "503": error_response("Shutting down.")
             })))

@@ -4,13 +4,16 @@
 //! stream dropped since the previous result) and `{"type": "error", "seq": n, "error": {code,
 //! message}}` for a frame it refuses — the stream goes on. On shutdown the server stops reading,
 //! finishes the frame in flight, sends its result and closes with code 1001.
+//!
+//! Results are JSON text messages by default; `?results=binary` on the URL asks for them as
+//! binary messages in the encoding of [`super::result_codec`] (errors stay JSON text).
 
 use std::sync::atomic::AtomicU64;
 use std::sync::Arc;
 use std::time::Instant;
 
 use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade};
-use axum::extract::{Path, State};
+use axum::extract::{Path, RawQuery, State};
 use axum::response::{IntoResponse, Response};
 use axum::Extension;
 use futures_util::{SinkExt, StreamExt};
@@ -20,6 +23,7 @@ use tokio::sync::mpsc;
 use super::auth::Owner;
 use super::codec::{decode_binary_frame, decode_json_frame, ResultMessage};
 use super::error::{ApiError, ErrorBody};
+use super::result_codec::encode_binary_result;
 use super::service::AppState;
 use super::worker::{Job, Reply, SessionHandle, StreamEvent, StreamSink};
 
@@ -39,6 +43,41 @@ pub enum ServerMessage<'a> {
     },
 }
 
+/// How a stream's results are sent (`?results=json|binary` on the stream URL).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ResultFormat {
+    /// `{"type": "result", ...}` text messages (the default).
+    #[default]
+    Json,
+    /// Binary messages in the encoding of [`super::result_codec`].
+    Binary,
+}
+
+impl ResultFormat {
+    /// Reads the stream URL's query string: empty, or `results=json` / `results=binary`; any
+    /// other parameter or value is a 400 naming it.
+    pub fn from_query(query: Option<&str>) -> Result<Self, ApiError> {
+        let mut format = Self::Json;
+        for pair in query.unwrap_or("").split('&').filter(|p| !p.is_empty()) {
+            match pair.split_once('=').unwrap_or((pair, "")) {
+                ("results", "json") => format = Self::Json,
+                ("results", "binary") => format = Self::Binary,
+                ("results", other) => {
+                    return Err(ApiError::bad_request(format!(
+                        "query parameter results={other:?}: expected `json` or `binary`"
+                    )))
+                }
+                (name, _) => {
+                    return Err(ApiError::bad_request(format!(
+                        "unknown query parameter {name:?} (the stream takes `results=json|binary`)"
+                    )))
+                }
+            }
+        }
+        Ok(format)
+    }
+}
+
 /// Results waiting to be written per stream (beyond this a client that does not read loses
 /// results, counted as skipped).
 const STREAM_BUFFER: usize = 8;
@@ -49,6 +88,7 @@ pub async fn stream(
     State(state): State<Arc<AppState>>,
     Extension(owner): Extension<Owner>,
     Path(id): Path<String>,
+    RawQuery(query): RawQuery,
     ws: Result<WebSocketUpgrade, axum::extract::ws::rejection::WebSocketUpgradeRejection>,
 ) -> Response {
     let handle = match state.session(&owner, &id) {
@@ -58,6 +98,10 @@ pub async fn stream(
     if state.is_draining() {
         return state.count(ApiError::shutting_down()).into_response();
     }
+    let format = match ResultFormat::from_query(query.as_deref()) {
+        Ok(f) => f,
+        Err(e) => return state.count(e).into_response(),
+    };
     let ws = match ws {
         Ok(ws) => ws,
         Err(e) => {
@@ -73,11 +117,18 @@ pub async fn stream(
     let limit = state.config.limits.max_body_bytes;
     ws.max_message_size(limit)
         .max_frame_size(limit)
-        .on_upgrade(move |socket| run(socket, state, owner, handle))
+        .on_upgrade(move |socket| run(socket, state, owner, handle, format))
 }
 
-fn encode(ev: &StreamEvent, length_scale: f64) -> String {
-    let r = match ev {
+fn error_text(e: impl std::fmt::Display) -> String {
+    let body = ApiError::internal(format!("cannot encode: {e}")).body();
+    serde_json::to_string(&ServerMessage::Error { seq: 0, body }).unwrap_or_else(|_| {
+        r#"{"type":"error","seq":0,"error":{"code":"internal","message":"cannot encode"}}"#.into()
+    })
+}
+
+fn encode(ev: &StreamEvent, length_scale: f64, format: ResultFormat) -> Message {
+    let text = match ev {
         StreamEvent::Result(c) => {
             let msg = ResultMessage::new(
                 c.seq,
@@ -87,6 +138,12 @@ fn encode(ev: &StreamEvent, length_scale: f64) -> String {
                 &c.result,
                 length_scale,
             );
+            if format == ResultFormat::Binary {
+                return match encode_binary_result(&msg) {
+                    Ok(b) => Message::Binary(b.into()),
+                    Err(e) => Message::Text(error_text(e).into()),
+                };
+            }
             serde_json::to_string(&ServerMessage::Result(&msg))
         }
         StreamEvent::Error { seq, error } => serde_json::to_string(&ServerMessage::Error {
@@ -94,12 +151,16 @@ fn encode(ev: &StreamEvent, length_scale: f64) -> String {
             body: error.body(),
         }),
     };
-    r.unwrap_or_else(|e| {
-        format!(r#"{{"type":"error","seq":0,"error":{{"code":"internal","message":"cannot encode: {e}"}}}}"#)
-    })
+    Message::Text(text.unwrap_or_else(error_text).into())
 }
 
-async fn run(socket: WebSocket, state: Arc<AppState>, owner: Owner, handle: Arc<SessionHandle>) {
+async fn run(
+    socket: WebSocket,
+    state: Arc<AppState>,
+    owner: Owner,
+    handle: Arc<SessionHandle>,
+    format: ResultFormat,
+) {
     let _guard = state.stream_guard();
     let (mut sink, mut incoming) = socket.split();
     let (tx, mut rx) = mpsc::channel::<StreamEvent>(STREAM_BUFFER);
@@ -110,11 +171,7 @@ async fn run(socket: WebSocket, state: Arc<AppState>, owner: Owner, handle: Arc<
     let ga = going_away.clone();
     let writer = tokio::spawn(async move {
         while let Some(ev) = rx.recv().await {
-            if sink
-                .send(Message::Text(encode(&ev, scale).into()))
-                .await
-                .is_err()
-            {
+            if sink.send(encode(&ev, scale, format)).await.is_err() {
                 return;
             }
         }
@@ -134,7 +191,7 @@ async fn run(socket: WebSocket, state: Arc<AppState>, owner: Owner, handle: Arc<
             })))
             .await;
     });
-    tracing::info!(session = %handle.id, owner = owner.name(), "stream opened");
+    tracing::info!(session = %handle.id, owner = owner.name(), results = ?format, "stream opened");
     let id = handle.id.clone();
     loop {
         let msg = tokio::select! {
