@@ -87,12 +87,17 @@ impl Default for NonRigidSettings {
 
 impl NonRigidSettings {
     /// Settings for a frame that starts from the previous frame's result: the shape is
-    /// already close, so one stiff penalty step with cheap (modified-Newton) iterations.
+    /// already close, so one stiff penalty step with cheap (modified-Newton) iterations, one
+    /// Newton step per ICP iteration. A second step on the same springs with the kept
+    /// factorisation was often cut by the line search below ½, which drops the factorisation:
+    /// `livereg bench --only "default,cell x0.75"` (session 7), one step against two: same TRE
+    /// (1.22–1.23 mm); warm p95 25 against 46 ms on the default grid (p50 19 against 17 ms)
+    /// and 49 against 148 ms on 646 nodes (p50 30 against 45 ms).
     pub fn warm() -> Self {
         Self {
             penalty_steps: 1,
             max_icp_iterations: 10,
-            newton_iterations: 2,
+            newton_iterations: 1,
             visibility_interval: 16,
             factor_reuse: 8,
             ..Self::default()
