@@ -52,6 +52,10 @@ pub struct Session {
     good: GoodState,
     frames: usize,
     coarse: Option<CoarseStart>,
+    /// The rigid stage's target (samples and k-d tree of the deformed surface) and the
+    /// displacement it was built for: rebuilt only when the good state changed, so
+    /// rigid-only sessions (the state never changes) build it once.
+    rigid_target: Option<(Vec<f64>, ModelTarget)>,
 }
 
 /// The coarse model of a coarse-to-fine start and its prolongation to the fine grid.
@@ -138,6 +142,7 @@ impl Session {
             },
             frames: 0,
             coarse: None,
+            rigid_target: None,
         }
     }
 
@@ -557,11 +562,13 @@ impl Session {
     /// last pose (or the identity fit when the rigid stage is off); rejects a cloud whose fit
     /// leaves an RMS above [`SessionSettings::max_rigid_rms`].
     fn track_pose(
-        &self,
+        &mut self,
         cloud: &[Point3<f64>],
         start: RigidTransform,
     ) -> Result<(RigidTransform, usize), FrameError> {
-        let r = self.rigid_fit(cloud, start)?;
+        // Frame to frame (rigid-only or tracked pose): the start is the last pose.
+        let tracking = self.good.registered;
+        let r = self.rigid_fit(cloud, start, tracking)?;
         if r.rms > self.settings.max_rigid_rms {
             return Err(FrameError::NoMatch {
                 rms_mm: r.rms * 1e3,
@@ -581,7 +588,7 @@ impl Session {
     /// [`SessionSettings::max_rigid_rms`], the frame is rejected (`no-match`) and the session
     /// keeps its state, instead of committing a pose that may be wrong.
     fn reacquire_pose(
-        &self,
+        &mut self,
         cloud: &[Point3<f64>],
         held_rms: f64,
     ) -> Result<(RigidTransform, usize), FrameError> {
@@ -607,7 +614,7 @@ impl Session {
         let mut iterations = 0;
         let mut last_error = None;
         for start in starts {
-            match self.rigid_fit(cloud, start) {
+            match self.rigid_fit(cloud, start, false) {
                 Ok(r) => {
                     iterations += r.iterations;
                     let usable = r.converged && r.rms <= self.settings.max_rigid_rms;
@@ -629,18 +636,26 @@ impl Session {
     }
 
     /// Rigid ICP of `cloud` (metres, cloud frame) to the current deformed surface from the
-    /// cloud → model motion `start`.
+    /// cloud → model motion `start`; `tracking` (the start is the last frame's pose) stops at
+    /// [`SessionSettings::tracking_relative_tolerance`] if that is looser than the rigid
+    /// settings' own.
     fn rigid_fit(
-        &self,
+        &mut self,
         cloud: &[Point3<f64>],
         start: RigidTransform,
+        tracking: bool,
     ) -> Result<IcpResult, FrameError> {
-        let deformed = TriSurface::new(
-            self.model.surface_embedding.positions(&self.good.u),
-            self.model.surface.triangles.clone(),
-        );
-        let target = ModelTarget::new(&deformed, self.settings.target_spacing)
-            .map_err(|e| FrameError::Rigid(e.to_string()))?;
+        let fresh = matches!(&self.rigid_target, Some((u, _)) if *u == self.good.u);
+        if !fresh {
+            let deformed = TriSurface::new(
+                self.model.surface_embedding.positions(&self.good.u),
+                self.model.surface.triangles.clone(),
+            );
+            let target = ModelTarget::new(&deformed, self.settings.target_spacing)
+                .map_err(|e| FrameError::Rigid(e.to_string()))?;
+            self.rigid_target = Some((self.good.u.clone(), target));
+        }
+        let target = &self.rigid_target.as_ref().expect("built above").1;
         // With no rigid stage the fit of the identity is still checked (0 iterations).
         let (icp, initial) = match self.settings.rigid_mode {
             RigidMode::Identity => (
@@ -650,9 +665,17 @@ impl Session {
                 },
                 RigidTransform::identity(),
             ),
-            RigidMode::Icp => (self.settings.rigid.clone(), start),
+            RigidMode::Icp => {
+                let mut icp = self.settings.rigid.clone();
+                if tracking {
+                    icp.relative_tolerance = icp
+                        .relative_tolerance
+                        .max(self.settings.tracking_relative_tolerance);
+                }
+                (icp, start)
+            }
         };
-        icp.register(&target, cloud, Some(initial))
+        icp.register(target, cloud, Some(initial))
             .map_err(|e| FrameError::Rigid(e.to_string()))
     }
 
