@@ -88,16 +88,21 @@ impl Default for NonRigidSettings {
 impl NonRigidSettings {
     /// Settings for a frame that starts from the previous frame's result: the shape is
     /// already close, so one stiff penalty step with cheap (modified-Newton) iterations, one
-    /// Newton step per ICP iteration. A second step on the same springs with the kept
-    /// factorisation was often cut by the line search below ½, which drops the factorisation:
-    /// `livereg bench --only "default,cell x0.75"` (session 7), one step against two: same TRE
-    /// (1.22–1.23 mm); warm p95 25 against 46 ms on the default grid (p50 19 against 17 ms)
-    /// and 49 against 148 ms on 646 nodes (p50 30 against 45 ms).
+    /// Newton step per ICP iteration, and a tighter ICP stop (0.3 mm RMS surface motion). A
+    /// second step on the same springs with the kept factorisation was often cut by the line
+    /// search below ½, which drops the factorisation; one step alone stopped the ICP loop
+    /// before coarse grids had followed (45 mm cells: 1.52 against 1.44 mm), which the tighter
+    /// stop restores. `livereg bench --only "default,cell x2,full-cell,cell x0.75"` (session 7,
+    /// two quiet runs), against two steps and 0.5 mm: TRE 1.22 / 1.45 / 1.36 / 1.22 against
+    /// 1.23 / 1.44 / 1.37 / 1.23 mm; warm p95 29–30 against 41–48 ms on the default grid (p50
+    /// 21–23 against 15 ms) and 45–46 against 131–151 ms on 646 nodes (p50 37 against
+    /// 36–44 ms).
     pub fn warm() -> Self {
         Self {
             penalty_steps: 1,
             max_icp_iterations: 10,
             newton_iterations: 1,
+            tolerance: 3e-4,
             visibility_interval: 16,
             factor_reuse: 8,
             ..Self::default()
