@@ -7,6 +7,8 @@
 //!
 //! Run: `cargo test --test bad_frames -- --nocapture`.
 
+mod common;
+
 use std::time::Instant;
 
 use livereg::mesh::TriSurface;
@@ -32,14 +34,7 @@ fn frame(points: Vec<Point3<f64>>, source: &str) -> Frame {
 
 /// Mean distance of the registered targets of `r` to the frame's truth, scene units.
 fn tre(r: &FrameResult, f: &SyntheticFrame, scale: f64) -> f64 {
-    let (mut sum, mut n) = (0.0, 0);
-    for ((_, p), (_, t)) in r.structures.iter().zip(&f.truth_structures) {
-        for (x, y) in p.iter().zip(t) {
-            sum += (x - y / scale).norm();
-            n += 1;
-        }
-    }
-    sum / n as f64
+    common::frame_tre(r, &f.truth_structures, scale)
 }
 
 /// What a session's good state is made of.

@@ -11,21 +11,11 @@
 //!
 //! Run: `cargo test --test rigid_tracking -- --nocapture`.
 
+mod common;
+
 use livereg::scene::load_scene;
 use livereg::session::{Frame, FrameResult, Session};
-use livereg::synthetic::{generate_sequence, ScenarioKind, SequenceSpec, SyntheticFrame};
-
-/// Mean distance of the registered targets of `r` to the frame's truth, scene units.
-fn tre(r: &FrameResult, f: &SyntheticFrame, scale: f64) -> f64 {
-    let (mut sum, mut n) = (0.0, 0);
-    for ((_, p), (_, t)) in r.structures.iter().zip(&f.truth_structures) {
-        for (x, y) in p.iter().zip(t) {
-            sum += (x - y / scale).norm();
-            n += 1;
-        }
-    }
-    sum / n as f64
-}
+use livereg::synthetic::{generate_sequence, ScenarioKind, SequenceSpec};
 
 #[test]
 fn tracking_stops_early_at_the_pose_of_the_tight_tolerance() {
@@ -71,8 +61,8 @@ fn tracking_stops_early_at_the_pose_of_the_tight_tolerance() {
             .rotation_angle_to(&b.model_to_cloud)
             .to_degrees();
         let (ta, tb) = (
-            tre(a, &seq.frames[k], scale) * scale * 1e3,
-            tre(b, &seq.frames[k], scale) * scale * 1e3,
+            common::frame_tre(a, &seq.frames[k].truth_structures, scale) * scale * 1e3,
+            common::frame_tre(b, &seq.frames[k].truth_structures, scale) * scale * 1e3,
         );
         fast_sum += ta;
         tight_sum += tb;

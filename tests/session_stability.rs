@@ -10,6 +10,8 @@
 //!
 //! Run: `cargo test --test session_stability -- --nocapture` (prints the per-frame table).
 
+mod common;
+
 use std::time::Instant;
 
 use livereg::scene::load_scene;
@@ -28,20 +30,6 @@ fn max_move(a: &FrameResult, b: &FrameResult) -> f64 {
         .zip(&b.structures)
         .flat_map(|((_, p), (_, q))| p.iter().zip(q).map(|(x, y)| (x - y).norm()))
         .fold(0.0, f64::max)
-}
-
-/// Mean distance of the registered targets of `r` to `truth` (metres, camera frame), scene
-/// units.
-fn tre(r: &FrameResult, truth: &[(String, Vec<Point3<f64>>)], scale: f64) -> f64 {
-    let (mut sum, mut n) = (0.0, 0);
-    for ((name, p), (tname, t)) in r.structures.iter().zip(truth) {
-        assert_eq!(name, tname);
-        for (x, y) in p.iter().zip(t) {
-            sum += (x - y / scale).norm();
-            n += 1;
-        }
-    }
-    sum / n as f64
 }
 
 fn mean(v: &[f64]) -> f64 {
@@ -136,7 +124,7 @@ fn fifty_frames_hold_still_after_the_load_stops() {
     let tres: Vec<f64> = results
         .iter()
         .zip(&seq.frames)
-        .map(|(r, f)| tre(r, &f.truth_structures, scale))
+        .map(|(r, f)| common::frame_tre(r, &f.truth_structures, scale))
         .collect();
     let steps: Vec<f64> = results.windows(2).map(|w| max_move(&w[0], &w[1])).collect();
     println!(

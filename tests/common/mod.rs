@@ -6,6 +6,7 @@ use livereg::grid::{GridOptions, IntegrationMode, WeightedCellGrid};
 use livereg::linalg::SymmetricCsc;
 use livereg::mechanics::{LawKind, Material, PenaltySprings, StaticProblem, VolumetricIntegration};
 use livereg::mesh::TriSurface;
+use livereg::session::FrameResult;
 use nalgebra::{DMatrix, Point3};
 
 /// All four laws.
@@ -108,4 +109,20 @@ pub fn livereg(args: &[&str]) -> (i32, String, String) {
         String::from_utf8_lossy(&out.stdout).into_owned(),
         String::from_utf8_lossy(&out.stderr).into_owned(),
     )
+}
+
+/// Target registration error of one frame: the mean distance, in scene units, of the frame
+/// result's registered structure points (scene units, cloud frame) to the truth structures
+/// (`(name, points)` in metres, same order; `scale` metres per scene unit). Panics if the
+/// structures do not match by name.
+pub fn frame_tre(r: &FrameResult, truth: &[(String, Vec<Point3<f64>>)], scale: f64) -> f64 {
+    let (mut sum, mut n) = (0.0, 0);
+    for ((name, p), (truth_name, t)) in r.structures.iter().zip(truth) {
+        assert_eq!(name, truth_name, "structures in a different order");
+        for (x, y) in p.iter().zip(t) {
+            sum += (x - y / scale).norm();
+            n += 1;
+        }
+    }
+    sum / n as f64
 }
