@@ -16,6 +16,49 @@ use server_support::*;
 
 const FRAMES: usize = 100;
 
+/// The stdlib-only Python client.
+const PYTHON_CLIENT: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/clients/python/livereg_client.py"
+);
+
+/// Whether `python3` runs here (the Python client's tests are skipped otherwise).
+fn python_available() -> bool {
+    std::process::Command::new("python3")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success())
+}
+
+/// Arguments of `python3` running the Python client's `roundtrip` on the case in `case`
+/// (its `scene.toml` and `frames/`) against the server at `http` (host:port), with room A's
+/// token (written to `case/token.txt`), writing the results to `out`; `extra` is appended.
+fn python_roundtrip_args(
+    http: &str,
+    case: &std::path::Path,
+    out: &std::path::Path,
+    extra: &[&str],
+) -> Vec<String> {
+    let token_file = case.join("token.txt");
+    std::fs::write(&token_file, format!("room-a:{TOKEN_A}\n")).unwrap();
+    let mut args: Vec<String> = vec![
+        PYTHON_CLIENT.into(),
+        "--url".into(),
+        format!("http://{http}"),
+        "--token-file".into(),
+        token_file.display().to_string(),
+        "roundtrip".into(),
+        "--scene".into(),
+        case.join("scene.toml").display().to_string(),
+        "--frames".into(),
+        case.join("frames").display().to_string(),
+        "--out".into(),
+        out.display().to_string(),
+    ];
+    args.extend(extra.iter().map(|a| a.to_string()));
+    args
+}
+
 async fn grpc_round_trip(
     addr: std::net::SocketAddr,
     scene: &SceneFiles,
@@ -83,32 +126,9 @@ async fn rust_and_python_clients_round_trip_100_frames_equal_to_register() {
     assert_eq!(frames.len(), FRAMES);
 
     // Python (stdlib) over WebSocket with JSON frames, in a child process.
-    let python = std::process::Command::new("python3")
-        .arg("--version")
-        .output()
-        .is_ok_and(|o| o.status.success());
-    let py = if python {
-        let token_file = case.join("token.txt");
-        std::fs::write(&token_file, format!("room-a:{TOKEN_A}\n")).unwrap();
-        let script = concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/clients/python/livereg_client.py"
-        );
+    let py = if python_available() {
         let out = case.join("python.jsonl");
-        let args: Vec<String> = vec![
-            script.into(),
-            "--url".into(),
-            format!("http://{http_addr}"),
-            "--token-file".into(),
-            token_file.display().to_string(),
-            "roundtrip".into(),
-            "--scene".into(),
-            case.join("scene.toml").display().to_string(),
-            "--frames".into(),
-            case.join("frames").display().to_string(),
-            "--out".into(),
-            out.display().to_string(),
-        ];
+        let args = python_roundtrip_args(&http_addr.to_string(), &case, &out, &[]);
         Some(tokio::task::spawn_blocking(move || {
             let o = std::process::Command::new("python3")
                 .args(&args)
@@ -288,39 +308,18 @@ async fn binary_results_equal_json_results_to_f32_precision() {
     // The frames bend the body: the comparison is not between rest shapes.
     assert_ne!(json[0]["surface"], json[3]["surface"]);
 
-    let python = std::process::Command::new("python3")
-        .arg("--version")
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if !python {
+    if !python_available() {
         eprintln!("SKIPPED the Python client: python3 is not installed");
         server.shutdown().await.unwrap();
         return;
     }
-    let script = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/clients/python/livereg_client.py"
-    );
-    let token_file = case.join("token.txt");
-    std::fs::write(&token_file, format!("room-a:{TOKEN_A}\n")).unwrap();
     let out = case.join("python-binary.jsonl");
-    let args: Vec<String> = vec![
-        script.into(),
-        "--url".into(),
-        format!("http://{addr}"),
-        "--token-file".into(),
-        token_file.display().to_string(),
-        "roundtrip".into(),
-        "--scene".into(),
-        case.join("scene.toml").display().to_string(),
-        "--frames".into(),
-        case.join("frames").display().to_string(),
-        "--out".into(),
-        out.display().to_string(),
-        "--transport".into(),
-        "ws-binary".into(),
-        "--binary-results".into(),
-    ];
+    let args = python_roundtrip_args(
+        &addr.to_string(),
+        &case,
+        &out,
+        &["--transport", "ws-binary", "--binary-results"],
+    );
     let o = tokio::task::spawn_blocking(move || {
         std::process::Command::new("python3")
             .args(&args)
@@ -352,7 +351,7 @@ async fn binary_results_equal_json_results_to_f32_precision() {
     let decode = |b: &[u8]| {
         std::fs::write(&file, b).unwrap();
         std::process::Command::new("python3")
-            .args([script, "decode-result", file.to_str().unwrap()])
+            .args([PYTHON_CLIENT, "decode-result", file.to_str().unwrap()])
             .output()
             .unwrap()
     };
