@@ -4,7 +4,8 @@
 //! tool-push sequence. The bench alternates between two nearby frames (the end of the load
 //! ramp: 94 % and 100 % of the full load, ~2 mm apart at the surface), so every measured
 //! frame has something to follow. Two grids: the phantom's 15 mm cells (~865 nodes) and
-//! 12 mm (~1,500 nodes).
+//! 12 mm (~1,500 nodes), each with refactorisation in place (`phantom_nodes`) and on a
+//! helper thread (`background_nodes`, `registration.background_factorization`).
 //!
 //! Run: `cargo bench --bench warm_frame` (a few minutes; `-- --quick` for a rough number).
 
@@ -52,9 +53,14 @@ fn bench_warm_frame(c: &mut Criterion) {
     group.sampling_mode(SamplingMode::Flat);
     group.warm_up_time(std::time::Duration::from_secs(2));
     group.measurement_time(std::time::Duration::from_secs(8));
-    for cell_mm in [15.0, 12.0] {
+    for (cell_mm, background) in [(15.0, false), (12.0, false), (15.0, true), (12.0, true)] {
         let mut scene = loaded.clone();
         scene.scene.grid.cell_size = cell_mm;
+        scene
+            .scene
+            .registration
+            .get_or_insert_with(Default::default)
+            .background_factorization = background;
         let t = Instant::now();
         let mut session = Session::from_scene(&scene).unwrap();
         let nodes = session.model.problem.grid.node_count();
@@ -68,13 +74,19 @@ fn bench_warm_frame(c: &mut Criterion) {
         }
         let r = last.unwrap();
         eprintln!(
-            "{cell_mm} mm cells: {nodes} nodes (session built in {build_ms:.0} ms); warm frame \
+            "{cell_mm} mm cells, background {background}: {nodes} nodes (session built in \
+             {build_ms:.0} ms); warm frame \
              {:.1} ms: {} ICP / {} Newton iterations, {} factorisations, {} sources, \
              stages {:?}",
             r.wall_ms, r.icp_iterations, r.newton_iterations, r.factorizations, r.sources, r.times
         );
         let mut flip = false;
-        group.bench_function(BenchmarkId::new("phantom_nodes", nodes), |bench| {
+        let id = if background {
+            "background_nodes"
+        } else {
+            "phantom_nodes"
+        };
+        group.bench_function(BenchmarkId::new(id, nodes), |bench| {
             bench.iter(|| {
                 flip = !flip;
                 let f = if flip { a } else { b };

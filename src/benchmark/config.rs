@@ -40,6 +40,9 @@ pub struct ModelConfig {
     pub min_fraction: Option<f64>,
     /// Median/MAD pruning of rigid ICP pairs (`registration.robust_pruning`).
     pub robust_pruning: Option<bool>,
+    /// Warm-frame refactorisation on a helper thread
+    /// (`registration.background_factorization`).
+    pub background_factorization: Option<bool>,
 }
 
 /// The registration model a [`ModelConfig`] resolves to on a scene: what the report shows.
@@ -69,6 +72,8 @@ pub struct ResolvedConfig {
     pub min_fraction: f64,
     /// Median/MAD pruning of rigid ICP pairs (else mean + 2σ).
     pub robust_pruning: bool,
+    /// Warm-frame refactorisation on a helper thread.
+    pub background_factorization: bool,
 }
 
 impl ModelConfig {
@@ -127,10 +132,14 @@ impl ModelConfig {
             || self.penalty_factor.is_some()
             || self.coarse_to_fine.is_some()
             || self.robust_pruning.is_some()
+            || self.background_factorization.is_some()
         {
             let r = s.registration.get_or_insert_with(RegistrationSpec::default);
             if let Some(v) = self.robust_pruning {
                 r.robust_pruning = v;
+            }
+            if let Some(v) = self.background_factorization {
+                r.background_factorization = v;
             }
             if let Some(v) = self.penalty_steps {
                 r.penalty_steps = v;
@@ -172,6 +181,10 @@ impl ModelConfig {
             coarse_to_fine: s.registration.as_ref().and_then(|r| r.coarse_to_fine),
             min_fraction: s.grid.min_fraction,
             robust_pruning: s.registration.as_ref().is_some_and(|r| r.robust_pruning),
+            background_factorization: s
+                .registration
+                .as_ref()
+                .is_some_and(|r| r.background_factorization),
         }
     }
 }
@@ -280,6 +293,16 @@ pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
                 "median-mad pruning"
             })
         });
+        if !s
+            .registration
+            .as_ref()
+            .is_some_and(|r| r.background_factorization)
+        {
+            out.push(ModelConfig {
+                background_factorization: Some(true),
+                ..named("background factorisation")
+            });
+        }
         if s.registration
             .as_ref()
             .and_then(|r| r.coarse_to_fine)

@@ -75,6 +75,7 @@ pub struct CellFailure {
 /// blocks between nodes sharing a cell, lower triangle) and each cell's scatter positions are
 /// computed once; cells are evaluated in parallel into per-cell buffers and summed in a fixed
 /// order, so results do not depend on the number of threads.
+#[derive(Clone)]
 pub struct Assembler {
     pattern: SymmetricCsc,
     scatter: Vec<[u32; CELL_LOWER_ENTRIES]>,

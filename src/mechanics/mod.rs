@@ -2,6 +2,7 @@
 //! the static Newton solver (thesis ch. 2 and §4.6–4.7).
 
 pub mod assembly;
+pub mod background_factorization;
 pub mod cell_kernel;
 pub mod hex8;
 pub mod loads;

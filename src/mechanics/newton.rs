@@ -6,6 +6,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use super::assembly::CellFailure;
+use super::background_factorization::{BackgroundFactorizer, Factored};
 use super::cell_kernel::Need;
 use super::static_problem::StaticProblem;
 use crate::linalg::{LinalgError, SolverKind, SparseSolver, SymmetricCsc};
@@ -178,6 +179,15 @@ pub struct NewtonSolver {
     /// Diagonal shift τ that last made an indefinite tangent factorisable (0: none needed);
     /// the next indefinite tangent starts its search one decade below it.
     last_shift: f64,
+    /// Whether `linear` holds a factorisation of the current problem's pattern (stale or not).
+    has_factor: bool,
+    /// Steps a refactorisation may lag behind its request (0: refactorise in place).
+    background_lag: usize,
+    /// The helper thread that refactorises while steps go on with the old factorisation.
+    background: Option<BackgroundFactorizer>,
+    /// Newton steps made by [`NewtonSolver::improve`] since the solver was made (the clock of
+    /// background refactorisation).
+    improve_steps: usize,
 }
 
 impl NewtonSolver {
@@ -192,6 +202,10 @@ impl NewtonSolver {
             factor_age: None,
             factorizations: 0,
             last_shift: 0.0,
+            has_factor: false,
+            background_lag: 0,
+            background: None,
+            improve_steps: 0,
         }
     }
 
@@ -218,11 +232,57 @@ impl NewtonSolver {
     /// problem changed beyond what a stale tangent can follow.
     pub fn invalidate_factorization(&mut self) {
         self.factor_age = None;
+        self.has_factor = false;
+        if let Some(bg) = self.background.as_mut() {
+            bg.cancel();
+        }
     }
 
-    /// Factorisations of the tangent done so far (each costs far more than a step).
+    /// Refactorisations in [`NewtonSolver::improve`] (modified Newton, `factor_reuse > 1`)
+    /// run on a helper thread: when the kept factorisation has served its steps or a step was
+    /// shortened, the tangent at the current state is factorised there while the steps go on
+    /// with the old factorisation, and the new one is swapped in `lag` steps after it was
+    /// asked for (waiting for it then if needed; results do not depend on thread timing).
+    /// `lag = 0` refactorises in place. Without any factorisation yet, or after a step the
+    /// old factorisation could not make at all, the solver refactorises in place.
+    pub fn set_background_lag(&mut self, lag: usize) {
+        if lag == 0 {
+            self.background = None;
+        } else if let Some(bg) = &self.background {
+            if bg.lag() != lag {
+                self.background = None;
+            }
+        }
+        self.background_lag = lag;
+    }
+
+    /// Factorisations made by the helper thread (included in
+    /// [`NewtonSolver::factorizations`]).
+    pub fn background_factorizations(&self) -> usize {
+        self.background.as_ref().map_or(0, |b| b.factorizations())
+    }
+
+    /// Milliseconds steps waited for helper factorisations that were not ready when due.
+    pub fn background_wait_ms(&self) -> f64 {
+        self.background.as_ref().map_or(0.0, |b| b.waited_ms())
+    }
+
+    /// Whether the next step of [`NewtonSolver::improve`] would step with the kept
+    /// factorisation (unless a background one is swapped in first, or its line search fails).
+    pub fn reuses_factorization(&self) -> bool {
+        self.factor_age.is_some_and(|a| a < self.factor_reuse)
+            || (self.factor_reuse > 1 && self.has_factor && self.background_lag > 0)
+    }
+
+    /// Whether a background refactorisation has been asked for and not swapped in yet.
+    pub fn background_pending(&self) -> bool {
+        self.background.as_ref().is_some_and(|b| b.pending())
+    }
+
+    /// Factorisations of the tangent done so far (each costs far more than a step),
+    /// including the helper thread's.
     pub fn factorizations(&self) -> usize {
-        self.factorizations
+        self.factorizations + self.background_factorizations()
     }
 
     /// Solves from the state `u0` (m; load factor 0 is assumed to hold there) up to full load.
@@ -342,6 +402,8 @@ impl NewtonSolver {
                 .with_node_coordinates(problem.grid.node_coords.clone());
             self.tangent = None;
             self.factor_age = None;
+            self.has_factor = false;
+            self.background = None;
             self.ordered_for = Some(key);
         }
     }
@@ -418,7 +480,18 @@ impl NewtonSolver {
         let result = (|| {
             let mut reference = 0.0;
             for it in 0..max_iterations {
-                let reuse = self.factor_age.is_some_and(|a| a < max_uses);
+                if max_uses > 1 {
+                    self.swap_in_background_factor(&mut k);
+                }
+                let mut reuse = self.factor_age.is_some_and(|a| a < max_uses);
+                if !reuse
+                    && max_uses > 1
+                    && self.has_factor
+                    && self.request_background(problem, u, load)
+                {
+                    // The old factorisation serves until the new one is due.
+                    reuse = true;
+                }
                 // A kept factorisation keeps `k` as the matrix it factorised (the direct solver
                 // refines against it), so only the residual is evaluated.
                 let e = if reuse {
@@ -458,6 +531,7 @@ impl NewtonSolver {
                     self.factor_age = None;
                     let tau = self.factorize_descent(&mut k)?;
                     self.factor_age = Some(0);
+                    self.has_factor = true;
                     tau
                 };
                 for v in r.iter_mut() {
@@ -473,6 +547,10 @@ impl NewtonSolver {
                         // A kept factorisation may simply be too stale: retry with a fresh one.
                         Err(_) if reuse => {
                             self.factor_age = None;
+                            self.has_factor = false;
+                            if let Some(bg) = self.background.as_mut() {
+                                bg.cancel();
+                            }
                             continue;
                         }
                         Err(f) => return Err(f),
@@ -484,6 +562,9 @@ impl NewtonSolver {
                     Some(a) if alpha >= 0.5 => Some(a + 1),
                     _ => None,
                 };
+                if max_uses > 1 {
+                    self.improve_steps += 1;
+                }
                 history.push(IterationRecord {
                     load,
                     relative_residual: rel,
@@ -508,6 +589,51 @@ impl NewtonSolver {
         })();
         self.tangent = Some(k);
         result
+    }
+
+    /// Swaps in the helper's factorisation when it is due at this step (`k` becomes the matrix
+    /// it factorised); a failed one leaves no usable factorisation, so the step refactorises.
+    fn swap_in_background_factor(&mut self, k: &mut SymmetricCsc) {
+        let Some(bg) = self.background.as_mut() else {
+            return;
+        };
+        match bg.take_due(self.improve_steps) {
+            Some(Ok(f)) => {
+                let old = Factored {
+                    linear: std::mem::replace(&mut self.linear, f.linear),
+                    matrix: std::mem::replace(k, f.matrix),
+                };
+                bg.give_back(old);
+                self.factor_age = Some(0);
+                self.has_factor = true;
+            }
+            Some(Err(_)) => {
+                self.factor_age = None;
+                self.has_factor = false;
+            }
+            None => {}
+        }
+    }
+
+    /// Asks the helper (started on first use) to refactorise at `u`; `false` when background
+    /// refactorisation is off or unavailable.
+    fn request_background(&mut self, problem: &StaticProblem, u: &[f64], load: f64) -> bool {
+        if self.background_lag == 0 {
+            return false;
+        }
+        if self.background.is_none() {
+            self.background = BackgroundFactorizer::spawn(
+                problem,
+                self.settings.linear_solver,
+                problem.grid.node_coords.clone(),
+                self.background_lag,
+            );
+        }
+        let step = self.improve_steps;
+        match self.background.as_mut() {
+            Some(bg) => bg.request(u, load, &problem.springs, step),
+            None => false,
+        }
     }
 
     /// Factorises the tangent. Far from equilibrium the tangent can be indefinite, and its

@@ -11,6 +11,7 @@ use crate::linalg::SymmetricCsc;
 /// Hyperelastic body on a [`WeightedCellGrid`] under dead loads and penalty springs, in SI units
 /// (m, N, Pa, J). At load factor `s` the total potential energy is
 /// `Π(u) = W_int(u) + W_springs(u; s) − s f_extᵀ u`; the residual is `∇Π` and the tangent `∇²Π`.
+#[derive(Clone)]
 pub struct StaticProblem {
     /// The grid (its lengths are metres).
     pub grid: WeightedCellGrid,

@@ -125,6 +125,26 @@ pub struct Correspondences {
     pub cloud_used: usize,
 }
 
+impl Correspondences {
+    /// The pairs whose source is flagged in `mask` (indexed by surface vertex); all of them
+    /// when fewer than 3 would remain.
+    pub fn restricted_to(self, mask: &[bool]) -> Self {
+        let keep: Vec<usize> = (0..self.sources.len())
+            .filter(|&s| mask[self.sources[s]])
+            .collect();
+        if keep.len() < 3 || keep.len() == self.sources.len() {
+            return self;
+        }
+        Self {
+            sources: keep.iter().map(|&s| self.sources[s]).collect(),
+            normals: self.normals.map(|n| keep.iter().map(|&s| n[s]).collect()),
+            targets: keep.iter().map(|&s| self.targets[s]).collect(),
+            rms: self.rms,
+            cloud_used: self.cloud_used,
+        }
+    }
+}
+
 /// Mean + `sigma` × standard deviation of `d` (population).
 pub fn rejection_threshold(d: &[f64], sigma: f64) -> f64 {
     let n = d.len().max(1) as f64;
@@ -312,6 +332,28 @@ mod tests {
             }
             assert!((c.rms - shift.norm()).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn restriction_keeps_the_flagged_sources_with_their_targets() {
+        let x: Vec<Point3<f64>> = (0..10).map(|k| Point3::new(k as f64, 0.0, 0.0)).collect();
+        let cloud = IndexedPoints::new(
+            (0..10)
+                .map(|k| Point3::new(k as f64, 0.0, 0.1 * k as f64))
+                .collect(),
+        )
+        .unwrap();
+        let all: Vec<usize> = (0..10).collect();
+        let p = pair(&x, None, &all, &cloud, None, &rule(1.0)).unwrap();
+        let mask: Vec<bool> = (0..10).map(|k| k % 2 == 0).collect();
+        let r = p.clone().restricted_to(&mask);
+        assert_eq!(r.sources, vec![0, 2, 4, 6, 8]);
+        for (&i, t) in r.sources.iter().zip(&r.targets) {
+            assert!((t - Point3::new(i as f64, 0.0, 0.1 * i as f64)).norm() < 1e-12);
+        }
+        // Fewer than 3 left: nothing is dropped.
+        let few: Vec<bool> = (0..10).map(|k| k < 2).collect();
+        assert_eq!(p.clone().restricted_to(&few), p);
     }
 
     #[test]

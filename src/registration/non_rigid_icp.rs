@@ -62,6 +62,11 @@ pub struct NonRigidSettings {
     /// by the normal component of its blended displacement (see [`pair`]); otherwise
     /// point-to-point springs as in the thesis.
     pub point_to_plane: bool,
+    /// With `factor_reuse > 1`: refactorisations run on a helper thread and are swapped in
+    /// this many Newton steps after they were asked for, the steps in between using the old
+    /// factorisation ([`NewtonSolver::set_background_lag`]); 0 (default): refactorise in
+    /// place. Faster on large grids, less accurate (docs/registration.md).
+    pub background_lag: usize,
 }
 
 impl Default for NonRigidSettings {
@@ -81,6 +86,7 @@ impl Default for NonRigidSettings {
             visibility_interval: 1,
             factor_reuse: 1,
             point_to_plane: true,
+            background_lag: 0,
         }
     }
 }
@@ -97,10 +103,18 @@ impl NonRigidSettings {
     /// 1.23 / 1.44 / 1.37 / 1.23 mm; warm p95 29–30 against 41–48 ms on the default grid (p50
     /// 21–23 against 15 ms) and 45–46 against 131–151 ms on 646 nodes (p50 37 against
     /// 36–44 ms).
+    ///
+    /// At most 6 ICP iterations (10 before session 8): on a noisy cloud the surface never
+    /// stops moving by the 0.3 mm test — after 4–5 iterations it keeps moving 0.4–0.8 mm RMS
+    /// per iteration chasing single pairs that switch between neighbouring noisy samples,
+    /// so most frames ran to the cap for no gain. `livereg bench --only "default,cell x0.75,
+    /// cell x2"` with 10 / 8 / 6 / 4 iterations: TRE 1.22 / 1.24 / 1.23 / 1.30 mm on the
+    /// default grid, 1.22 / 1.22 / 1.23 / 1.29 on 646 nodes, 1.45 / 1.46 / 1.52 / 1.53 on
+    /// 45 mm cells, at warm p50 22 / 18 / 15 / 13 ms on the default grid.
     pub fn warm() -> Self {
         Self {
             penalty_steps: 1,
-            max_icp_iterations: 10,
+            max_icp_iterations: 6,
             newton_iterations: 1,
             tolerance: 3e-4,
             visibility_interval: 16,
@@ -219,6 +233,10 @@ pub struct NonRigidIcp {
     /// Candidate source vertices of the last visibility test, ICP iterations since, and the
     /// camera it was made for.
     visible: Option<(Vec<usize>, usize, Option<Camera>)>,
+    /// Which surface vertices carried a pull spring in the kept factorisation, and in the
+    /// background one asked for (indexed by surface vertex).
+    factored: Option<Vec<bool>>,
+    requested: Option<Vec<bool>>,
 }
 
 impl NonRigidIcp {
@@ -229,6 +247,8 @@ impl NonRigidIcp {
             settings,
             newton: NewtonSolver::new(newton).with_factor_reuse(settings.factor_reuse),
             visible: None,
+            factored: None,
+            requested: None,
         }
     }
 
@@ -236,6 +256,8 @@ impl NonRigidIcp {
     pub fn invalidate(&mut self) {
         self.newton.invalidate_factorization();
         self.visible = None;
+        self.factored = None;
+        self.requested = None;
     }
 
     /// Registers `model` (its fixed regions stay held) to `cloud` (m, already rigidly aligned
@@ -256,6 +278,7 @@ impl NonRigidIcp {
         let settings = self.settings;
         settings.validate()?;
         self.newton.set_factor_reuse(settings.factor_reuse);
+        self.newton.set_background_lag(settings.background_lag);
         if cloud.is_empty() {
             return Err(NonRigidError::EmptyCloud);
         }
@@ -384,6 +407,32 @@ impl NonRigidIcp {
                     }
                     // Springs towards the targets, expressed as displacements from rest.
                     let t = Instant::now();
+                    // A step with a kept factorisation pulls only sources that had a spring
+                    // when it was made: at a point the body barely holds (a badly cut cell) a
+                    // spring the factorisation lacks makes its step overshoot by orders of
+                    // magnitude (measured: a node moved by 2 m), and the line search then
+                    // cuts the whole step to 1/16. Newly paired sources join at the next
+                    // factorisation.
+                    let pairs = match &self.factored {
+                        Some(mask)
+                            if self.newton.reuses_factorization() && mask.len() == x.len() =>
+                        {
+                            pairs.restricted_to(mask)
+                        }
+                        _ => pairs,
+                    };
+                    let mask = || {
+                        let mut m = vec![false; x.len()];
+                        for &i in &pairs.sources {
+                            m[i] = true;
+                        }
+                        m
+                    };
+                    let (own_before, helper_before, pending_before) = (
+                        self.newton.factorizations() - self.newton.background_factorizations(),
+                        self.newton.background_factorizations(),
+                        self.newton.background_pending(),
+                    );
                     let pull = PenaltySprings {
                         embedding: Embedding {
                             points: pairs.sources.iter().map(|&i| emb.points[i]).collect(),
@@ -405,6 +454,18 @@ impl NonRigidIcp {
                         .newton
                         .improve(&mut model.problem, u, settings.newton_iterations);
                     report.newton_iterations += r.iterations;
+                    // Which springs the factorisation in use was made with.
+                    if self.newton.background_factorizations() != helper_before {
+                        self.factored = self.requested.take();
+                    }
+                    if self.newton.factorizations() - self.newton.background_factorizations()
+                        != own_before
+                    {
+                        self.factored = Some(mask());
+                    }
+                    if self.newton.background_pending() && !pending_before {
+                        self.requested = Some(mask());
+                    }
                     solver_settled = r.failure.is_none() && r.steps.iter().all(|&a| a >= 0.5);
                     if let Some((outcome, msg)) = r.failure {
                         report.warnings.push(format!("{}: {msg}", outcome.name()));

@@ -496,6 +496,11 @@ pub struct RegistrationSpec {
     /// non-rigid stage keeps mean + 2σ: see `NonRigidSettings::robust_pruning`.)
     #[serde(default)]
     pub robust_pruning: bool,
+    /// Warm frames refactorise the tangent on a helper thread while their Newton steps go on
+    /// with the old factorisation (default false): faster on large grids, slightly less
+    /// accurate (docs/registration.md). Results stay deterministic.
+    #[serde(default)]
+    pub background_factorization: bool,
 }
 
 impl Default for RegistrationSpec {
@@ -514,6 +519,7 @@ impl Default for RegistrationSpec {
             max_cloud_points: None,
             coarse_to_fine: None,
             robust_pruning: false,
+            background_factorization: false,
         }
     }
 }

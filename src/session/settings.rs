@@ -64,6 +64,12 @@ pub struct SessionSettings {
 /// ~700-point cloud of that frame: 0.45 mm (`cargo test --test bad_frames -- --nocapture`).
 pub const DEFAULT_MAX_CLOUD_POINTS: usize = 2_000;
 
+/// Newton steps a helper-thread refactorisation lags behind its request when the scene asks
+/// for `registration.background_factorization` (`NonRigidSettings::background_lag`). Two steps
+/// hide most of a 1,443-node factorisation (20 ms against ~5 ms per step); three lose more
+/// accuracy (docs/registration.md).
+pub const BACKGROUND_FACTORIZATION_LAG: usize = 2;
+
 impl Default for SessionSettings {
     fn default() -> Self {
         Self {
@@ -99,6 +105,9 @@ impl SessionSettings {
                 n.max_pair_distance = r.max_pair_distance.map(|d| d * scale);
             }
             s.rigid.robust_pruning = r.robust_pruning;
+            if r.background_factorization {
+                s.warm.background_lag = BACKGROUND_FACTORIZATION_LAG;
+            }
             s.cold.penalty_start = r.penalty_start;
             s.cold.penalty_steps = r.penalty_steps as usize;
             s.cold.max_icp_iterations = r.max_icp_iterations as usize;
