@@ -24,6 +24,7 @@ pub mod openapi;
 pub mod registry;
 pub mod result_codec;
 pub mod service;
+pub mod slots;
 pub mod upload;
 pub mod worker;
 pub mod ws;

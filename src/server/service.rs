@@ -16,6 +16,7 @@ use super::error::ApiError;
 use super::limits::check_frame;
 use super::metrics::Metrics;
 use super::registry::{new_session_id, Registry, SessionInfo};
+use super::slots::RegistrationSlots;
 use super::upload::{build_session, materialize, SceneUpload};
 use super::worker::{run_worker, Completed, Job, ModelInfo, Outcome, Reply, SessionHandle};
 
@@ -55,7 +56,7 @@ pub struct AppState {
     /// Metrics.
     pub metrics: Arc<Metrics>,
     /// Registration slots (`worker_threads`).
-    pub slots: Arc<Semaphore>,
+    pub slots: Arc<RegistrationSlots>,
     /// Session-creation slots (`max_concurrent_creates`).
     pub creates: Arc<Semaphore>,
     /// Becomes true when shutdown starts.
@@ -84,7 +85,7 @@ impl AppState {
         Self {
             registry: Registry::new(config.limits.clone()),
             metrics: Arc::new(Metrics::default()),
-            slots: Arc::new(Semaphore::new(config.worker_threads)),
+            slots: RegistrationSlots::new(config.worker_threads),
             creates: Arc::new(Semaphore::new(config.max_concurrent_creates)),
             auth,
             config,

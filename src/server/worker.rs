@@ -2,24 +2,26 @@
 //! task that registers on the blocking thread pool when one of the server's registration
 //! slots is free.
 //!
-//! Registration is CPU-bound (≈ 0.5 s per warm frame on the phantom), so at most
-//! `worker_threads` frames are registered at once (a fair semaphore). A session's worker takes
-//! its pending frame only once it holds a slot: a frame that waited is replaced by any newer
-//! one that arrived meanwhile, so what gets registered is never older than the client's frame
-//! period, and queues cannot grow. Replaced frames are answered "skipped" and counted.
+//! Registration is CPU-bound (15–30 ms per warm frame on the phantom), so at most
+//! `worker_threads` frames are registered at once ([`RegistrationSlots`]: a freed slot goes
+//! to the session with the freshest pending frame, unless one starves). A session's worker
+//! takes its pending frame only once it holds a slot: a frame that waited is replaced by any
+//! newer one that arrived meanwhile, so what gets registered is never older than the client's
+//! frame period, and queues cannot grow. Replaced frames are answered "skipped" and counted.
 
 use std::panic::AssertUnwindSafe;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use tokio::sync::{mpsc, oneshot, Notify, Semaphore};
+use tokio::sync::{mpsc, oneshot, Notify};
 
 use super::auth::Owner;
 use super::codec::Incoming;
 use super::error::ApiError;
 use super::limits::RateLimiter;
 use super::metrics::Metrics;
+use super::slots::RegistrationSlots;
 use crate::recording::{now_ns, Recorder};
 use crate::session::{FrameResult, Session};
 
@@ -284,6 +286,14 @@ impl SessionHandle {
         }
     }
 
+    /// When the frame waiting in the mailbox was received (`None`: none waits).
+    pub fn pending_received(&self) -> Option<Instant> {
+        self.mailbox
+            .lock()
+            .ok()
+            .and_then(|mb| mb.pending.as_ref().map(|j| j.received))
+    }
+
     fn take(&self) -> Option<Job> {
         self.mailbox
             .lock()
@@ -332,7 +342,7 @@ pub async fn run_worker(
     handle: Arc<SessionHandle>,
     session: Session,
     recorder: Option<Recorder>,
-    slots: Arc<Semaphore>,
+    slots: Arc<RegistrationSlots>,
     metrics: Arc<Metrics>,
 ) {
     let mut recorder = recorder;
@@ -388,10 +398,11 @@ async fn serve_frames(
     handle: &Arc<SessionHandle>,
     session: Session,
     recorder: &mut Option<Recorder>,
-    slots: Arc<Semaphore>,
+    slots: Arc<RegistrationSlots>,
     metrics: &Arc<Metrics>,
 ) {
     let mut session = Some(session);
+    let mut last_registered = Instant::now();
     loop {
         // Wait for a frame (or the end).
         loop {
@@ -402,9 +413,7 @@ async fn serve_frames(
                 None => notified.await,
             }
         }
-        let Ok(permit) = slots.clone().acquire_owned().await else {
-            return;
-        };
+        let permit = slots.acquire(handle, last_registered).await;
         // The newest frame, taken only now that a slot is ours.
         let Some(job) = handle.take() else {
             continue;
@@ -431,6 +440,7 @@ async fn serve_frames(
         })
         .await;
         drop(permit);
+        last_registered = Instant::now();
         let (s, result) = match joined {
             Ok((s, rec, Ok(r))) => {
                 *recorder = rec;

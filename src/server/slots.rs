@@ -1,0 +1,387 @@
+//! Registration slots: at most `worker_threads` frames are registered at once, and a slot
+//! that frees goes to the waiting session whose pending frame is the freshest.
+//!
+//! Under overload (more frames per second than the cores register) every waiting session
+//! holds exactly one pending frame, its newest (newest-wins mailboxes), aged anywhere within
+//! its client's frame period. A first-come queue hands the slot to a session whose frame is on
+//! average half a period old (16 ms at 30 Hz) and up to a whole period at p95; the freshest
+//! frame among several waiting sessions is a few milliseconds old. So freshest-first cuts
+//! end-to-end latency by most of a frame period at the same throughput. Fairness: a session
+//! that has waited more than twice its fair share since its last registration goes first
+//! (oldest first), so no phase pattern between clients can starve one. Its fair share is the
+//! interval at which each of the competing sessions would be served in turn: sessions
+//! (waiting and registering) × mean registration time / slots.
+
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use tokio::sync::oneshot;
+
+use super::worker::SessionHandle;
+
+/// The starvation limit is never below this (a few sessions on fast frames).
+pub const MIN_STARVATION_LIMIT: Duration = Duration::from_millis(50);
+
+/// How many fair shares a session may wait before it is served ahead of fresher frames.
+pub const STARVATION_SHARES: f64 = 2.0;
+
+/// What the choice looks at for one waiting session.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WaitingSession {
+    /// When the session was last registered (or started waiting, if never).
+    pub since: Instant,
+    /// When its pending frame was received (`None`: nothing pending).
+    pub pending: Option<Instant>,
+}
+
+/// Index of the session to serve: the one waiting longest when any has waited more than
+/// `starvation` since `since`, else the one with the freshest pending frame (ties: longest
+/// waiting). Sessions with nothing pending come last (they only need the slot to notice).
+pub fn choose(waiting: &[WaitingSession], now: Instant, starvation: Duration) -> Option<usize> {
+    let starving = (0..waiting.len())
+        .filter(|&i| now.saturating_duration_since(waiting[i].since) > starvation)
+        .min_by_key(|&i| waiting[i].since);
+    if starving.is_some() {
+        return starving;
+    }
+    let freshest = (0..waiting.len())
+        .filter(|&i| waiting[i].pending.is_some())
+        .max_by(|&a, &b| {
+            waiting[a]
+                .pending
+                .cmp(&waiting[b].pending)
+                .then(waiting[b].since.cmp(&waiting[a].since))
+        });
+    freshest.or_else(|| (0..waiting.len()).min_by_key(|&i| waiting[i].since))
+}
+
+struct Waiter {
+    handle: Arc<SessionHandle>,
+    since: Instant,
+    wake: oneshot::Sender<()>,
+}
+
+struct Inner {
+    free: usize,
+    waiting: Vec<Waiter>,
+    /// Mean time a slot is held, s (exponential average; `None` before the first release).
+    mean_hold: Option<f64>,
+}
+
+/// The server's registration slots.
+pub struct RegistrationSlots {
+    inner: Mutex<Inner>,
+    total: usize,
+    min_starvation: Duration,
+}
+
+impl std::fmt::Debug for RegistrationSlots {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RegistrationSlots")
+            .field("free", &self.free())
+            .field("waiting", &self.waiting())
+            .field("slots", &self.total)
+            .field("min_starvation", &self.min_starvation)
+            .finish()
+    }
+}
+
+/// A held slot; dropping it hands the slot on.
+pub struct SlotPermit {
+    slots: Arc<RegistrationSlots>,
+    granted: Instant,
+}
+
+impl Drop for SlotPermit {
+    fn drop(&mut self) {
+        self.slots.release(Some(self.granted.elapsed()));
+    }
+}
+
+/// Releases a slot that was handed to a waiter whose `acquire` was dropped before taking it.
+struct PendingWake {
+    rx: Option<oneshot::Receiver<()>>,
+    slots: Arc<RegistrationSlots>,
+}
+
+impl Drop for PendingWake {
+    fn drop(&mut self) {
+        if let Some(mut rx) = self.rx.take() {
+            rx.close();
+            if rx.try_recv().is_ok() {
+                self.slots.release(None);
+            }
+        }
+    }
+}
+
+impl RegistrationSlots {
+    /// `n` slots (at least 1), starvation limit at least [`MIN_STARVATION_LIMIT`].
+    pub fn new(n: usize) -> Arc<Self> {
+        Self::with_min_starvation(n, MIN_STARVATION_LIMIT)
+    }
+
+    /// `n` slots with a given floor of the starvation limit.
+    pub fn with_min_starvation(n: usize, min_starvation: Duration) -> Arc<Self> {
+        Arc::new(Self {
+            inner: Mutex::new(Inner {
+                free: n.max(1),
+                waiting: Vec::new(),
+                mean_hold: None,
+            }),
+            total: n.max(1),
+            min_starvation,
+        })
+    }
+
+    /// The starvation limit now: [`STARVATION_SHARES`] fair shares, at least the floor.
+    fn starvation(&self, inner: &Inner) -> Duration {
+        let busy = self.total.saturating_sub(inner.free);
+        let share = inner.mean_hold.unwrap_or(0.0) * (inner.waiting.len() + busy) as f64
+            / self.total as f64;
+        Duration::from_secs_f64(STARVATION_SHARES * share).max(self.min_starvation)
+    }
+
+    /// Waits for a slot for `handle`'s session, last registered at `since`.
+    pub async fn acquire(
+        self: &Arc<Self>,
+        handle: &Arc<SessionHandle>,
+        since: Instant,
+    ) -> SlotPermit {
+        let rx = {
+            let mut inner = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+            if inner.free > 0 {
+                inner.free -= 1;
+                return SlotPermit {
+                    slots: self.clone(),
+                    granted: Instant::now(),
+                };
+            }
+            let (tx, rx) = oneshot::channel();
+            inner.waiting.push(Waiter {
+                handle: handle.clone(),
+                since,
+                wake: tx,
+            });
+            rx
+        };
+        let mut pending = PendingWake {
+            rx: Some(rx),
+            slots: self.clone(),
+        };
+        let rx = pending.rx.as_mut().expect("set above");
+        // The sender lives in `waiting` until a slot is handed over; it is only dropped
+        // unsent when the slots themselves are dropped, which outlive every worker.
+        let _ = rx.await;
+        pending.rx = None;
+        SlotPermit {
+            slots: self.clone(),
+            granted: Instant::now(),
+        }
+    }
+
+    /// Hands a freed slot (held for `held`, when it was used) to the waiter [`choose`]
+    /// picks, or keeps it free.
+    fn release(&self, held: Option<Duration>) {
+        let mut inner = self.inner.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(h) = held {
+            let h = h.as_secs_f64();
+            inner.mean_hold = Some(inner.mean_hold.map_or(h, |m| 0.9 * m + 0.1 * h));
+        }
+        // The slot being handed on still counts as busy in the fair share.
+        let starvation = self.starvation(&inner);
+        loop {
+            let now = Instant::now();
+            let view: Vec<WaitingSession> = inner
+                .waiting
+                .iter()
+                .map(|w| WaitingSession {
+                    since: w.since,
+                    pending: w.handle.pending_received(),
+                })
+                .collect();
+            let Some(i) = choose(&view, now, starvation) else {
+                inner.free += 1;
+                return;
+            };
+            let w = inner.waiting.swap_remove(i);
+            if w.wake.send(()).is_ok() {
+                return;
+            }
+            // That waiter is gone: try the next.
+        }
+    }
+
+    /// Slots free now.
+    pub fn free(&self) -> usize {
+        self.inner.lock().map(|i| i.free).unwrap_or_default()
+    }
+
+    /// Sessions waiting for a slot.
+    pub fn waiting(&self) -> usize {
+        self.inner
+            .lock()
+            .map(|i| i.waiting.len())
+            .unwrap_or_default()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::server::auth::Owner;
+    use crate::server::codec::Incoming;
+    use crate::server::metrics::Metrics;
+    use crate::server::worker::{Job, ModelInfo, Reply};
+    use crate::session::Frame;
+
+    fn session(name: &str) -> Arc<SessionHandle> {
+        let info = ModelInfo {
+            units: "m".into(),
+            length_scale: 1.0,
+            surface_vertices: 0,
+            surface_triangles: 0,
+            structures: Vec::new(),
+            recording: None,
+        };
+        Arc::new(SessionHandle::new(
+            name.into(),
+            Owner(name.into()),
+            info,
+            std::env::temp_dir(),
+            100.0,
+        ))
+    }
+
+    fn frame_now(h: &SessionHandle, metrics: &Metrics) {
+        let (tx, _rx) = oneshot::channel();
+        let job = Job {
+            incoming: Incoming {
+                seq: 1,
+                frame: Frame {
+                    source: "f".into(),
+                    points: Vec::new(),
+                    camera: None,
+                },
+            },
+            received: Instant::now(),
+            reply: Reply::Once(tx),
+        };
+        h.submit(job, metrics);
+    }
+
+    /// With the one slot held, two sessions wait with frames received 20 ms apart: the slot
+    /// goes to the newer frame's session, then to the other; a waiter dropped after being
+    /// chosen hands its slot on.
+    #[tokio::test]
+    async fn a_freed_slot_goes_to_the_freshest_pending_frame() {
+        let metrics = Metrics::default();
+        let slots = RegistrationSlots::new(1);
+        let (a, b, c) = (session("a"), session("b"), session("c"));
+        let start = Instant::now();
+        let held = slots.acquire(&c, start).await;
+        frame_now(&a, &metrics);
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        frame_now(&b, &metrics);
+        let order = Arc::new(Mutex::new(Vec::new()));
+        let task = |h: Arc<SessionHandle>| {
+            let (slots, order) = (slots.clone(), order.clone());
+            tokio::spawn(async move {
+                let p = slots.acquire(&h, start).await;
+                order.lock().unwrap().push(h.id.clone());
+                tokio::time::sleep(Duration::from_millis(5)).await;
+                drop(p);
+            })
+        };
+        let (ta, tb) = (task(a.clone()), task(b.clone()));
+        while slots.waiting() < 2 {
+            tokio::task::yield_now().await;
+        }
+        drop(held);
+        ta.await.unwrap();
+        tb.await.unwrap();
+        assert_eq!(
+            *order.lock().unwrap(),
+            vec!["b".to_string(), "a".to_string()]
+        );
+        assert_eq!(slots.free(), 1);
+
+        // A waiter whose task is aborted after being handed the slot passes it on.
+        let held = slots.acquire(&c, Instant::now()).await;
+        let lost = {
+            let slots = slots.clone();
+            let a = a.clone();
+            tokio::spawn(async move {
+                let _p = slots.acquire(&a, Instant::now()).await;
+                std::future::pending::<()>().await;
+            })
+        };
+        while slots.waiting() < 1 {
+            tokio::task::yield_now().await;
+        }
+        drop(held);
+        lost.abort();
+        let _ = lost.await;
+        let again = tokio::time::timeout(Duration::from_secs(5), slots.acquire(&b, Instant::now()))
+            .await
+            .expect("the slot was not lost");
+        drop(again);
+        assert_eq!(slots.free(), 1);
+    }
+
+    #[test]
+    fn the_freshest_frame_wins_unless_someone_starves() {
+        let t0 = Instant::now();
+        let at = |ms: u64| t0 + Duration::from_millis(ms);
+        let now = at(200);
+        let limit = Duration::from_millis(120);
+        // Last registered at 150, 120 and 100 ms; frames received at 170, 195 and 180 ms.
+        let w = [
+            WaitingSession {
+                since: at(150),
+                pending: Some(at(170)),
+            },
+            WaitingSession {
+                since: at(120),
+                pending: Some(at(195)),
+            },
+            WaitingSession {
+                since: at(100),
+                pending: Some(at(180)),
+            },
+        ];
+        assert_eq!(choose(&w, now, limit), Some(1), "freshest frame");
+        // Equal frames: the one waiting longest.
+        let tie = [
+            WaitingSession {
+                since: at(150),
+                pending: Some(at(190)),
+            },
+            WaitingSession {
+                since: at(110),
+                pending: Some(at(190)),
+            },
+        ];
+        assert_eq!(choose(&tie, now, limit), Some(1));
+        // One session last served 130 ms ago (> limit) with an old frame: it goes first,
+        // and of two starving ones the longer-waiting.
+        let mut s = w;
+        s[0].since = at(70);
+        assert_eq!(choose(&s, now, limit), Some(0));
+        s[2].since = at(60);
+        assert_eq!(choose(&s, now, limit), Some(2));
+        // Nothing pending anywhere: the longest waiting (it only needs to see it is done).
+        let idle = [
+            WaitingSession {
+                since: at(150),
+                pending: None,
+            },
+            WaitingSession {
+                since: at(140),
+                pending: None,
+            },
+        ];
+        assert_eq!(choose(&idle, now, limit), Some(1));
+        assert_eq!(choose(&[], now, limit), None);
+    }
+}
