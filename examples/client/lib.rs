@@ -612,6 +612,16 @@ pub struct LoadReport {
     pub wall_p50_ms: f64,
     /// See `wall_p50_ms`.
     pub wall_p95_ms: f64,
+    /// Server-side wait for a registration slot of the same frames (`queue_ms`), ms: with
+    /// `wall` and `server`, where the end-to-end time goes.
+    pub queue_p50_ms: f64,
+    /// See `queue_p50_ms`.
+    pub queue_p95_ms: f64,
+    /// Server time from receipt of a frame to its result (`server_ms`), ms; end-to-end minus
+    /// this is the transport and the client.
+    pub server_p50_ms: f64,
+    /// See `server_p50_ms`.
+    pub server_p95_ms: f64,
     /// Cold first frame (warm-up, not counted above): median over sessions, ms.
     pub warmup_p50_ms: f64,
     /// First error messages, for the record.
@@ -648,6 +658,8 @@ pub async fn load_test(
     };
     let mut e2e = Vec::new();
     let mut wall = Vec::new();
+    let mut queue = Vec::new();
+    let mut server = Vec::new();
     let mut warm = Vec::new();
     for t in tasks {
         let s = t.await.map_err(|e| e.to_string())??;
@@ -658,6 +670,8 @@ pub async fn load_test(
         rep.error_samples.extend(s.errors.into_iter().take(3));
         e2e.extend(s.e2e);
         wall.extend(s.wall);
+        queue.extend(s.queue);
+        server.extend(s.server);
         warm.push(s.warmup_ms);
     }
     for id in &ids {
@@ -666,6 +680,8 @@ pub async fn load_test(
     let sort = |v: &mut Vec<f64>| v.sort_by(f64::total_cmp);
     sort(&mut e2e);
     sort(&mut wall);
+    sort(&mut queue);
+    sort(&mut server);
     sort(&mut warm);
     rep.e2e_p50_ms = pct(&e2e, 0.5);
     rep.e2e_p95_ms = pct(&e2e, 0.95);
@@ -673,6 +689,10 @@ pub async fn load_test(
     rep.e2e_max_ms = e2e.last().copied().unwrap_or(0.0);
     rep.wall_p50_ms = pct(&wall, 0.5);
     rep.wall_p95_ms = pct(&wall, 0.95);
+    rep.queue_p50_ms = pct(&queue, 0.5);
+    rep.queue_p95_ms = pct(&queue, 0.95);
+    rep.server_p50_ms = pct(&server, 0.5);
+    rep.server_p95_ms = pct(&server, 0.95);
     rep.warmup_p50_ms = pct(&warm, 0.5);
     Ok(rep)
 }
@@ -683,6 +703,8 @@ struct SessionRun {
     errors: Vec<String>,
     e2e: Vec<f64>,
     wall: Vec<f64>,
+    queue: Vec<f64>,
+    server: Vec<f64>,
     warmup_ms: f64,
 }
 
@@ -747,6 +769,8 @@ async fn one_session(
         errors: Vec::new(),
         e2e: Vec::new(),
         wall: Vec::new(),
+        queue: Vec::new(),
+        server: Vec::new(),
         warmup_ms,
     };
     let deadline = Instant::now() + spec.duration + Duration::from_secs(30);
@@ -754,7 +778,8 @@ async fn one_session(
     while last_seq < n && Instant::now() < deadline {
         let msg = tokio::time::timeout(Duration::from_secs(30), rx.next()).await;
         let now = Instant::now();
-        // (seq, wall ms, skipped, registration error) of a result; text that is not a result.
+        // (seq, wall ms, skipped, registration error, queue ms, server ms) of a result; text
+        // that is not a result.
         let result = match msg {
             Ok(Some(Ok(Message::Text(t)))) => {
                 let v: Value = serde_json::from_str(&t).map_err(|e| e.to_string())?;
@@ -764,6 +789,8 @@ async fn one_session(
                         v["wall_ms"].as_f64().unwrap_or(0.0),
                         v["skipped"].as_u64().unwrap_or(0),
                         v["diagnostics"]["error"].as_str().map(str::to_string),
+                        v["queue_ms"].as_f64().unwrap_or(0.0),
+                        v["server_ms"].as_f64().unwrap_or(0.0),
                     )
                 } else {
                     run.errors.push(t.to_string());
@@ -777,17 +804,21 @@ async fn one_session(
                     r.record.wall_ms,
                     r.skipped,
                     r.record.diagnostics.error,
+                    r.queue_ms,
+                    r.server_ms,
                 )
             }
             Ok(Some(Ok(_))) => continue,
             _ => break,
         };
-        let (seq, wall_ms, skipped, error) = result;
+        let (seq, wall_ms, skipped, error, queue_ms, server_ms) = result;
         let sent = sent_at.lock().ok().and_then(|m| m.get(&seq).copied());
         if let Some(s) = sent {
             run.e2e.push((now - s).as_secs_f64() * 1e3);
         }
         run.wall.push(wall_ms);
+        run.queue.push(queue_ms);
+        run.server.push(server_ms);
         run.skipped += skipped;
         if let Some(e) = error {
             run.errors.push(format!("frame {seq}: {e}"));
