@@ -34,12 +34,37 @@ pub struct WaitingSession {
     pub pending: Option<Instant>,
 }
 
-/// Index of the session to serve: the one waiting longest when any has waited more than
-/// `starvation` since `since`, else the one with the freshest pending frame (ties: longest
-/// waiting). Sessions with nothing pending come last (they only need the slot to notice).
-pub fn choose(waiting: &[WaitingSession], now: Instant, starvation: Duration) -> Option<usize> {
+/// Index of the session to serve:
+/// 1. a session that has waited more than 1.5 × `starvation` since `since`, whatever its
+///    frame's age (the longest waiting first): a client that sends one frame and waits for
+///    its result never sends a fresher one;
+/// 2. else, among sessions that have waited more than `starvation` and whose pending frame is
+///    at most `fresh_enough` old, the longest waiting: a starving streaming session with an
+///    old frame is served at the first choice after its next frame arrives, instead of
+///    registering a frame up to a whole client period old;
+/// 3. else the session with the freshest pending frame (ties: longest waiting).
+///
+/// Sessions with nothing pending come last (they only need the slot to notice they are done).
+pub fn choose(
+    waiting: &[WaitingSession],
+    now: Instant,
+    starvation: Duration,
+    fresh_enough: Duration,
+) -> Option<usize> {
+    let waited = |i: usize| now.saturating_duration_since(waiting[i].since);
+    let abandoned = (0..waiting.len())
+        .filter(|&i| waited(i) > starvation.mul_f64(1.5))
+        .min_by_key(|&i| waiting[i].since);
+    if abandoned.is_some() {
+        return abandoned;
+    }
     let starving = (0..waiting.len())
-        .filter(|&i| now.saturating_duration_since(waiting[i].since) > starvation)
+        .filter(|&i| {
+            let w = &waiting[i];
+            now.saturating_duration_since(w.since) > starvation
+                && w.pending
+                    .is_none_or(|p| now.saturating_duration_since(p) <= fresh_enough)
+        })
         .min_by_key(|&i| waiting[i].since);
     if starving.is_some() {
         return starving;
@@ -188,8 +213,12 @@ impl RegistrationSlots {
             let h = h.as_secs_f64();
             inner.mean_hold = Some(inner.mean_hold.map_or(h, |m| 0.9 * m + 0.1 * h));
         }
-        // The slot being handed on still counts as busy in the fair share.
+        // The slot being handed on still counts as busy in the fair share. A starving
+        // session's frame must be at most one mean registration old to jump the queue.
         let starvation = self.starvation(&inner);
+        let fresh_enough = inner
+            .mean_hold
+            .map_or(Duration::MAX, Duration::from_secs_f64);
         loop {
             let now = Instant::now();
             let view: Vec<WaitingSession> = inner
@@ -200,7 +229,7 @@ impl RegistrationSlots {
                     pending: w.handle.pending_received(),
                 })
                 .collect();
-            let Some(i) = choose(&view, now, starvation) else {
+            let Some(i) = choose(&view, now, starvation, fresh_enough) else {
                 inner.free += 1;
                 return;
             };
@@ -335,6 +364,7 @@ mod tests {
         let at = |ms: u64| t0 + Duration::from_millis(ms);
         let now = at(200);
         let limit = Duration::from_millis(120);
+        let fresh = Duration::from_secs(1);
         // Last registered at 150, 120 and 100 ms; frames received at 170, 195 and 180 ms.
         let w = [
             WaitingSession {
@@ -350,7 +380,7 @@ mod tests {
                 pending: Some(at(180)),
             },
         ];
-        assert_eq!(choose(&w, now, limit), Some(1), "freshest frame");
+        assert_eq!(choose(&w, now, limit, fresh), Some(1), "freshest frame");
         // Equal frames: the one waiting longest.
         let tie = [
             WaitingSession {
@@ -362,14 +392,32 @@ mod tests {
                 pending: Some(at(190)),
             },
         ];
-        assert_eq!(choose(&tie, now, limit), Some(1));
+        assert_eq!(choose(&tie, now, limit, fresh), Some(1));
         // One session last served 130 ms ago (> limit) with an old frame: it goes first,
         // and of two starving ones the longer-waiting.
         let mut s = w;
         s[0].since = at(70);
-        assert_eq!(choose(&s, now, limit), Some(0));
+        assert_eq!(choose(&s, now, limit, fresh), Some(0));
         s[2].since = at(60);
-        assert_eq!(choose(&s, now, limit), Some(2));
+        assert_eq!(choose(&s, now, limit, fresh), Some(2));
+        // Only frames at most 25 ms old may jump the queue: session 2's (20 ms) may, session
+        // 0's (30 ms) may not; with neither fresh enough, the freshest frame wins again.
+        let gate = Duration::from_millis(25);
+        assert_eq!(choose(&s, now, limit, gate), Some(2));
+        s[2].pending = Some(at(160));
+        assert_eq!(choose(&s, now, limit, gate), Some(1));
+        // A request/response client (one frame, waiting for its result) never gets a fresher
+        // frame: past 1.5 × the limit it is served whatever its frame's age.
+        let mut r = w;
+        r[0] = WaitingSession {
+            since: at(30),
+            pending: Some(at(30)),
+        };
+        // Waited 170 ms (starving, frame too old to jump the queue): the freshest wins.
+        assert_eq!(choose(&r, now, limit, gate), Some(1));
+        // Waited 200 ms > 1.5 × 120: served.
+        r[0].since = t0;
+        assert_eq!(choose(&r, now, limit, gate), Some(0));
         // Nothing pending anywhere: the longest waiting (it only needs to see it is done).
         let idle = [
             WaitingSession {
@@ -381,7 +429,7 @@ mod tests {
                 pending: None,
             },
         ];
-        assert_eq!(choose(&idle, now, limit), Some(1));
-        assert_eq!(choose(&[], now, limit), None);
+        assert_eq!(choose(&idle, now, limit, fresh), Some(1));
+        assert_eq!(choose(&[], now, limit, fresh), None);
     }
 }
