@@ -13,8 +13,9 @@ use std::hint::black_box;
 use std::time::Instant;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, SamplingMode};
+use livereg::benchmark::workload::Workload;
 use livereg::scene::load_scene;
-use livereg::session::{Frame, Session};
+use livereg::session::Session;
 use livereg::synthetic::{generate_sequence, ScenarioKind, SequenceSpec};
 
 /// Frames of the sequence; frames 5 and 6 are the bench's pair (load 0.94 and 1.0).
@@ -28,16 +29,7 @@ fn bench_warm_frame(c: &mut Criterion) {
     let mut spec = SequenceSpec::phantom_default(ScenarioKind::ToolPush);
     spec.frames = FRAMES;
     let seq = generate_sequence(&loaded, &spec).unwrap();
-    let frames: Vec<Frame> = seq
-        .frames
-        .iter()
-        .enumerate()
-        .map(|(k, f)| Frame {
-            source: format!("frame_{k}"),
-            points: f.cloud.iter().map(|p| p / scale).collect(),
-            camera: None,
-        })
-        .collect();
+    let frames = Workload::from_sequence(&seq, scale).frames;
     let (a, b) = (&frames[5], &frames[6]);
     eprintln!(
         "clouds of {} and {} points; load {:.3} and {:.3}",

@@ -21,9 +21,10 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Instant;
 
+use livereg::benchmark::workload::Workload;
 use livereg::evaluation::{evaluate, EvalReport, ResultRecord, TruthRecord};
 use livereg::scene::{load_scene, LoadedScene};
-use livereg::session::{Frame, FrameResult, Session};
+use livereg::session::{FrameResult, Session};
 use livereg::synthetic::{generate_sequence, ScenarioKind, SequenceSpec, SyntheticSequence};
 use nalgebra::Point3;
 
@@ -72,16 +73,10 @@ fn truth_records(seq: &SyntheticSequence, scale: f64) -> Vec<TruthRecord> {
 
 /// Registers every frame of `seq` (points in scene units, as `register` reads them).
 fn run(session: &mut Session, seq: &SyntheticSequence, scale: f64) -> Vec<FrameResult> {
-    seq.frames
+    Workload::from_sequence(seq, scale)
+        .frames
         .iter()
-        .enumerate()
-        .map(|(k, f)| {
-            session.register(&Frame {
-                source: format!("frame_{k:03}"),
-                points: f.cloud.iter().map(|p| p / scale).collect(),
-                camera: None,
-            })
-        })
+        .map(|f| session.register(f))
         .collect()
 }
 

@@ -13,8 +13,9 @@
 
 mod common;
 
+use livereg::benchmark::workload::Workload;
 use livereg::scene::load_scene;
-use livereg::session::{Frame, FrameResult, Session};
+use livereg::session::{FrameResult, Session};
 use livereg::synthetic::{generate_sequence, ScenarioKind, SequenceSpec};
 
 #[test]
@@ -26,16 +27,7 @@ fn tracking_stops_early_at_the_pose_of_the_tight_tolerance() {
     let mut spec = SequenceSpec::phantom_default(ScenarioKind::GravityPose);
     spec.frames = 6;
     let seq = generate_sequence(&loaded, &spec).unwrap();
-    let frames: Vec<Frame> = seq
-        .frames
-        .iter()
-        .enumerate()
-        .map(|(k, f)| Frame {
-            source: format!("frame_{k}"),
-            points: f.cloud.iter().map(|p| p / scale).collect(),
-            camera: None,
-        })
-        .collect();
+    let frames = Workload::from_sequence(&seq, scale).frames;
     let run = |tolerance: Option<f64>| -> Vec<FrameResult> {
         let mut s = Session::from_scene(&loaded).unwrap();
         s.settings.non_rigid = false;

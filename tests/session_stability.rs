@@ -14,8 +14,9 @@ mod common;
 
 use std::time::Instant;
 
+use livereg::benchmark::workload::Workload;
 use livereg::scene::load_scene;
-use livereg::session::{recovery_settings, Frame, FrameResult, Session};
+use livereg::session::{recovery_settings, FrameResult, Session};
 use livereg::synthetic::{generate_sequence, load_fraction, ScenarioKind, SequenceSpec};
 use nalgebra::Point3;
 
@@ -62,17 +63,10 @@ fn fifty_frames_hold_still_after_the_load_stops() {
     let mut session = Session::from_scene(&loaded).unwrap();
     let nodes = session.model.problem.grid.node_count();
     let (cold, warm) = (session.settings.cold, session.settings.warm);
-    let results: Vec<FrameResult> = seq
+    let results: Vec<FrameResult> = Workload::from_sequence(&seq, scale)
         .frames
         .iter()
-        .enumerate()
-        .map(|(k, f)| {
-            session.register(&Frame {
-                source: format!("frame_{k:03}"),
-                points: f.cloud.iter().map(|p| p / scale).collect(),
-                camera: None,
-            })
-        })
+        .map(|f| session.register(f))
         .collect();
     let register_s = start.elapsed().as_secs_f64() - truth_s;
 
