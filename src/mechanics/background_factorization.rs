@@ -12,7 +12,6 @@
 
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::thread::JoinHandle;
-use std::time::Instant;
 
 use super::cell_kernel::Need;
 use super::penalty::PenaltySprings;
@@ -40,7 +39,7 @@ struct Job {
 }
 
 /// The helper's answer: the factorisation, or why there is none.
-type Answer = Result<(Factored, f64), String>;
+type Answer = Result<Factored, String>;
 
 /// A helper thread that assembles and factorises the projected tangent of one problem.
 pub struct BackgroundFactorizer {
@@ -52,10 +51,6 @@ pub struct BackgroundFactorizer {
     lag: usize,
     /// Spare buffers returned by the last swap.
     spare: Option<Factored>,
-    /// Milliseconds the caller waited for answers that were not ready when due.
-    waited_ms: f64,
-    /// Factorisations done by the helper.
-    done: usize,
 }
 
 impl BackgroundFactorizer {
@@ -90,7 +85,6 @@ impl BackgroundFactorizer {
                         linear: SparseSolver::new(kind).with_node_coordinates(node_coords.clone()),
                         matrix: own.new_tangent(),
                     });
-                    let t = Instant::now();
                     let answer = own
                         .evaluate(&u, load, Need::ProjectedTangent, None, Some(&mut matrix))
                         .map_err(|f| format!("cell {}: {}", f.cell, f.error))
@@ -99,7 +93,7 @@ impl BackgroundFactorizer {
                             if linear.fell_back_to_indefinite() {
                                 Err("the projected tangent was not positive definite".into())
                             } else {
-                                Ok((Factored { linear, matrix }, t.elapsed().as_secs_f64() * 1e3))
+                                Ok(Factored { linear, matrix })
                             }
                         });
                     if ans_tx.send(answer).is_err() {
@@ -115,8 +109,6 @@ impl BackgroundFactorizer {
             due: None,
             lag: lag.max(1),
             spare: None,
-            waited_ms: 0.0,
-            done: 0,
         })
     }
 
@@ -167,15 +159,8 @@ impl BackgroundFactorizer {
             return None;
         }
         self.due = None;
-        let t = Instant::now();
-        let answer = self.answers.recv();
-        self.waited_ms += t.elapsed().as_secs_f64() * 1e3;
-        Some(match answer {
-            Ok(Ok((f, _ms))) => {
-                self.done += 1;
-                Ok(f)
-            }
-            Ok(Err(e)) => Err(e),
+        Some(match self.answers.recv() {
+            Ok(answer) => answer,
             Err(_) => {
                 self.jobs = None;
                 Err("the factorisation thread ended".into())
@@ -187,7 +172,7 @@ impl BackgroundFactorizer {
     /// not confused with it).
     pub fn cancel(&mut self) {
         if self.due.take().is_some() {
-            if let Ok(Ok((f, _))) = self.answers.recv() {
+            if let Ok(Ok(f)) = self.answers.recv() {
                 self.spare = Some(f);
             }
         }
@@ -196,16 +181,6 @@ impl BackgroundFactorizer {
     /// Keeps `f` (a factorisation no longer in use) as buffers for the next request.
     pub fn give_back(&mut self, f: Factored) {
         self.spare = Some(f);
-    }
-
-    /// Milliseconds spent waiting for factorisations that were not ready when due.
-    pub fn waited_ms(&self) -> f64 {
-        self.waited_ms
-    }
-
-    /// Factorisations the helper has delivered.
-    pub fn factorizations(&self) -> usize {
-        self.done
     }
 }
 

@@ -188,6 +188,9 @@ pub struct NewtonSolver {
     /// Newton steps made by [`NewtonSolver::improve`] since the solver was made (the clock of
     /// background refactorisation).
     improve_steps: usize,
+    /// Helper-thread factorisations swapped in since the solver was made (also counted in
+    /// `factorizations`; kept here so the counts never go back when a helper is replaced).
+    helper_factorizations: usize,
 }
 
 impl NewtonSolver {
@@ -206,6 +209,7 @@ impl NewtonSolver {
             background_lag: 0,
             background: None,
             improve_steps: 0,
+            helper_factorizations: 0,
         }
     }
 
@@ -259,12 +263,7 @@ impl NewtonSolver {
     /// Factorisations made by the helper thread (included in
     /// [`NewtonSolver::factorizations`]).
     pub fn background_factorizations(&self) -> usize {
-        self.background.as_ref().map_or(0, |b| b.factorizations())
-    }
-
-    /// Milliseconds steps waited for helper factorisations that were not ready when due.
-    pub fn background_wait_ms(&self) -> f64 {
-        self.background.as_ref().map_or(0.0, |b| b.waited_ms())
+        self.helper_factorizations
     }
 
     /// Whether the next step of [`NewtonSolver::improve`] would step with the kept
@@ -282,7 +281,7 @@ impl NewtonSolver {
     /// Factorisations of the tangent done so far (each costs far more than a step),
     /// including the helper thread's.
     pub fn factorizations(&self) -> usize {
-        self.factorizations + self.background_factorizations()
+        self.factorizations
     }
 
     /// Solves from the state `u0` (m; load factor 0 is assumed to hold there) up to full load.
@@ -604,6 +603,8 @@ impl NewtonSolver {
                     matrix: std::mem::replace(k, f.matrix),
                 };
                 bg.give_back(old);
+                self.factorizations += 1;
+                self.helper_factorizations += 1;
                 self.factor_age = Some(0);
                 self.has_factor = true;
             }
