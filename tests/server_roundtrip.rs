@@ -308,6 +308,49 @@ async fn binary_results_equal_json_results_to_f32_precision() {
     // The frames bend the body: the comparison is not between rest shapes.
     assert_ne!(json[0]["surface"], json[3]["surface"]);
 
+    // POST /frames answers in the binary encoding with `?results=binary` (the same binary
+    // frames, a fresh session); a bad value is a 400 naming it.
+    let id = http_create_session(addr, TOKEN_A, &scene).await.unwrap();
+    let path = format!("/v1/sessions/{id}/frames");
+    let r = http(
+        addr,
+        "POST",
+        &format!("{path}?results=yaml"),
+        &[("Authorization", &auth)],
+        b"{}",
+    )
+    .await
+    .unwrap();
+    assert_eq!(r.status, 400);
+    assert!(r.json()["error"]["message"]
+        .as_str()
+        .unwrap()
+        .contains("yaml"));
+    for (k, (_, pts)) in frames.iter().enumerate() {
+        let f32s: Vec<[f32; 3]> = pts.iter().map(|p| p.map(|c| c as f32)).collect();
+        let body = livereg::server::codec::encode_binary_frame(k as u64, &f32s, None);
+        let r = http(
+            addr,
+            "POST",
+            &format!("{path}?results=binary"),
+            &[
+                ("Authorization", &auth),
+                ("Content-Type", "application/octet-stream"),
+            ],
+            &body,
+        )
+        .await
+        .unwrap();
+        assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+        assert_eq!(
+            r.headers.get("content-type").map(String::as_str),
+            Some("application/octet-stream")
+        );
+        let msg = livereg::server::result_codec::decode_binary_result(&r.body).unwrap();
+        assert_binary_matches_json(&binary_result_to_json(&msg), &json[k]);
+    }
+    http_close_session(addr, TOKEN_A, &id).await.unwrap();
+
     if !python_available() {
         eprintln!("SKIPPED the Python client: python3 is not installed");
         server.shutdown().await.unwrap();
@@ -341,6 +384,40 @@ async fn binary_results_equal_json_results_to_f32_precision() {
     assert_eq!(py.len(), N);
     for (p, j) in py.iter().zip(&json) {
         assert_binary_matches_json(p, j);
+    }
+
+    // The Python client's single frames (JSON, full precision) with JSON and with binary
+    // results: the same registrations, the second at f32 precision.
+    let mut http_runs = Vec::new();
+    for extra in [
+        &["--transport", "http"][..],
+        &["--transport", "http", "--binary-results"],
+    ] {
+        let out = case.join(format!("python-http-{}.jsonl", extra.len()));
+        let args = python_roundtrip_args(&addr.to_string(), &case, &out, extra);
+        let o = tokio::task::spawn_blocking(move || {
+            std::process::Command::new("python3")
+                .args(&args)
+                .output()
+                .unwrap()
+        })
+        .await
+        .unwrap();
+        assert!(
+            o.status.success(),
+            "python client {extra:?} failed: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let rs: Vec<serde_json::Value> = std::fs::read_to_string(&out)
+            .unwrap()
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect();
+        assert_eq!(rs.len(), N);
+        http_runs.push(rs);
+    }
+    for (b, j) in http_runs[1].iter().zip(&http_runs[0]) {
+        assert_binary_matches_json(b, j);
     }
 
     // The Python decoder on a message of the server's encoder, whole and truncated.

@@ -5,7 +5,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use axum::body::Bytes;
-use axum::extract::{DefaultBodyLimit, FromRequest, Multipart, Path, Request, State};
+use axum::extract::{DefaultBodyLimit, FromRequest, Multipart, Path, RawQuery, Request, State};
 use axum::http::{header, HeaderMap, Method, StatusCode};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
@@ -17,6 +17,7 @@ use super::auth::Owner;
 use super::codec::{decode_binary_frame, decode_json_frame, ResultMessage};
 use super::error::ApiError;
 use super::registry::SessionInfo;
+use super::result_codec::{encode_binary_result, ResultFormat};
 use super::service::AppState;
 use super::upload::{check_file_name, CreateSessionJson, SceneUpload};
 use crate::scene::SceneFormat;
@@ -311,16 +312,21 @@ async fn reset_session(
     Ok(Json(SessionInfo::of(&h)))
 }
 
+/// `POST /v1/sessions/{id}/frames[?results=json|binary]`: registers one frame and answers
+/// with its result, as JSON or (`results=binary`) in the binary result encoding
+/// (`application/octet-stream`, [`super::result_codec`]).
 async fn submit_frame(
     State(state): State<Arc<AppState>>,
     Extension(owner): Extension<Owner>,
     Path(id): Path<String>,
+    RawQuery(query): RawQuery,
     headers: HeaderMap,
     body: Result<Bytes, axum::extract::rejection::BytesRejection>,
-) -> ApiResult<Json<ResultMessage>> {
+) -> ApiResult<Response> {
     let limits = &state.config.limits;
     // Unknown sessions are answered before the body is looked at.
     let h = state.session(&owner, &id).map_err(|e| state.count(e))?;
+    let format = ResultFormat::from_query(query.as_deref()).map_err(|e| state.count(e))?;
     let body = body.map_err(|e| state.count(body_error(e, limits.max_body_bytes)))?;
     let ctype = content_type(&headers);
     let incoming = if ctype.starts_with("application/octet-stream") {
@@ -336,12 +342,20 @@ async fn submit_frame(
         .register_once(&owner, &id, incoming)
         .await
         .map_err(|e| state.count(e))?;
-    Ok(Json(ResultMessage::new(
+    let msg = ResultMessage::new(
         done.seq,
         done.skipped,
         done.server_ms,
         done.queue_ms,
         &done.result,
         h.info.length_scale,
-    )))
+    );
+    match format {
+        ResultFormat::Json => Ok(Json(msg).into_response()),
+        ResultFormat::Binary => {
+            let bytes = encode_binary_result(&msg)
+                .map_err(|e| state.count(ApiError::internal(format!("cannot encode: {e}"))))?;
+            Ok(([(header::CONTENT_TYPE, "application/octet-stream")], bytes).into_response())
+        }
+    }
 }

@@ -197,12 +197,19 @@ pub fn document() -> Value {
           "parameters": [id_param()],
           "post": {
             "summary": "Register one frame and return its result. JSON, or the binary encoding (application/octet-stream, docs/server.md).",
+            "description": "With `results=binary` the result comes in the binary result encoding (application/octet-stream; as the stream's binary messages, docs/server.md \"Binary result encoding\"). Errors stay JSON.",
+            "parameters": [{"name": "results", "in": "query", "required": false,
+              "description": "Encoding of the result: `json` (the default) or `binary` (f32 coordinates).",
+              "schema": {"type": "string", "enum": ["json", "binary"], "default": "json"}}],
             "requestBody": {"required": true, "content": {
               "application/json": {"schema": {"$ref": "#/components/schemas/Frame"}},
               "application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}},
             "responses": session_errors(m(json!({
-              "200": json_response("Registered (a registration failure is reported in diagnostics.error with the last good state).", "Result"),
-              "400": error_response("Malformed frame."),
+              "200": {"description": "Registered (a registration failure is reported in diagnostics.error with the last good state).",
+                "content": {
+                  "application/json": {"schema": {"$ref": "#/components/schemas/Result"}},
+                  "application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}},
+              "400": error_response("Malformed frame, unknown query parameter, or a `results` value other than json or binary."),
               "409": error_response("A newer frame of the session arrived first; this one was skipped (frame_superseded)."),
               "413": error_response("Body or points over a limit."),
               "422": error_response("Empty frame, non-finite coordinate or bad camera (invalid_frame)."),

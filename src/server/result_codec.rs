@@ -36,7 +36,45 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 
 use super::codec::ResultMessage;
+use super::error::ApiError;
 use crate::evaluation::{DiagnosticsRecord, ResultRecord, RigidRecord};
+
+/// How results are sent: `?results=json|binary` on the stream URL, or on a frame's POST.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ResultFormat {
+    /// JSON: `{"type": "result", ...}` text messages on a stream, a JSON body for a POST
+    /// (the default).
+    #[default]
+    Json,
+    /// The binary encoding of this module: binary messages, or an `application/octet-stream`
+    /// body.
+    Binary,
+}
+
+impl ResultFormat {
+    /// Reads the URL's query string: empty, or `results=json` / `results=binary`; any
+    /// other parameter or value is a 400 naming it.
+    pub fn from_query(query: Option<&str>) -> Result<Self, ApiError> {
+        let mut format = Self::Json;
+        for pair in query.unwrap_or("").split('&').filter(|p| !p.is_empty()) {
+            match pair.split_once('=').unwrap_or((pair, "")) {
+                ("results", "json") => format = Self::Json,
+                ("results", "binary") => format = Self::Binary,
+                ("results", other) => {
+                    return Err(ApiError::bad_request(format!(
+                        "query parameter results={other:?}: expected `json` or `binary`"
+                    )))
+                }
+                (name, _) => {
+                    return Err(ApiError::bad_request(format!(
+                        "unknown query parameter {name:?} (expected only `results=json|binary`)"
+                    )))
+                }
+            }
+        }
+        Ok(format)
+    }
+}
 
 /// Magic bytes of a binary result.
 pub const RESULT_MAGIC: [u8; 4] = *b"LVRR";

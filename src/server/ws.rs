@@ -23,7 +23,7 @@ use tokio::sync::mpsc;
 use super::auth::Owner;
 use super::codec::{decode_binary_frame, decode_json_frame, ResultMessage};
 use super::error::{ApiError, ErrorBody};
-use super::result_codec::encode_binary_result;
+use super::result_codec::{encode_binary_result, ResultFormat};
 use super::service::AppState;
 use super::worker::{Job, Reply, SessionHandle, StreamEvent, StreamSink};
 
@@ -41,41 +41,6 @@ pub enum ServerMessage<'a> {
         #[serde(flatten)]
         body: ErrorBody,
     },
-}
-
-/// How a stream's results are sent (`?results=json|binary` on the stream URL).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum ResultFormat {
-    /// `{"type": "result", ...}` text messages (the default).
-    #[default]
-    Json,
-    /// Binary messages in the encoding of [`super::result_codec`].
-    Binary,
-}
-
-impl ResultFormat {
-    /// Reads the stream URL's query string: empty, or `results=json` / `results=binary`; any
-    /// other parameter or value is a 400 naming it.
-    pub fn from_query(query: Option<&str>) -> Result<Self, ApiError> {
-        let mut format = Self::Json;
-        for pair in query.unwrap_or("").split('&').filter(|p| !p.is_empty()) {
-            match pair.split_once('=').unwrap_or((pair, "")) {
-                ("results", "json") => format = Self::Json,
-                ("results", "binary") => format = Self::Binary,
-                ("results", other) => {
-                    return Err(ApiError::bad_request(format!(
-                        "query parameter results={other:?}: expected `json` or `binary`"
-                    )))
-                }
-                (name, _) => {
-                    return Err(ApiError::bad_request(format!(
-                        "unknown query parameter {name:?} (the stream takes `results=json|binary`)"
-                    )))
-                }
-            }
-        }
-        Ok(format)
-    }
 }
 
 /// Results waiting to be written per stream (beyond this a client that does not read loses
