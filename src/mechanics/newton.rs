@@ -541,7 +541,20 @@ impl NewtonSolver {
                     *v = -*v;
                 }
                 let alpha = if s.line_search {
-                    match self.line_search(problem, u, &du, &r, e.potential, rn, load, &mut trial) {
+                    // Modified Newton evaluates the residual at the accepted state next: assemble
+                    // the force already in the line search, so the problem's body cache serves it.
+                    let with_force = max_uses > 1;
+                    match self.line_search(
+                        problem,
+                        u,
+                        &du,
+                        &r,
+                        e.potential,
+                        rn,
+                        load,
+                        with_force,
+                        &mut trial,
+                    ) {
                         Ok(a) => a,
                         // A kept factorisation may simply be too stale: retry with a fresh one.
                         Err(_) if reuse => {
@@ -571,6 +584,7 @@ impl NewtonSolver {
                     linear_method: stats.method,
                     regularization,
                 });
+                // The same sums as the line search's trial, so the body cache matches bit for bit.
                 for (ui, di) in u.iter_mut().zip(&du) {
                     *ui += alpha * di;
                 }
@@ -676,6 +690,8 @@ impl NewtonSolver {
 
     /// Backtracking on the potential energy (Armijo), falling back to the residual norm when
     /// the step is not a descent direction (indefinite tangent). Returns the step length.
+    /// With `with_force` the trial states' residuals are assembled too (a little dearer than
+    /// the energy alone), which leaves the accepted state's cell forces in the problem's cache.
     #[allow(clippy::too_many_arguments)]
     fn line_search(
         &self,
@@ -686,19 +702,26 @@ impl NewtonSolver {
         potential: f64,
         r_norm: f64,
         load: f64,
+        with_force: bool,
         trial: &mut [f64],
     ) -> Result<f64, StepFailure> {
         let slope: f64 = r.iter().zip(du).map(|(a, b)| a * b).sum();
         let descent = slope < 0.0;
         let mut alpha = 1.0;
         let mut last_failure: Option<StepFailure> = None;
-        let mut scratch = vec![0.0; if descent { 0 } else { r.len() }];
+        let mut scratch = vec![0.0; if descent && !with_force { 0 } else { r.len() }];
+        let energy_need = if with_force {
+            Need::Force
+        } else {
+            Need::Energy
+        };
         for _ in 0..12 {
             for ((t, ui), di) in trial.iter_mut().zip(u).zip(du) {
                 *t = ui + alpha * di;
             }
             let accepted = if descent {
-                match problem.evaluate(trial, load, Need::Energy, None, None) {
+                let residual = with_force.then_some(&mut scratch[..]);
+                match problem.evaluate(trial, load, energy_need, residual, None) {
                     Ok(e) => {
                         let tol = 1e-12 * (potential.abs() + 1e-300);
                         e.potential.is_finite()

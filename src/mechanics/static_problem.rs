@@ -24,6 +24,37 @@ pub struct StaticProblem {
     /// Penalty spring sets (fixed regions, registration targets).
     pub springs: Vec<PenaltySprings>,
     assembler: Assembler,
+    body_cache: Option<BodyCache>,
+}
+
+/// The body's own strain energy and internal force at the last state whose force was
+/// assembled. Springs and loads are cheap and change between calls (re-pairing, load factor),
+/// the cells are not: a modified-Newton step whose line search assembled the force at the
+/// accepted state, followed by a new residual there, needs the cells only once.
+#[derive(Clone)]
+struct BodyCache {
+    /// The state, compared bit for bit.
+    u: Vec<f64>,
+    /// What the cells were evaluated with (public fields of the problem, so checked).
+    material: Material,
+    volumetric: VolumetricIntegration,
+    /// Strain energy, J.
+    strain: f64,
+    /// Internal force of the cells alone, N.
+    force: Vec<f64>,
+}
+
+impl BodyCache {
+    fn holds(&self, u: &[f64], material: &Material, volumetric: VolumetricIntegration) -> bool {
+        self.material == *material
+            && self.volumetric == volumetric
+            && self.u.len() == u.len()
+            && self
+                .u
+                .iter()
+                .zip(u)
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+    }
 }
 
 /// What [`StaticProblem::evaluate`] returns.
@@ -51,6 +82,7 @@ impl StaticProblem {
             external,
             springs: Vec::new(),
             assembler,
+            body_cache: None,
         }
     }
 
@@ -72,6 +104,10 @@ impl StaticProblem {
     /// Evaluates Π at displacements `u` (m) and load factor `load`; writes the residual
     /// `∇Π` (N) into `residual` and the tangent (N/m) into `tangent` when `need` asks for them
     /// (both are overwritten). Fails on the first inverted cell.
+    ///
+    /// The cells' energy and force at the last state whose force was assembled are kept: an
+    /// energy or residual evaluation at exactly that state (bit for bit, same material) adds
+    /// only the springs and loads to them.
     pub fn evaluate(
         &mut self,
         u: &[f64],
@@ -88,15 +124,44 @@ impl StaticProblem {
         if let Some(k) = tangent.as_deref_mut() {
             k.zero_values();
         }
-        let strain = self.assembler.assemble(
-            &self.grid,
-            &self.material,
-            self.volumetric,
-            u,
-            need,
-            residual.as_deref_mut(),
-            tangent.as_deref_mut(),
-        )?;
+        let cached = self
+            .body_cache
+            .as_ref()
+            .filter(|c| need <= Need::Force && c.holds(u, &self.material, self.volumetric));
+        let strain = if let Some(c) = cached {
+            if let (true, Some(r)) = (need >= Need::Force, residual.as_deref_mut()) {
+                r.copy_from_slice(&c.force);
+            }
+            c.strain
+        } else {
+            let strain = self.assembler.assemble(
+                &self.grid,
+                &self.material,
+                self.volumetric,
+                u,
+                need,
+                residual.as_deref_mut(),
+                tangent.as_deref_mut(),
+            )?;
+            if let (true, Some(r)) = (need >= Need::Force, residual.as_deref()) {
+                let mut c = self.body_cache.take().unwrap_or_else(|| BodyCache {
+                    u: Vec::new(),
+                    material: self.material,
+                    volumetric: self.volumetric,
+                    strain,
+                    force: Vec::new(),
+                });
+                c.u.clear();
+                c.u.extend_from_slice(u);
+                c.force.clear();
+                c.force.extend_from_slice(r);
+                c.material = self.material;
+                c.volumetric = self.volumetric;
+                c.strain = strain;
+                self.body_cache = Some(c);
+            }
+            strain
+        };
         let mut potential = strain;
         for s in &self.springs {
             potential += s.accumulate(
@@ -129,5 +194,92 @@ impl StaticProblem {
             potential,
             strain_energy: strain,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{Point3, Vector3};
+
+    use super::*;
+    use crate::grid::GridOptions;
+    use crate::mechanics::LawKind;
+    use crate::mesh::primitives::box_surface;
+
+    /// A cut 10 × 8 × 6 cm box on 2 cm cells, neo-Hookean, with dead loads.
+    fn cut_box() -> StaticProblem {
+        let s = box_surface(
+            Point3::new(0.003, -0.004, 0.001),
+            Point3::new(0.103, 0.076, 0.061),
+            4,
+        );
+        let grid = WeightedCellGrid::build(
+            &s,
+            &GridOptions {
+                cell_size: 0.02,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let material = Material::from_young_poisson(LawKind::NeoHookean, 4500.0, 0.45).unwrap();
+        let mut p = StaticProblem::new(grid, material, VolumetricIntegration::Reduced);
+        p.external = (0..p.dofs()).map(|i| ((i as f64) * 0.7).sin()).collect();
+        p
+    }
+
+    /// A smooth non-trivial displacement field (m), scaled by `s`.
+    fn field(p: &StaticProblem, s: f64) -> Vec<f64> {
+        p.grid
+            .node_coords
+            .iter()
+            .flat_map(|ijk| {
+                let x = ijk.map(|i| i as f64 * 0.02);
+                let d = Vector3::new(x[1] * x[2], -0.5 * x[0] * x[1], 0.3 * x[0] * x[0]) * s;
+                [d.x, d.y, d.z]
+            })
+            .collect()
+    }
+
+    fn force(p: &mut StaticProblem, u: &[f64], load: f64) -> (f64, Vec<f64>) {
+        let mut r = vec![0.0; p.dofs()];
+        let e = p
+            .evaluate(u, load, Need::Force, Some(&mut r), None)
+            .unwrap();
+        (e.potential, r)
+    }
+
+    #[test]
+    fn repeated_evaluations_at_one_state_equal_a_fresh_problems() {
+        // The cached cell forces must give bit-for-bit what a problem that never saw the
+        // state computes, whatever the load factor and the springs in between.
+        let mut warm = cut_box();
+        let u1 = field(&warm, 2.0);
+        let u2 = field(&warm, -1.5);
+        force(&mut warm, &u1, 1.0);
+        for (u, load) in [(&u1, 0.5), (&u1, 1.0), (&u2, 1.0), (&u2, 0.25), (&u1, 0.75)] {
+            let (e_warm, r_warm) = force(&mut warm, u, load);
+            let energy_warm = warm.evaluate(u, load, Need::Energy, None, None).unwrap();
+            let mut fresh = cut_box();
+            let (e_fresh, r_fresh) = force(&mut fresh, u, load);
+            assert_eq!(e_warm.to_bits(), e_fresh.to_bits());
+            assert_eq!(energy_warm.potential.to_bits(), e_fresh.to_bits());
+            assert!(r_warm
+                .iter()
+                .zip(&r_fresh)
+                .all(|(a, b)| a.to_bits() == b.to_bits()));
+            assert!(
+                r_warm.iter().any(|v| v.abs() > 1e-6),
+                "a loaded, strained state"
+            );
+        }
+        // A new material at the same state is evaluated anew.
+        let (_, before) = force(&mut warm, &u1, 1.0);
+        warm.material = Material::from_young_poisson(LawKind::NeoHookean, 9000.0, 0.45).unwrap();
+        let (_, after) = force(&mut warm, &u1, 1.0);
+        let mut fresh = cut_box();
+        fresh.material = warm.material;
+        let (_, expect) = force(&mut fresh, &u1, 1.0);
+        assert_ne!(before, after);
+        assert_eq!(after, expect);
     }
 }
