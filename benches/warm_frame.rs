@@ -5,7 +5,8 @@
 //! ramp: 94 % and 100 % of the full load, ~2 mm apart at the surface), so every measured
 //! frame has something to follow. Two grids: the phantom's 15 mm cells (~865 nodes) and
 //! 12 mm (~1,500 nodes), each with refactorisation in place (`phantom_nodes`) and on a
-//! helper thread (`background_nodes`, `registration.background_factorization`).
+//! helper thread (`background_nodes`, `registration.background_factorization`), and the
+//! 12 mm grid with single-precision factorisations (`mixed_nodes`, `solver.mixed_precision`).
 //!
 //! Run: `cargo bench --bench warm_frame` (a few minutes; `-- --quick` for a rough number).
 
@@ -45,9 +46,16 @@ fn bench_warm_frame(c: &mut Criterion) {
     group.sampling_mode(SamplingMode::Flat);
     group.warm_up_time(std::time::Duration::from_secs(2));
     group.measurement_time(std::time::Duration::from_secs(8));
-    for (cell_mm, background) in [(15.0, false), (12.0, false), (15.0, true), (12.0, true)] {
+    for (cell_mm, background, mixed) in [
+        (15.0, false, false),
+        (12.0, false, false),
+        (15.0, true, false),
+        (12.0, true, false),
+        (12.0, false, true),
+    ] {
         let mut scene = loaded.clone();
         scene.scene.grid.cell_size = cell_mm;
+        scene.scene.solver.mixed_precision = mixed;
         scene
             .scene
             .registration
@@ -66,17 +74,18 @@ fn bench_warm_frame(c: &mut Criterion) {
         }
         let r = last.unwrap();
         eprintln!(
-            "{cell_mm} mm cells, background {background}: {nodes} nodes (session built in \
+            "{cell_mm} mm cells, background {background}, mixed precision {mixed}: {nodes} nodes \
+             (session built in \
              {build_ms:.0} ms); warm frame \
              {:.1} ms: {} ICP / {} Newton iterations, {} factorisations, {} sources, \
              stages {:?}",
             r.wall_ms, r.icp_iterations, r.newton_iterations, r.factorizations, r.sources, r.times
         );
         let mut flip = false;
-        let id = if background {
-            "background_nodes"
-        } else {
-            "phantom_nodes"
+        let id = match (background, mixed) {
+            (true, _) => "background_nodes",
+            (false, true) => "mixed_nodes",
+            (false, false) => "phantom_nodes",
         };
         group.bench_function(BenchmarkId::new(id, nodes), |bench| {
             bench.iter(|| {

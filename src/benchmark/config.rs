@@ -43,6 +43,8 @@ pub struct ModelConfig {
     /// Warm-frame refactorisation on a helper thread
     /// (`registration.background_factorization`).
     pub background_factorization: Option<bool>,
+    /// Single-precision factorisations in warm frames (`solver.mixed_precision`).
+    pub mixed_precision: Option<bool>,
 }
 
 /// The registration model a [`ModelConfig`] resolves to on a scene: what the report shows.
@@ -74,6 +76,8 @@ pub struct ResolvedConfig {
     pub robust_pruning: bool,
     /// Warm-frame refactorisation on a helper thread.
     pub background_factorization: bool,
+    /// Single-precision factorisations in warm frames.
+    pub mixed_precision: bool,
 }
 
 impl ModelConfig {
@@ -127,6 +131,9 @@ impl ModelConfig {
         }
         if let Some(v) = self.min_fraction {
             s.grid.min_fraction = v;
+        }
+        if let Some(v) = self.mixed_precision {
+            s.solver.mixed_precision = v;
         }
         if self.penalty_steps.is_some()
             || self.penalty_factor.is_some()
@@ -185,6 +192,7 @@ impl ModelConfig {
                 .registration
                 .as_ref()
                 .is_some_and(|r| r.background_factorization),
+            mixed_precision: s.solver.mixed_precision,
         }
     }
 }
@@ -301,6 +309,12 @@ pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
             out.push(ModelConfig {
                 background_factorization: Some(true),
                 ..named("background factorisation")
+            });
+        }
+        if !s.solver.mixed_precision {
+            out.push(ModelConfig {
+                mixed_precision: Some(true),
+                ..named("mixed precision")
             });
         }
         if s.registration

@@ -688,3 +688,57 @@ fn tiny_and_one_by_one_systems() {
         );
     }
 }
+
+#[test]
+fn single_precision_factors_are_refined_to_the_asked_tolerance_or_fall_back_to_f64() {
+    // A badly scaled SPD matrix (tiny cut cells: dofs scaled by 1e-4) that f32 alone solves
+    // only to ~1e-5; refinement in f64 must reach the asked residual and agree with the
+    // dense reference.
+    let k0 = elasticity_grid_matrix_with(6, Fixation::BottomFace, 1e8);
+    let mut scale = vec![1.0; k0.n];
+    for node in [40, 81, 122] {
+        for c in 0..3 {
+            scale[3 * node + c] = 1e-4;
+        }
+    }
+    let mut k = k0.clone();
+    scale_symmetric(&mut k, &scale);
+    let b = random_vector(k.n, 33);
+    let reference = dense_solve(&k, &b);
+    for tol in [1e-6, 1e-10] {
+        let mut s = SparseSolver::new(SolverKind::Cholesky);
+        s.set_single_precision(Some(tol));
+        s.factorize(&k).unwrap();
+        assert_eq!(s.factorized_method(), Some("cholesky-f32"));
+        let mut x = vec![0.0; k.n];
+        let stats = s.solve(&k, &b, &mut x).unwrap();
+        let res = relative_residual(&k, &x, &b);
+        assert!(res <= tol, "tol {tol}: residual {res}");
+        assert_eq!(stats.relative_residual, res);
+        assert!(
+            stats.refinement_steps >= 1,
+            "f32 alone is not that accurate"
+        );
+        assert!(rel_diff(&x, &reference) < 1e3 * tol, "tol {tol}");
+    }
+    // Off again: the next factorisation is f64 and solves to rounding.
+    let mut s = SparseSolver::new(SolverKind::Cholesky);
+    s.set_single_precision(Some(1e-6));
+    s.set_single_precision(None);
+    s.factorize(&k).unwrap();
+    assert_eq!(s.factorized_method(), Some("cholesky"));
+    // An indefinite matrix (negative diagonal block) is not factorised in f32: the f64 path
+    // falls back to LBLᵀ as before.
+    let k = indefinite_matrix();
+    let b = random_vector(k.n, 34);
+    let mut s = SparseSolver::new(SolverKind::Cholesky);
+    s.set_single_precision(Some(1e-6));
+    s.factorize(&k).unwrap();
+    assert_eq!(
+        s.factorized_method(),
+        Some("cholesky-fallback-ldlt-bunch-kaufman")
+    );
+    let mut x = vec![0.0; k.n];
+    s.solve(&k, &b, &mut x).unwrap();
+    assert!(relative_residual(&k, &x, &b) < 1e-9);
+}

@@ -56,13 +56,15 @@ pub struct BackgroundFactorizer {
 impl BackgroundFactorizer {
     /// Starts a helper with its own copy of `problem` (grid, material, loads; the springs come
     /// with each request) and a `kind` solver ordered with `node_coords`; a requested
-    /// factorisation is swapped in `lag` steps after the request. `None` when the thread
-    /// cannot be started (the caller then factorises itself).
+    /// factorisation is swapped in `lag` steps after the request; `single_precision` as in
+    /// [`SparseSolver::set_single_precision`]. `None` when the thread cannot be started (the
+    /// caller then factorises itself).
     pub fn spawn(
         problem: &StaticProblem,
         kind: SolverKind,
         node_coords: Vec<[usize; 3]>,
         lag: usize,
+        single_precision: Option<f64>,
     ) -> Option<Self> {
         let mut own = problem.clone();
         let (job_tx, job_rx) = channel::<Job>();
@@ -85,6 +87,7 @@ impl BackgroundFactorizer {
                         linear: SparseSolver::new(kind).with_node_coordinates(node_coords.clone()),
                         matrix: own.new_tangent(),
                     });
+                    linear.set_single_precision(single_precision);
                     let answer = own
                         .evaluate(&u, load, Need::ProjectedTangent, None, Some(&mut matrix))
                         .map_err(|f| format!("cell {}: {}", f.cell, f.error))

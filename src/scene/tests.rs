@@ -178,6 +178,7 @@ fn contract_example_parses_with_documented_defaults() {
             line_search: true,
             linear_solver: SolverKind::Auto,
             projected_tangent: true,
+            mixed_precision: false,
             penalty_stiffness: None,
         }
     );

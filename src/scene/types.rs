@@ -373,6 +373,10 @@ pub struct SolverSpec {
     /// `false`: the exact tangent.
     #[serde(default = "defaults::yes")]
     pub projected_tangent: bool,
+    /// Warm frames' modified-Newton steps factorise the tangent in single precision and
+    /// refine each solve in double precision (default false): less time on large grids.
+    #[serde(default)]
+    pub mixed_precision: bool,
     /// Penalty stiffness of Dirichlet springs in N/m, for fixed regions without their own
     /// `stiffness`. `None` (default): automatic. Finite and > 0 when given.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -390,6 +394,7 @@ impl Default for SolverSpec {
             line_search: true,
             linear_solver: SolverKind::Auto,
             projected_tangent: true,
+            mixed_precision: false,
             penalty_stiffness: None,
         }
     }

@@ -114,6 +114,7 @@ pub fn newton_settings(scene: &Scene) -> NewtonSettings {
         line_search: s.line_search,
         linear_solver: s.linear_solver,
         projected_tangent: s.projected_tangent,
+        mixed_precision: s.mixed_precision,
     }
 }
 
