@@ -6,7 +6,8 @@
 //! frame has something to follow. Two grids: the phantom's 15 mm cells (~865 nodes) and
 //! 12 mm (~1,500 nodes), each with refactorisation in place (`phantom_nodes`) and on a
 //! helper thread (`background_nodes`, `registration.background_factorization`), and the
-//! 12 mm grid with single-precision factorisations (`mixed_nodes`, `solver.mixed_precision`).
+//! 12 mm grid with single-precision factorisations (`mixed_nodes`, `solver.mixed_precision`),
+//! alone and with the helper thread (`background_mixed_nodes`).
 //!
 //! Run: `cargo bench --bench warm_frame` (a few minutes; `-- --quick` for a rough number).
 
@@ -52,6 +53,7 @@ fn bench_warm_frame(c: &mut Criterion) {
         (15.0, true, false),
         (12.0, true, false),
         (12.0, false, true),
+        (12.0, true, true),
     ] {
         let mut scene = loaded.clone();
         scene.scene.grid.cell_size = cell_mm;
@@ -83,7 +85,8 @@ fn bench_warm_frame(c: &mut Criterion) {
         );
         let mut flip = false;
         let id = match (background, mixed) {
-            (true, _) => "background_nodes",
+            (true, true) => "background_mixed_nodes",
+            (true, false) => "background_nodes",
             (false, true) => "mixed_nodes",
             (false, false) => "phantom_nodes",
         };
