@@ -59,6 +59,36 @@ fn python_roundtrip_args(
     args
 }
 
+/// Runs the Python client's `roundtrip` (arguments as [`python_roundtrip_args`]) against the
+/// server at `addr`, writing `case/out_name`, and returns the results it wrote.
+async fn python_roundtrip_results(
+    addr: std::net::SocketAddr,
+    case: &std::path::Path,
+    out_name: &str,
+    extra: &[&str],
+) -> Vec<serde_json::Value> {
+    let out = case.join(out_name);
+    let args = python_roundtrip_args(&addr.to_string(), case, &out, extra);
+    let o = tokio::task::spawn_blocking(move || {
+        std::process::Command::new("python3")
+            .args(&args)
+            .output()
+            .unwrap()
+    })
+    .await
+    .unwrap();
+    assert!(
+        o.status.success(),
+        "python client {extra:?} failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    std::fs::read_to_string(&out)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
 async fn grpc_round_trip(
     addr: std::net::SocketAddr,
     scene: &SceneFiles,
@@ -127,23 +157,9 @@ async fn rust_and_python_clients_round_trip_100_frames_equal_to_register() {
 
     // Python (stdlib) over WebSocket with JSON frames, in a child process.
     let py = if python_available() {
-        let out = case.join("python.jsonl");
-        let args = python_roundtrip_args(&http_addr.to_string(), &case, &out, &[]);
-        Some(tokio::task::spawn_blocking(move || {
-            let o = std::process::Command::new("python3")
-                .args(&args)
-                .output()
-                .unwrap();
-            assert!(
-                o.status.success(),
-                "python client failed: {}",
-                String::from_utf8_lossy(&o.stderr)
-            );
-            std::fs::read_to_string(out)
-                .unwrap()
-                .lines()
-                .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
-                .collect::<Vec<_>>()
+        let case = case.clone();
+        Some(tokio::spawn(async move {
+            python_roundtrip_results(http_addr, &case, "python.jsonl", &[]).await
         }))
     } else {
         eprintln!("SKIPPED the Python client: python3 is not installed");
@@ -356,31 +372,13 @@ async fn binary_results_equal_json_results_to_f32_precision() {
         server.shutdown().await.unwrap();
         return;
     }
-    let out = case.join("python-binary.jsonl");
-    let args = python_roundtrip_args(
-        &addr.to_string(),
+    let py = python_roundtrip_results(
+        addr,
         &case,
-        &out,
+        "python-binary.jsonl",
         &["--transport", "ws-binary", "--binary-results"],
-    );
-    let o = tokio::task::spawn_blocking(move || {
-        std::process::Command::new("python3")
-            .args(&args)
-            .output()
-            .unwrap()
-    })
-    .await
-    .unwrap();
-    assert!(
-        o.status.success(),
-        "python client failed: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    let py: Vec<serde_json::Value> = std::fs::read_to_string(&out)
-        .unwrap()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+    )
+    .await;
     assert_eq!(py.len(), N);
     for (p, j) in py.iter().zip(&json) {
         assert_binary_matches_json(p, j);
@@ -388,35 +386,18 @@ async fn binary_results_equal_json_results_to_f32_precision() {
 
     // The Python client's single frames (JSON, full precision) with JSON and with binary
     // results: the same registrations, the second at f32 precision.
-    let mut http_runs = Vec::new();
-    for extra in [
-        &["--transport", "http"][..],
+    let http_json =
+        python_roundtrip_results(addr, &case, "python-http.jsonl", &["--transport", "http"]).await;
+    let http_binary = python_roundtrip_results(
+        addr,
+        &case,
+        "python-http-binary.jsonl",
         &["--transport", "http", "--binary-results"],
-    ] {
-        let out = case.join(format!("python-http-{}.jsonl", extra.len()));
-        let args = python_roundtrip_args(&addr.to_string(), &case, &out, extra);
-        let o = tokio::task::spawn_blocking(move || {
-            std::process::Command::new("python3")
-                .args(&args)
-                .output()
-                .unwrap()
-        })
-        .await
-        .unwrap();
-        assert!(
-            o.status.success(),
-            "python client {extra:?} failed: {}",
-            String::from_utf8_lossy(&o.stderr)
-        );
-        let rs: Vec<serde_json::Value> = std::fs::read_to_string(&out)
-            .unwrap()
-            .lines()
-            .map(|l| serde_json::from_str(l).unwrap())
-            .collect();
-        assert_eq!(rs.len(), N);
-        http_runs.push(rs);
-    }
-    for (b, j) in http_runs[1].iter().zip(&http_runs[0]) {
+    )
+    .await;
+    assert_eq!(http_json.len(), N);
+    assert_eq!(http_binary.len(), N);
+    for (b, j) in http_binary.iter().zip(&http_json) {
         assert_binary_matches_json(b, j);
     }
 

@@ -488,10 +488,7 @@ impl SparseSolver {
                 Spec::<LbltParams, f64>::default(),
             ))
             .or(d.symbolic.solve_in_place_scratch::<f64>(1, par));
-        if req.unaligned_bytes_required() > d.mem.len() {
-            d.mem = MemBuffer::try_new(req)
-                .map_err(|_| LinalgError::Faer("out of memory for scratch".into()))?;
-        }
+        grow_scratch(&mut d.mem, req)?;
         if want_llt && self.single_precision.is_some() && d.factorize_f32(k, par)? {
             d.factor = Some(DirectFactor::LltF32);
             return Ok(());
@@ -704,10 +701,7 @@ impl Direct {
             .symbolic
             .factorize_numeric_llt_scratch::<f32>(par, Spec::<LltParams, f32>::default())
             .or(self.symbolic.solve_in_place_scratch::<f32>(1, par));
-        if req.unaligned_bytes_required() > self.mem.len() {
-            self.mem = MemBuffer::try_new(req)
-                .map_err(|_| LinalgError::Faer("out of memory for scratch".into()))?;
-        }
+        grow_scratch(&mut self.mem, req)?;
         self.l_values_f32.resize(self.symbolic.len_val(), 0.0);
         let sym = SymbolicSparseColMatRef::new_checked(n, n, &k.col_ptr, None, &k.row_idx);
         let a = SparseColMatRef::new(sym, &self.scaled_f32);
@@ -759,6 +753,15 @@ impl Direct {
             Some(DirectFactor::LltF32) | None => {}
         }
     }
+}
+
+/// Makes `mem` at least as large as `req` (kept across factorisations; only grows).
+fn grow_scratch(mem: &mut MemBuffer, req: StackReq) -> Result<(), LinalgError> {
+    if req.unaligned_bytes_required() > mem.len() {
+        *mem = MemBuffer::try_new(req)
+            .map_err(|_| LinalgError::Faer("out of memory for scratch".into()))?;
+    }
+    Ok(())
 }
 
 /// Checks the block-diagonal factor `B` of an intranodal `LBLᵀ`: every 1×1
