@@ -370,11 +370,7 @@ impl NewtonSolver {
         max_iterations: usize,
     ) -> ImproveReport {
         self.prepare_for(problem);
-        self.linear.set_single_precision(
-            self.settings
-                .mixed_precision
-                .then_some(MIXED_PRECISION_TOLERANCE),
-        );
+        self.linear.set_single_precision(self.single_precision());
         let mut iterations = 0;
         let mut history = Vec::new();
         let result = self.iterate(
@@ -407,6 +403,14 @@ impl NewtonSolver {
                 steps,
             },
         }
+    }
+
+    /// The refinement tolerance of single-precision factorisations in [`NewtonSolver::improve`]
+    /// (`None`: f64), from [`NewtonSettings::mixed_precision`].
+    fn single_precision(&self) -> Option<f64> {
+        self.settings
+            .mixed_precision
+            .then_some(MIXED_PRECISION_TOLERANCE)
     }
 
     /// Gives the linear solver the grid's node coordinates (a nested-dissection ordering,
@@ -659,9 +663,7 @@ impl NewtonSolver {
                 self.settings.linear_solver,
                 problem.grid.node_coords.clone(),
                 self.background_lag,
-                self.settings
-                    .mixed_precision
-                    .then_some(MIXED_PRECISION_TOLERANCE),
+                self.single_precision(),
             );
         }
         let step = self.improve_steps;
