@@ -86,7 +86,9 @@ impl RunningServer {
     }
 
     /// Waits until a shutdown is triggered, then drains: closes every session, lets the frames
-    /// in flight finish (at most `shutdown_grace_s`), and stops the servers.
+    /// in flight finish and every session worker end, those of sessions closed earlier
+    /// included, so their recordings are finished (all within `shutdown_grace_s`), and stops
+    /// the servers.
     pub async fn run_until_stopped(self) -> Result<(), String> {
         let mut rx = self.handle.tx.subscribe();
         let _ = rx.wait_for(|s| *s).await;
@@ -102,6 +104,7 @@ impl RunningServer {
                 h.wait_ended().await;
             }
             state.streams_closed().await;
+            state.workers_ended().await;
         };
         if tokio::time::timeout(grace, drain).await.is_err() {
             tracing::warn!("shutdown grace of {grace:?} exceeded; stopping anyway");

@@ -62,8 +62,37 @@ pub struct AppState {
     /// Becomes true when shutdown starts.
     pub shutdown: watch::Receiver<bool>,
     draining: AtomicBool,
-    open_streams: AtomicI64,
-    streams_done: Notify,
+    open_streams: LiveCount,
+    live_workers: LiveCount,
+}
+
+/// A count of live things (streams, session workers) that shutdown can wait to reach zero.
+#[derive(Debug, Default)]
+struct LiveCount {
+    n: AtomicI64,
+    zero: Notify,
+}
+
+impl LiveCount {
+    fn enter(&self) {
+        self.n.fetch_add(1, Ordering::AcqRel);
+    }
+
+    fn leave(&self) {
+        if self.n.fetch_sub(1, Ordering::AcqRel) == 1 {
+            self.zero.notify_waiters();
+        }
+    }
+
+    async fn reached_zero(&self) {
+        loop {
+            let n = self.zero.notified();
+            if self.n.load(Ordering::Acquire) <= 0 {
+                return;
+            }
+            n.await;
+        }
+    }
 }
 
 /// Counts an open stream while alive (shutdown waits for streams to finish their frames).
@@ -73,9 +102,18 @@ pub struct StreamGuard(Arc<AppState>);
 impl Drop for StreamGuard {
     fn drop(&mut self) {
         self.0.metrics.streams.fetch_sub(1, Ordering::Relaxed);
-        if self.0.open_streams.fetch_sub(1, Ordering::AcqRel) == 1 {
-            self.0.streams_done.notify_waiters();
-        }
+        self.0.open_streams.leave();
+    }
+}
+
+/// Counts a session worker while it runs, including a closed session's worker that is still
+/// finishing its frames and its recording (shutdown waits for it).
+#[derive(Debug)]
+struct WorkerGuard(Arc<AppState>);
+
+impl Drop for WorkerGuard {
+    fn drop(&mut self) {
+        self.0.live_workers.leave();
     }
 }
 
@@ -91,8 +129,8 @@ impl AppState {
             config,
             shutdown,
             draining: AtomicBool::new(false),
-            open_streams: AtomicI64::new(0),
-            streams_done: Notify::new(),
+            open_streams: LiveCount::default(),
+            live_workers: LiveCount::default(),
         }
     }
 
@@ -115,19 +153,19 @@ impl AppState {
     /// A guard counting an open stream.
     pub fn stream_guard(self: &Arc<Self>) -> StreamGuard {
         self.metrics.streams.fetch_add(1, Ordering::Relaxed);
-        self.open_streams.fetch_add(1, Ordering::AcqRel);
+        self.open_streams.enter();
         StreamGuard(self.clone())
     }
 
     /// Waits until no stream is open.
     pub async fn streams_closed(&self) {
-        loop {
-            let n = self.streams_done.notified();
-            if self.open_streams.load(Ordering::Acquire) <= 0 {
-                return;
-            }
-            n.await;
-        }
+        self.open_streams.reached_zero().await;
+    }
+
+    /// Waits until every session worker has ended, those of sessions closed earlier included
+    /// (a closed session's worker still finishes its pending frames and its recording).
+    pub async fn workers_ended(&self) {
+        self.live_workers.reached_zero().await;
     }
 
     /// Creates a session for `owner` from `upload`: limits, scene checks, model build on the
@@ -209,13 +247,19 @@ impl AppState {
             dir,
             self.config.limits.max_frames_per_second,
         ));
-        tokio::spawn(run_worker(
+        self.live_workers.enter();
+        let guard = WorkerGuard(self.clone());
+        let worker = run_worker(
             handle.clone(),
             session,
             recorder,
             self.slots.clone(),
             self.metrics.clone(),
-        ));
+        );
+        tokio::spawn(async move {
+            let _guard = guard;
+            worker.await
+        });
         reservation.commit(handle.clone());
         self.metrics.sessions.fetch_add(1, Ordering::Relaxed);
         self.metrics
