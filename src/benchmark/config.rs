@@ -38,6 +38,8 @@ pub struct ModelConfig {
     pub coarse_to_fine: Option<f64>,
     /// Fictitious-domain weight α of cut cells' outside parts (`grid.min_fraction`).
     pub min_fraction: Option<f64>,
+    /// Cut-cell step stabilisation γ (`solver.step_stabilization`).
+    pub step_stabilization: Option<f64>,
     /// Median/MAD pruning of rigid ICP pairs (`registration.robust_pruning`).
     pub robust_pruning: Option<bool>,
     /// Warm-frame refactorisation on a helper thread
@@ -72,6 +74,8 @@ pub struct ResolvedConfig {
     pub coarse_to_fine: Option<f64>,
     /// Fictitious-domain weight α of cut cells' outside parts.
     pub min_fraction: f64,
+    /// Cut-cell step stabilisation γ (0: off).
+    pub step_stabilization: f64,
     /// Median/MAD pruning of rigid ICP pairs (else mean + 2σ).
     pub robust_pruning: bool,
     /// Warm-frame refactorisation on a helper thread.
@@ -132,6 +136,9 @@ impl ModelConfig {
         if let Some(v) = self.min_fraction {
             s.grid.min_fraction = v;
         }
+        if let Some(v) = self.step_stabilization {
+            s.solver.step_stabilization = v;
+        }
         if let Some(v) = self.mixed_precision {
             s.solver.mixed_precision = v;
         }
@@ -187,6 +194,7 @@ impl ModelConfig {
             origin_offset: s.grid.origin_offset,
             coarse_to_fine: s.registration.as_ref().and_then(|r| r.coarse_to_fine),
             min_fraction: s.grid.min_fraction,
+            step_stabilization: s.solver.step_stabilization,
             robust_pruning: s.registration.as_ref().is_some_and(|r| r.robust_pruning),
             background_factorization: s
                 .registration
@@ -199,10 +207,12 @@ impl ModelConfig {
 
 /// The sweep of `livereg bench`: the default and, one axis at a time, cell size (×0.75, ×1.5,
 /// ×2), subdivision level (1 to 4), integration (finite-cell, full-cell), fictitious weight α
-/// (10⁻⁴, 10⁻³, 10⁻², 3·10⁻², 10⁻¹), law (neo-Hookean, SVK, linear, corotated), linear solver (LDLᵀ,
+/// (10⁻⁴, 10⁻³, 10⁻², 3·10⁻², 10⁻¹), cut-cell step stabilisation γ (0, 10, 30, 100, 300,
+/// 1000), law (neo-Hookean, SVK, linear, corotated), linear solver (LDLᵀ,
 /// Jacobi-CG), penalty ramp (1 and 5 steps), the other pair-pruning rule (mean + 2σ or
 /// median/MAD), coarse-to-fine start (cells ×2) — changes already equal to the scene's value
-/// are left out. `quick`: the default, cell ×1.5 and ×2, finite-cell, full-cell and neo-Hookean.
+/// are left out. `quick`: the default, cell ×1.5 and ×2, finite-cell, full-cell, no stabilisation
+/// and neo-Hookean.
 pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
     let s = &scene.scene;
     let named = |name: &str| ModelConfig {
@@ -251,6 +261,19 @@ pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
                     ..named(&format!("alpha {a:e}"))
                 });
             }
+        }
+    }
+    let gammas: &[f64] = if quick {
+        &[0.0]
+    } else {
+        &[0.0, 10.0, 30.0, 100.0, 300.0, 1000.0]
+    };
+    for &g in gammas {
+        if g != s.solver.step_stabilization {
+            out.push(ModelConfig {
+                step_stabilization: Some(g),
+                ..named(&format!("stabilization {g}"))
+            });
         }
     }
     let laws: &[LawKind] = if quick {
@@ -387,7 +410,8 @@ mod tests {
         assert!((c.resolved(&a).cell_size_mm - 2.0 * scene.scene.grid.cell_size).abs() < 1e-9);
     }
 
-    /// α and the pruning rule reach the scene keys the session reads, and the report shows them.
+    /// α, γ and the pruning rule reach the scene keys the session reads, and the report shows
+    /// them.
     #[test]
     fn alpha_and_pruning_change_their_scene_keys() {
         let scene = phantom();
@@ -399,14 +423,17 @@ mod tests {
         let c = ModelConfig {
             name: "x".into(),
             min_fraction: Some(1e-3),
+            step_stabilization: Some(0.0),
             robust_pruning: Some(true),
             ..ModelConfig::default()
         };
         let a = c.apply(&scene).unwrap();
         assert_eq!(a.scene.grid.min_fraction, 1e-3);
+        assert_eq!(a.scene.solver.step_stabilization, 0.0);
         assert!(a.scene.registration.as_ref().unwrap().robust_pruning);
         let r = c.resolved(&a);
         assert_eq!((r.min_fraction, r.robust_pruning), (1e-3, true));
+        assert_eq!(r.step_stabilization, 0.0);
         let settings = crate::session::SessionSettings::from_scene(&a.scene, a.length_scale());
         assert!(settings.rigid.robust_pruning);
         assert!(!settings.warm.robust_pruning && !settings.cold.robust_pruning);

@@ -57,14 +57,17 @@ impl BackgroundFactorizer {
     /// Starts a helper with its own copy of `problem` (grid, material, loads; the springs come
     /// with each request) and a `kind` solver ordered with `node_coords`; a requested
     /// factorisation is swapped in `lag` steps after the request; `single_precision` as in
-    /// [`SparseSolver::set_single_precision`]. `None` when the thread cannot be started (the
-    /// caller then factorises itself).
+    /// [`SparseSolver::set_single_precision`]; the tangents get the cut-cell step
+    /// stabilisation of coefficient `stabilization`
+    /// ([`StaticProblem::add_cut_cell_stabilization`]). `None` when the thread cannot be
+    /// started (the caller then factorises itself).
     pub fn spawn(
         problem: &StaticProblem,
         kind: SolverKind,
         node_coords: Vec<[usize; 3]>,
         lag: usize,
         single_precision: Option<f64>,
+        stabilization: f64,
     ) -> Option<Self> {
         let mut own = problem.clone();
         let (job_tx, job_rx) = channel::<Job>();
@@ -90,6 +93,7 @@ impl BackgroundFactorizer {
                     linear.set_single_precision(single_precision);
                     let answer = own
                         .evaluate(&u, load, Need::ProjectedTangent, None, Some(&mut matrix))
+                        .map(|_| own.add_cut_cell_stabilization(stabilization, &mut matrix))
                         .map_err(|f| format!("cell {}: {}", f.cell, f.error))
                         .and_then(|_| linear.factorize(&matrix).map_err(|e| e.to_string()))
                         .and_then(|()| {

@@ -4,6 +4,7 @@
 pub mod assembly;
 pub mod background_factorization;
 pub mod cell_kernel;
+pub mod cut_cell_stabilization;
 pub mod hex8;
 pub mod loads;
 pub mod material;
@@ -13,6 +14,7 @@ pub mod static_problem;
 
 pub use assembly::Assembler;
 pub use cell_kernel::{Need, VolumetricIntegration};
+pub use cut_cell_stabilization::CutCellStabilization;
 pub use material::{LawKind, Material, MaterialError, Part};
 pub use newton::{
     ImproveReport, IterationRecord, NewtonSettings, NewtonSolver, Outcome, SolveReport,

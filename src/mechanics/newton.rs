@@ -39,6 +39,13 @@ pub struct NewtonSettings {
     /// stay in f64.
     #[serde(default)]
     pub mixed_precision: bool,
+    /// γ of the cut-cell step stabilisation ([`CutCellStabilization`](super::CutCellStabilization);
+    /// 0: off) of the factorisations [`NewtonSolver::improve`] keeps for several steps
+    /// ([`NewtonSolver::with_factor_reuse`] > 1: registration's warm frames), whose steps
+    /// would otherwise overshoot at the nodes of badly cut cells. Fresh factorisations are
+    /// exact and get none; full solves never use it.
+    #[serde(default)]
+    pub step_stabilization: f64,
 }
 
 /// Relative residual to which solves with a single-precision factorisation are refined:
@@ -57,6 +64,7 @@ impl Default for NewtonSettings {
             linear_solver: SolverKind::Auto,
             projected_tangent: true,
             mixed_precision: false,
+            step_stabilization: 0.0,
         }
     }
 }
@@ -381,6 +389,12 @@ impl NewtonSolver {
             &mut iterations,
             &mut history,
             self.factor_reuse,
+            // Only a factorisation kept for several steps needs it (a fresh one is exact).
+            if self.factor_reuse > 1 {
+                self.settings.step_stabilization
+            } else {
+                0.0
+            },
         );
         let last = history.last().map_or(0.0, |h| h.relative_residual);
         let shifted_steps = history.iter().filter(|h| h.regularization > 0.0).count();
@@ -473,12 +487,13 @@ impl NewtonSolver {
     ) -> Result<f64, StepFailure> {
         let cap = self.settings.max_iterations;
         self.factor_age = None;
-        self.iterate(problem, u, load, cap, iterations, history, 1)
+        self.iterate(problem, u, load, cap, iterations, history, 1, 0.0)
     }
 
     /// At most `max_iterations` Newton iterations at load factor `load` from `u` (updated in
     /// place; every accepted step keeps it valid). `Ok(relative residual)` when converged.
-    /// A factorisation serves at most `max_uses` steps (1: plain Newton).
+    /// A factorisation serves at most `max_uses` steps (1: plain Newton); the factorised
+    /// tangents get the cut-cell step stabilisation of coefficient `stabilization`.
     #[allow(clippy::too_many_arguments)]
     fn iterate(
         &mut self,
@@ -489,6 +504,7 @@ impl NewtonSolver {
         iterations: &mut usize,
         history: &mut Vec<IterationRecord>,
         max_uses: usize,
+        stabilization: f64,
     ) -> Result<f64, StepFailure> {
         let s = self.settings;
         let n = problem.dofs();
@@ -522,7 +538,9 @@ impl NewtonSolver {
                     } else {
                         Need::Tangent
                     };
-                    problem.evaluate(u, load, need, Some(&mut r), Some(&mut k))?
+                    let e = problem.evaluate(u, load, need, Some(&mut r), Some(&mut k))?;
+                    problem.add_cut_cell_stabilization(stabilization, &mut k);
+                    e
                 };
                 let rn = norm(&r);
                 if !rn.is_finite() || !e.potential.is_finite() {
@@ -664,6 +682,7 @@ impl NewtonSolver {
                 problem.grid.node_coords.clone(),
                 self.background_lag,
                 self.single_precision(),
+                self.settings.step_stabilization,
             );
         }
         let step = self.improve_steps;

@@ -3,6 +3,7 @@
 
 use super::assembly::{Assembler, CellFailure};
 use super::cell_kernel::{Need, VolumetricIntegration};
+use super::cut_cell_stabilization::CutCellStabilization;
 use super::material::Material;
 use super::penalty::PenaltySprings;
 use crate::grid::WeightedCellGrid;
@@ -24,6 +25,7 @@ pub struct StaticProblem {
     /// Penalty spring sets (fixed regions, registration targets).
     pub springs: Vec<PenaltySprings>,
     assembler: Assembler,
+    cut_cells: CutCellStabilization,
     body_cache: Option<BodyCache>,
 }
 
@@ -74,6 +76,7 @@ impl StaticProblem {
         volumetric: VolumetricIntegration,
     ) -> Self {
         let assembler = Assembler::new(&grid);
+        let cut_cells = CutCellStabilization::new(&grid);
         let external = vec![0.0; 3 * grid.node_count()];
         Self {
             grid,
@@ -82,6 +85,7 @@ impl StaticProblem {
             external,
             springs: Vec::new(),
             assembler,
+            cut_cells,
             body_cache: None,
         }
     }
@@ -94,6 +98,16 @@ impl StaticProblem {
     /// A zeroed matrix with the tangent's sparsity pattern.
     pub fn new_tangent(&self) -> SymmetricCsc {
         self.assembler.pattern().clone()
+    }
+
+    /// Adds the cut-cell step stabilisation of coefficient `gamma` (dimensionless), i.e.
+    /// `γ μ h S` ([`CutCellStabilization`]), to a tangent `k` (N/m) of this problem's pattern.
+    /// Not part of `Π`: for the matrix of a registration step only.
+    pub fn add_cut_cell_stabilization(&self, gamma: f64, k: &mut SymmetricCsc) {
+        if gamma > 0.0 {
+            let c = gamma * self.material.mu * self.grid.grid.cell_size;
+            self.cut_cells.add_to(&self.grid, &self.assembler, c, k);
+        }
     }
 
     /// The assembler (pattern and scatter maps).

@@ -28,6 +28,6 @@ pub use types::{
     TractionSpec, Units, Vec3, VolumetricIntegration,
 };
 pub use validate::{
-    validate_scene, MAX_BISECTIONS, MAX_LOAD_STEPS, MAX_SUBDIVISIONS, POINT_EXTENSIONS,
-    SURFACE_EXTENSIONS,
+    validate_scene, MAX_BISECTIONS, MAX_LOAD_STEPS, MAX_STEP_STABILIZATION, MAX_SUBDIVISIONS,
+    POINT_EXTENSIONS, SURFACE_EXTENSIONS,
 };

@@ -179,6 +179,7 @@ fn contract_example_parses_with_documented_defaults() {
             linear_solver: SolverKind::Auto,
             projected_tangent: true,
             mixed_precision: false,
+            step_stabilization: 100.0,
             penalty_stiffness: None,
         }
     );

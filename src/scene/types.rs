@@ -182,7 +182,7 @@ pub struct GridSpec {
     /// Integration of cut cells (default `"weighted-cell"`).
     #[serde(default)]
     pub integration: IntegrationMode,
-    /// Fictitious-domain floor (dimensionless, in `[0, 0.5)`, default 1e-4): a cut cell's
+    /// Fictitious-domain floor (dimensionless, in `[0, 0.5)`, default 1e-2): a cut cell's
     /// (sub-cell's) integration weight fraction is never taken below this, so cells with almost
     /// no inside volume keep a little stiffness and `K` stays non-singular.
     #[serde(default = "defaults::min_fraction")]
@@ -377,6 +377,14 @@ pub struct SolverSpec {
     /// refine each solve in double precision (default false): less time on large grids.
     #[serde(default)]
     pub mixed_precision: bool,
+    /// Cut-cell step stabilisation γ of warm frames (dimensionless, in `[0, 1e4]`, default
+    /// 100; 0: off): a tangent factorised to serve several modified-Newton steps gets a
+    /// constant penalty `γ μ h (1 − f)` on the non-affine part of each cut cell's motion, so
+    /// the nodes of badly cut cells no longer make its steps overshoot. The energy and
+    /// residual are unchanged, hence the equilibrium too (see
+    /// `mechanics::CutCellStabilization`). Cold frames and forward solves never use it.
+    #[serde(default = "defaults::step_stabilization")]
+    pub step_stabilization: f64,
     /// Penalty stiffness of Dirichlet springs in N/m, for fixed regions without their own
     /// `stiffness`. `None` (default): automatic. Finite and > 0 when given.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -395,6 +403,7 @@ impl Default for SolverSpec {
             linear_solver: SolverKind::Auto,
             projected_tangent: true,
             mixed_precision: false,
+            step_stabilization: defaults::step_stabilization(),
             penalty_stiffness: None,
         }
     }
@@ -538,6 +547,10 @@ pub mod defaults {
     /// `grid.min_fraction`.
     pub fn min_fraction() -> f64 {
         1e-2
+    }
+    /// `solver.step_stabilization` (γ of the cut-cell step stabilisation).
+    pub fn step_stabilization() -> f64 {
+        100.0
     }
     /// `material.density`, kg/m³.
     pub fn density() -> f64 {

@@ -11,6 +11,9 @@ pub const SURFACE_EXTENSIONS: &[&str] = &["obj", "stl", "ply", "off", "msh"];
 pub const POINT_EXTENSIONS: &[&str] = &["xyz", "txt", "csv", "ply"];
 /// Largest `grid.subdivisions`: a cut cell is split into up to 8^L sub-cells (8^6 = 262 144).
 pub const MAX_SUBDIVISIONS: u32 = 6;
+/// Largest `solver.step_stabilization` γ accepted: far beyond it the badly cut cells' nodes
+/// barely move per step and registration steps only slow down.
+pub const MAX_STEP_STABILIZATION: f64 = 1e4;
 /// Largest `solver.load_steps`.
 pub const MAX_LOAD_STEPS: u32 = 10_000;
 /// Largest `solver.max_bisections` (an increment halved 30 times is ~1e-9 of a load step).
@@ -286,6 +289,17 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
     }
     if let Some(k) = s.penalty_stiffness {
         c.positive("solver.penalty_stiffness", k, " N/m");
+    }
+    if c.finite("solver.step_stabilization", s.step_stabilization)
+        && !(0.0..=MAX_STEP_STABILIZATION).contains(&s.step_stabilization)
+    {
+        c.fail(
+            "solver.step_stabilization",
+            format!(
+                "must be in [0, {MAX_STEP_STABILIZATION}], got {}",
+                s.step_stabilization
+            ),
+        );
     }
 
     // probes

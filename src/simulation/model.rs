@@ -115,6 +115,7 @@ pub fn newton_settings(scene: &Scene) -> NewtonSettings {
         linear_solver: s.linear_solver,
         projected_tangent: s.projected_tangent,
         mixed_precision: s.mixed_precision,
+        step_stabilization: s.step_stabilization,
     }
 }
 
