@@ -4,8 +4,9 @@
 //! tool-push sequence. The bench alternates between two nearby frames (the end of the load
 //! ramp: 94 % and 100 % of the full load, ~2 mm apart at the surface), so every measured
 //! frame has something to follow. Two grids: the phantom's 15 mm cells (~865 nodes) and
-//! 12 mm (~1,500 nodes), each with refactorisation in place (`phantom_nodes`) and on a
-//! helper thread (`background_nodes`, `registration.background_factorization`), and the
+//! 12 mm (~1,500 nodes), each with refactorisation in place (`phantom_nodes`), without the
+//! cut-cell step stabilisation (`unstabilised_nodes`, `solver.step_stabilization = 0`) and on
+//! a helper thread (`background_nodes`, `registration.background_factorization`), and the
 //! 12 mm grid with single-precision factorisations (`mixed_nodes`, `solver.mixed_precision`),
 //! alone and with the helper thread (`background_mixed_nodes`).
 //!
@@ -47,17 +48,23 @@ fn bench_warm_frame(c: &mut Criterion) {
     group.sampling_mode(SamplingMode::Flat);
     group.warm_up_time(std::time::Duration::from_secs(2));
     group.measurement_time(std::time::Duration::from_secs(8));
-    for (cell_mm, background, mixed) in [
-        (15.0, false, false),
-        (12.0, false, false),
-        (15.0, true, false),
-        (12.0, true, false),
-        (12.0, false, true),
-        (12.0, true, true),
+    // (cell mm, helper thread, mixed precision, cut-cell step stabilisation on)
+    for (cell_mm, background, mixed, stabilised) in [
+        (15.0, false, false, true),
+        (12.0, false, false, true),
+        (15.0, false, false, false),
+        (12.0, false, false, false),
+        (15.0, true, false, true),
+        (12.0, true, false, true),
+        (12.0, false, true, true),
+        (12.0, true, true, true),
     ] {
         let mut scene = loaded.clone();
         scene.scene.grid.cell_size = cell_mm;
         scene.scene.solver.mixed_precision = mixed;
+        if !stabilised {
+            scene.scene.solver.step_stabilization = 0.0;
+        }
         scene
             .scene
             .registration
@@ -76,7 +83,8 @@ fn bench_warm_frame(c: &mut Criterion) {
         }
         let r = last.unwrap();
         eprintln!(
-            "{cell_mm} mm cells, background {background}, mixed precision {mixed}: {nodes} nodes \
+            "{cell_mm} mm cells, background {background}, mixed precision {mixed}, stabilised \
+             {stabilised}: {nodes} nodes \
              (session built in \
              {build_ms:.0} ms); warm frame \
              {:.1} ms: {} ICP / {} Newton iterations, {} factorisations, {} sources, \
@@ -84,11 +92,12 @@ fn bench_warm_frame(c: &mut Criterion) {
             r.wall_ms, r.icp_iterations, r.newton_iterations, r.factorizations, r.sources, r.times
         );
         let mut flip = false;
-        let id = match (background, mixed) {
-            (true, true) => "background_mixed_nodes",
-            (true, false) => "background_nodes",
-            (false, true) => "mixed_nodes",
-            (false, false) => "phantom_nodes",
+        let id = match (background, mixed, stabilised) {
+            (_, _, false) => "unstabilised_nodes",
+            (true, true, _) => "background_mixed_nodes",
+            (true, false, _) => "background_nodes",
+            (false, true, _) => "mixed_nodes",
+            (false, false, _) => "phantom_nodes",
         };
         group.bench_function(BenchmarkId::new(id, nodes), |bench| {
             bench.iter(|| {
