@@ -280,10 +280,10 @@ fn step_stabilisation_keeps_the_equilibrium_and_slows_only_badly_cut_cells() {
     }
     let node = |v: &[f64], a: usize| Vector3::new(v[3 * a], v[3 * a + 1], v[3 * a + 2]);
     let (mut held, mut loose, mut max_u) = (0.0f64, 0.0f64, 0.0f64);
-    for a in 0..nodes {
+    for (a, &held_by) in support.iter().enumerate() {
         let e = (node(&u, a) - node(&reference.u, a)).norm();
         max_u = max_u.max(node(&reference.u, a).norm());
-        if support[a] >= 0.5 {
+        if held_by >= 0.5 {
             held = held.max(e);
         } else {
             loose = loose.max(e);
