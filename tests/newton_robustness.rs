@@ -171,26 +171,32 @@ fn indefinite_tangents_are_shifted_into_descent_directions() {
     );
 }
 
-/// `improve` one step at a time (as non-rigid ICP calls it) from rest at full load, with a
-/// factorisation serving up to 3 steps and refactorisations `lag` steps behind (0: in place).
-/// Returns the state, the factorisations made by the helper and the steps taken.
+/// `steps` calls of `improve` with one step each (as non-rigid ICP calls it), from `u`
+/// (updated); each must succeed and leave a finite state.
+fn improve_steps(solver: &mut NewtonSolver, p: &mut StaticProblem, u: &mut [f64], steps: usize) {
+    for _ in 0..steps {
+        let r = solver.improve(p, u, 1);
+        assert!(r.failure.is_none(), "{:?}", r.failure);
+        assert!(u.iter().all(|v| v.is_finite()));
+    }
+}
+
+/// `improve` one step at a time from rest at full load, with a factorisation serving up to 3
+/// steps and refactorisations `lag` steps behind (0: in place). Returns the state and the
+/// factorisations made by the helper.
 fn modified_newton(p: &mut StaticProblem, lag: usize, steps: usize) -> (Vec<f64>, usize) {
     let mut solver = NewtonSolver::new(NewtonSettings::default()).with_factor_reuse(3);
     solver.set_background_lag(lag);
     let mut u = vec![0.0; p.dofs()];
-    for _ in 0..steps {
-        let r = solver.improve(p, &mut u, 1);
-        assert!(r.failure.is_none(), "{:?}", r.failure);
-        assert!(u.iter().all(|v| v.is_finite()));
-    }
+    improve_steps(&mut solver, p, &mut u, steps);
     (u, solver.background_factorizations())
 }
 
-#[test]
-fn background_refactorisation_reaches_plain_newtons_equilibrium_deterministically() {
-    let mut p = column(60.0);
+/// Plain Newton's equilibrium of `p` from rest, and its norm (asserted converged and bent by
+/// more than a millimetre).
+fn equilibrium(p: &mut StaticProblem) -> (Vec<f64>, f64) {
     let u0 = vec![0.0; p.dofs()];
-    let reference = NewtonSolver::new(NewtonSettings::default()).solve(&mut p, &u0);
+    let reference = NewtonSolver::new(NewtonSettings::default()).solve(p, &u0);
     assert_eq!(
         reference.outcome,
         Outcome::Converged,
@@ -199,15 +205,25 @@ fn background_refactorisation_reaches_plain_newtons_equilibrium_deterministicall
     );
     let scale = norm(&reference.u);
     assert!(scale > 1e-3, "the column bends: |u| = {scale}");
+    (reference.u, scale)
+}
+
+/// `|u − v| / scale`.
+fn relative_distance(u: &[f64], v: &[f64], scale: f64) -> f64 {
+    let d: Vec<f64> = u.iter().zip(v).map(|(a, b)| a - b).collect();
+    norm(&d) / scale
+}
+
+#[test]
+fn background_refactorisation_reaches_plain_newtons_equilibrium_deterministically() {
+    let mut p = column(60.0);
+    let (reference, scale) = equilibrium(&mut p);
 
     let (u_bg, helper) = modified_newton(&mut p, 2, 80);
     assert!(helper > 0, "the helper's factorisations were used");
     // (Measured: after 20 / 40 / 80 steps 2e-1 / 2e-5 / 4e-11 from the equilibrium, in place
     // 8e-3 / 4e-11 / 4e-11: the staler factorisations cost steps, not the end point.)
-    let err = |u: &[f64]| {
-        let d: Vec<f64> = u.iter().zip(&reference.u).map(|(a, b)| a - b).collect();
-        norm(&d) / scale
-    };
+    let err = |u: &[f64]| relative_distance(u, &reference, scale);
     assert!(
         err(&u_bg) < 1e-8,
         "background refactorisation ends {:.2e} (relative) from plain Newton",
@@ -234,16 +250,7 @@ fn step_stabilisation_keeps_the_equilibrium_and_slows_only_badly_cut_cells() {
     // which the penalty damps.
     let mut p = column_on(60.0, [0.9, 0.9, 0.0]);
     assert!(p.grid.stats().cut_cells > 20, "{:?}", p.grid.stats());
-    let u0 = vec![0.0; p.dofs()];
-    let reference = NewtonSolver::new(NewtonSettings::default()).solve(&mut p, &u0);
-    assert_eq!(
-        reference.outcome,
-        Outcome::Converged,
-        "{:?}",
-        reference.message
-    );
-    let scale = norm(&reference.u);
-    assert!(scale > 1e-3, "the column bends: |u| = {scale}");
+    let (reference, scale) = equilibrium(&mut p);
     let stabilised = || {
         NewtonSolver::new(NewtonSettings {
             step_stabilization: 100.0,
@@ -252,25 +259,14 @@ fn step_stabilisation_keeps_the_equilibrium_and_slows_only_badly_cut_cells() {
         .with_factor_reuse(8)
     };
     // A fixed point.
-    let mut solver = stabilised();
-    let mut u = reference.u.clone();
-    for _ in 0..5 {
-        let r = solver.improve(&mut p, &mut u, 1);
-        assert!(r.failure.is_none(), "{:?}", r.failure);
-    }
-    let d: Vec<f64> = u.iter().zip(&reference.u).map(|(a, b)| a - b).collect();
-    assert!(
-        norm(&d) < 1e-9 * scale,
-        "left the equilibrium by {:.2e}",
-        norm(&d) / scale
-    );
+    let mut u = reference.clone();
+    improve_steps(&mut stabilised(), &mut p, &mut u, 5);
+    let left = relative_distance(&u, &reference, scale);
+    assert!(left < 1e-9, "left the equilibrium by {left:.2e}");
     // From rest: 200 steps to a 6 cm bend.
     let mut solver = stabilised();
-    let mut u = u0.clone();
-    for _ in 0..200 {
-        let r = solver.improve(&mut p, &mut u, 1);
-        assert!(r.failure.is_none(), "{:?}", r.failure);
-    }
+    let mut u = vec![0.0; p.dofs()];
+    improve_steps(&mut solver, &mut p, &mut u, 200);
     let nodes = p.grid.node_count();
     let mut support = vec![0.0f64; nodes];
     for c in &p.grid.cells {
@@ -281,8 +277,8 @@ fn step_stabilisation_keeps_the_equilibrium_and_slows_only_badly_cut_cells() {
     let node = |v: &[f64], a: usize| Vector3::new(v[3 * a], v[3 * a + 1], v[3 * a + 2]);
     let (mut held, mut loose, mut max_u) = (0.0f64, 0.0f64, 0.0f64);
     for (a, &held_by) in support.iter().enumerate() {
-        let e = (node(&u, a) - node(&reference.u, a)).norm();
-        max_u = max_u.max(node(&reference.u, a).norm());
+        let e = (node(&u, a) - node(&reference, a)).norm();
+        max_u = max_u.max(node(&reference, a).norm());
         if held_by >= 0.5 {
             held = held.max(e);
         } else {

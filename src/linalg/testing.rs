@@ -398,6 +398,24 @@ pub fn scale_symmetric(k: &mut SymmetricCsc, scale: &[f64]) {
     }
 }
 
+/// `k0` with the 3 dofs of each of `nodes` scaled by `factor` ([`scale_symmetric`]), and the
+/// scale vector `S` used (1 elsewhere).
+pub fn with_scaled_nodes(
+    k0: &SymmetricCsc,
+    nodes: &[usize],
+    factor: f64,
+) -> (SymmetricCsc, Vec<f64>) {
+    let mut scale = vec![1.0; k0.n];
+    for &node in nodes {
+        for c in 0..3 {
+            scale[3 * node + c] = factor;
+        }
+    }
+    let mut k = k0.clone();
+    scale_symmetric(&mut k, &scale);
+    (k, scale)
+}
+
 /// Relative residual `‖b − K x‖₂ / ‖b‖₂` (0 if `b = 0` and `Kx = 0`).
 pub fn relative_residual(k: &SymmetricCsc, x: &[f64], b: &[f64]) -> f64 {
     let mut y = vec![0.0; k.n];

@@ -59,62 +59,35 @@ pub fn non_affine_projector() -> [[f64; 8]; 8] {
     p
 }
 
-/// The cut-cell stabilisation of a grid: each cut cell's weight `1 − f_c` (none in full-cell
-/// mode, where cut cells count as full and have no weak nodes).
-#[derive(Debug, Clone, PartialEq)]
-pub struct CutCellStabilization {
-    /// `(active cell, 1 − f_c)` of every stabilised cell.
-    cells: Vec<(usize, f64)>,
-    projector: [[f64; 8]; 8],
+/// The weight `1 − f_c` of cell `c` in the stabilisation: its outside fraction for a cut cell,
+/// 0 for a full one and for every cell in full-cell mode (cut cells count as full there and
+/// have no weak nodes).
+pub fn cell_weight(grid: &WeightedCellGrid, c: usize) -> f64 {
+    let cell = &grid.cells[c];
+    if grid.options.mode == IntegrationMode::FullCell || !cell.cut {
+        return 0.0;
+    }
+    (1.0 - cell.fraction).clamp(0.0, 1.0)
 }
 
-impl CutCellStabilization {
-    /// The stabilised cells of `grid`: its cut cells, unless cut cells are integrated as full.
-    pub fn new(grid: &WeightedCellGrid) -> Self {
-        let cells = if grid.options.mode == IntegrationMode::FullCell {
-            Vec::new()
-        } else {
-            grid.cells
-                .iter()
-                .enumerate()
-                .filter(|(_, c)| c.cut)
-                .map(|(i, c)| (i, (1.0 - c.fraction).clamp(0.0, 1.0)))
-                .filter(|&(_, w)| w > 0.0)
-                .collect()
-        };
-        Self {
-            cells,
-            projector: non_affine_projector(),
+/// Adds `c S` to `tangent` (N/m, through `assembler`'s cell scatter maps, built for `grid`),
+/// with `c = γ μ h` (Pa·m): `½ c uᵀ S u` is the penalty of the module's formula.
+pub fn add_cut_cell_stabilization(
+    grid: &WeightedCellGrid,
+    assembler: &Assembler,
+    c: f64,
+    tangent: &mut SymmetricCsc,
+) {
+    let p = non_affine_projector();
+    for cell in 0..grid.cells.len() {
+        let w = c * cell_weight(grid, cell);
+        if w == 0.0 {
+            continue;
         }
-    }
-
-    /// Number of stabilised cells.
-    pub fn len(&self) -> usize {
-        self.cells.len()
-    }
-
-    /// Whether no cell is stabilised.
-    pub fn is_empty(&self) -> bool {
-        self.cells.is_empty()
-    }
-
-    /// Adds `c S` to `tangent` (N/m, through `assembler`'s cell scatter maps), with
-    /// `c = γ μ h` (Pa·m): `½ c uᵀ S u` is the penalty of the module's formula.
-    pub fn add_to(
-        &self,
-        grid: &WeightedCellGrid,
-        assembler: &Assembler,
-        c: f64,
-        tangent: &mut SymmetricCsc,
-    ) {
-        debug_assert!(self.cells.iter().all(|&(i, _)| i < grid.cells.len()));
-        for &(cell, weight) in &self.cells {
-            let w = c * weight;
-            for (a, row) in self.projector.iter().enumerate() {
-                for (b, pab) in row.iter().enumerate().take(a + 1) {
-                    for i in 0..3 {
-                        tangent.values[assembler.cell_slot(cell, a, b, i, i)] += w * pab;
-                    }
+        for (a, row) in p.iter().enumerate() {
+            for (b, pab) in row.iter().enumerate().take(a + 1) {
+                for i in 0..3 {
+                    tangent.values[assembler.cell_slot(cell, a, b, i, i)] += w * pab;
                 }
             }
         }
@@ -154,10 +127,9 @@ mod tests {
 
     /// `½ uᵀ (c S) u` (J) and `c S u` (N) from the assembled matrix.
     fn energy_and_force(grid: &WeightedCellGrid, c: f64, u: &[f64]) -> (f64, Vec<f64>) {
-        let s = CutCellStabilization::new(grid);
         let a = Assembler::new(grid);
         let mut k = a.pattern().clone();
-        s.add_to(grid, &a, c, &mut k);
+        add_cut_cell_stabilization(grid, &a, c, &mut k);
         let mut f = vec![0.0; u.len()];
         k.mul_vec(u, &mut f);
         let e = 0.5 * u.iter().zip(&f).map(|(x, y)| x * y).sum::<f64>();
@@ -191,7 +163,7 @@ mod tests {
     #[test]
     fn affine_motions_cost_nothing_however_large() {
         let grid = ball(0.02);
-        assert!(CutCellStabilization::new(&grid).len() > 20);
+        assert!(grid.stats().cut_cells > 20);
         // A 60° rotation about a skew axis, a 20 % stretch and a 3 cm translation.
         let r = Rotation3::from_axis_angle(
             &nalgebra::Unit::new_normalize(Vector3::new(1.0, 2.0, -0.5)),
@@ -217,14 +189,12 @@ mod tests {
         // P_aa = 1 − (1 + 3)/8 = 1/2, so moving one node by δ costs ½ c δ² Σ w_c / 2 over the
         // cut cells around it, and pulls it back with c δ Σ w_c / 2.
         let grid = ball(0.02);
-        let stab = CutCellStabilization::new(&grid);
         let (node, cells): (usize, Vec<f64>) = (0..grid.node_count())
             .map(|n| {
-                let w = stab
-                    .cells
-                    .iter()
-                    .filter(|(c, _)| grid.cells[*c].nodes.contains(&n))
-                    .map(|&(_, w)| w)
+                let w = (0..grid.cells.len())
+                    .filter(|&c| grid.cells[c].nodes.contains(&n))
+                    .map(|c| cell_weight(&grid, c))
+                    .filter(|&w| w > 0.0)
                     .collect::<Vec<_>>();
                 (n, w)
             })

@@ -11,10 +11,11 @@ pub mod material;
 pub mod newton;
 pub mod penalty;
 pub mod static_problem;
+#[cfg(test)]
+mod test_fixtures;
 
 pub use assembly::Assembler;
 pub use cell_kernel::{Need, VolumetricIntegration};
-pub use cut_cell_stabilization::CutCellStabilization;
 pub use material::{LawKind, Material, MaterialError, Part};
 pub use newton::{
     ImproveReport, IterationRecord, NewtonSettings, NewtonSolver, Outcome, SolveReport,

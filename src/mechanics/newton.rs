@@ -39,8 +39,8 @@ pub struct NewtonSettings {
     /// stay in f64.
     #[serde(default)]
     pub mixed_precision: bool,
-    /// γ of the cut-cell step stabilisation ([`CutCellStabilization`](super::CutCellStabilization);
-    /// 0: off) of the factorisations [`NewtonSolver::improve`] keeps for several steps
+    /// γ of the cut-cell step stabilisation
+    /// ([`StaticProblem::add_cut_cell_stabilization`]; 0: off) of the factorisations [`NewtonSolver::improve`] keeps for several steps
     /// ([`NewtonSolver::with_factor_reuse`] > 1: registration's warm frames), whose steps
     /// would otherwise overshoot at the nodes of badly cut cells. Fresh factorisations are
     /// exact and get none; full solves never use it.
@@ -389,12 +389,6 @@ impl NewtonSolver {
             &mut iterations,
             &mut history,
             self.factor_reuse,
-            // Only a factorisation kept for several steps needs it (a fresh one is exact).
-            if self.factor_reuse > 1 {
-                self.settings.step_stabilization
-            } else {
-                0.0
-            },
         );
         let last = history.last().map_or(0.0, |h| h.relative_residual);
         let shifted_steps = history.iter().filter(|h| h.regularization > 0.0).count();
@@ -487,13 +481,14 @@ impl NewtonSolver {
     ) -> Result<f64, StepFailure> {
         let cap = self.settings.max_iterations;
         self.factor_age = None;
-        self.iterate(problem, u, load, cap, iterations, history, 1, 0.0)
+        self.iterate(problem, u, load, cap, iterations, history, 1)
     }
 
     /// At most `max_iterations` Newton iterations at load factor `load` from `u` (updated in
     /// place; every accepted step keeps it valid). `Ok(relative residual)` when converged.
-    /// A factorisation serves at most `max_uses` steps (1: plain Newton); the factorised
-    /// tangents get the cut-cell step stabilisation of coefficient `stabilization`.
+    /// A factorisation serves at most `max_uses` steps (1: plain Newton); with more than one
+    /// the factorised tangents get the cut-cell step stabilisation (a fresh factorisation
+    /// used once is exact and needs none).
     #[allow(clippy::too_many_arguments)]
     fn iterate(
         &mut self,
@@ -504,9 +499,13 @@ impl NewtonSolver {
         iterations: &mut usize,
         history: &mut Vec<IterationRecord>,
         max_uses: usize,
-        stabilization: f64,
     ) -> Result<f64, StepFailure> {
         let s = self.settings;
+        let stabilization = if max_uses > 1 {
+            s.step_stabilization
+        } else {
+            0.0
+        };
         let n = problem.dofs();
         let mut k = self.tangent.take().unwrap_or_else(|| problem.new_tangent());
         let mut r = vec![0.0; n];

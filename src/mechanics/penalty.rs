@@ -175,32 +175,17 @@ impl PenaltySprings {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::grid::GridOptions;
-    use crate::mechanics::{LawKind, Material, Need, StaticProblem, VolumetricIntegration};
-    use crate::mesh::primitives::box_surface;
+    use crate::mechanics::test_fixtures::cut_box;
+    use crate::mechanics::{Need, StaticProblem};
 
     /// A 10 × 10 × 6 cm box on 2 cm cells (cut: the box is offset from the grid lines), with
     /// a support of density `k` under its bottom face.
     fn supported_box(k: f64, sliding: bool) -> StaticProblem {
-        let s = box_surface(
-            Point3::new(0.003, -0.004, 0.001),
-            Point3::new(0.103, 0.096, 0.061),
-            4,
-        );
-        let grid = WeightedCellGrid::build(
-            &s,
-            &GridOptions {
-                cell_size: 0.02,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+        let (s, mut p) = cut_box(0.096);
         let bottom = Aabb::new(Point3::new(-1.0, -1.0, -1.0), Point3::new(1.0, 1.0, 0.0015));
-        let support = PenaltySprings::support_surface_region(&grid, &s, &bottom, k, sliding)
+        let support = PenaltySprings::support_surface_region(&p.grid, &s, &bottom, k, sliding)
             .unwrap()
             .expect("the bottom face is in the box");
-        let material = Material::from_young_poisson(LawKind::NeoHookean, 4500.0, 0.45).unwrap();
-        let mut p = StaticProblem::new(grid, material, VolumetricIntegration::Reduced);
         p.springs.push(support);
         p
     }

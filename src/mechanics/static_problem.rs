@@ -3,7 +3,7 @@
 
 use super::assembly::{Assembler, CellFailure};
 use super::cell_kernel::{Need, VolumetricIntegration};
-use super::cut_cell_stabilization::CutCellStabilization;
+use super::cut_cell_stabilization::add_cut_cell_stabilization;
 use super::material::Material;
 use super::penalty::PenaltySprings;
 use crate::grid::WeightedCellGrid;
@@ -25,7 +25,6 @@ pub struct StaticProblem {
     /// Penalty spring sets (fixed regions, registration targets).
     pub springs: Vec<PenaltySprings>,
     assembler: Assembler,
-    cut_cells: CutCellStabilization,
     body_cache: Option<BodyCache>,
 }
 
@@ -76,7 +75,6 @@ impl StaticProblem {
         volumetric: VolumetricIntegration,
     ) -> Self {
         let assembler = Assembler::new(&grid);
-        let cut_cells = CutCellStabilization::new(&grid);
         let external = vec![0.0; 3 * grid.node_count()];
         Self {
             grid,
@@ -85,7 +83,6 @@ impl StaticProblem {
             external,
             springs: Vec::new(),
             assembler,
-            cut_cells,
             body_cache: None,
         }
     }
@@ -101,12 +98,13 @@ impl StaticProblem {
     }
 
     /// Adds the cut-cell step stabilisation of coefficient `gamma` (dimensionless), i.e.
-    /// `γ μ h S` ([`CutCellStabilization`]), to a tangent `k` (N/m) of this problem's pattern.
+    /// `γ μ h S` ([`cut_cell_stabilization`](super::cut_cell_stabilization)), to a tangent `k`
+    /// (N/m) of this problem's pattern.
     /// Not part of `Π`: for the matrix of a registration step only.
     pub fn add_cut_cell_stabilization(&self, gamma: f64, k: &mut SymmetricCsc) {
         if gamma > 0.0 {
             let c = gamma * self.material.mu * self.grid.grid.cell_size;
-            self.cut_cells.add_to(&self.grid, &self.assembler, c, k);
+            add_cut_cell_stabilization(&self.grid, &self.assembler, c, k);
         }
     }
 
@@ -213,30 +211,14 @@ impl StaticProblem {
 
 #[cfg(test)]
 mod tests {
-    use nalgebra::{Point3, Vector3};
+    use nalgebra::Vector3;
 
     use super::*;
-    use crate::grid::GridOptions;
-    use crate::mechanics::LawKind;
-    use crate::mesh::primitives::box_surface;
+    use crate::mechanics::{test_fixtures, LawKind};
 
     /// A cut 10 × 8 × 6 cm box on 2 cm cells, neo-Hookean, with dead loads.
     fn cut_box() -> StaticProblem {
-        let s = box_surface(
-            Point3::new(0.003, -0.004, 0.001),
-            Point3::new(0.103, 0.076, 0.061),
-            4,
-        );
-        let grid = WeightedCellGrid::build(
-            &s,
-            &GridOptions {
-                cell_size: 0.02,
-                ..Default::default()
-            },
-        )
-        .unwrap();
-        let material = Material::from_young_poisson(LawKind::NeoHookean, 4500.0, 0.45).unwrap();
-        let mut p = StaticProblem::new(grid, material, VolumetricIntegration::Reduced);
+        let (_, mut p) = test_fixtures::cut_box(0.076);
         p.external = (0..p.dofs()).map(|i| ((i as f64) * 0.7).sin()).collect();
         p
     }

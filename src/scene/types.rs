@@ -382,7 +382,7 @@ pub struct SolverSpec {
     /// constant penalty `γ μ h (1 − f)` on the non-affine part of each cut cell's motion, so
     /// the nodes of badly cut cells no longer make its steps overshoot. The energy and
     /// residual are unchanged, hence the equilibrium too (see
-    /// `mechanics::CutCellStabilization`). Cold frames and forward solves never use it.
+    /// `mechanics::cut_cell_stabilization`). Cold frames and forward solves never use it.
     #[serde(default = "defaults::step_stabilization")]
     pub step_stabilization: f64,
     /// Penalty stiffness of Dirichlet springs in N/m, for fixed regions without their own

@@ -1,0 +1,32 @@
+//! Problems shared by the mechanics unit tests.
+
+use nalgebra::Point3;
+
+use super::{LawKind, Material, StaticProblem, VolumetricIntegration};
+use crate::grid::{GridOptions, WeightedCellGrid};
+use crate::mesh::primitives::box_surface;
+use crate::mesh::TriSurface;
+
+/// A box from (3, −4, 1) mm to (103, `top_y`, 61) mm (`top_y` in m), offset from the grid
+/// lines so cells are cut on every side, on 2 cm weighted cells; neo-Hookean, E = 4500 Pa,
+/// ν = 0.45, no loads or springs. Returns the surface too.
+pub fn cut_box(top_y: f64) -> (TriSurface, StaticProblem) {
+    let s = box_surface(
+        Point3::new(0.003, -0.004, 0.001),
+        Point3::new(0.103, top_y, 0.061),
+        4,
+    );
+    let grid = WeightedCellGrid::build(
+        &s,
+        &GridOptions {
+            cell_size: 0.02,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let material = Material::from_young_poisson(LawKind::NeoHookean, 4500.0, 0.45).unwrap();
+    (
+        s,
+        StaticProblem::new(grid, material, VolumetricIntegration::Reduced),
+    )
+}
