@@ -16,79 +16,6 @@ use server_support::*;
 
 const FRAMES: usize = 100;
 
-/// The stdlib-only Python client.
-const PYTHON_CLIENT: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/clients/python/livereg_client.py"
-);
-
-/// Whether `python3` runs here (the Python client's tests are skipped otherwise).
-fn python_available() -> bool {
-    std::process::Command::new("python3")
-        .arg("--version")
-        .output()
-        .is_ok_and(|o| o.status.success())
-}
-
-/// Arguments of `python3` running the Python client's `roundtrip` on the case in `case`
-/// (its `scene.toml` and `frames/`) against the server at `http` (host:port), with room A's
-/// token (written to `case/token.txt`), writing the results to `out`; `extra` is appended.
-fn python_roundtrip_args(
-    http: &str,
-    case: &std::path::Path,
-    out: &std::path::Path,
-    extra: &[&str],
-) -> Vec<String> {
-    let token_file = case.join("token.txt");
-    std::fs::write(&token_file, format!("room-a:{TOKEN_A}\n")).unwrap();
-    let mut args: Vec<String> = vec![
-        PYTHON_CLIENT.into(),
-        "--url".into(),
-        format!("http://{http}"),
-        "--token-file".into(),
-        token_file.display().to_string(),
-        "roundtrip".into(),
-        "--scene".into(),
-        case.join("scene.toml").display().to_string(),
-        "--frames".into(),
-        case.join("frames").display().to_string(),
-        "--out".into(),
-        out.display().to_string(),
-    ];
-    args.extend(extra.iter().map(|a| a.to_string()));
-    args
-}
-
-/// Runs the Python client's `roundtrip` (arguments as [`python_roundtrip_args`]) against the
-/// server at `addr`, writing `case/out_name`, and returns the results it wrote.
-async fn python_roundtrip_results(
-    addr: std::net::SocketAddr,
-    case: &std::path::Path,
-    out_name: &str,
-    extra: &[&str],
-) -> Vec<serde_json::Value> {
-    let out = case.join(out_name);
-    let args = python_roundtrip_args(&addr.to_string(), case, &out, extra);
-    let o = tokio::task::spawn_blocking(move || {
-        std::process::Command::new("python3")
-            .args(&args)
-            .output()
-            .unwrap()
-    })
-    .await
-    .unwrap();
-    assert!(
-        o.status.success(),
-        "python client {extra:?} failed: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    std::fs::read_to_string(&out)
-        .unwrap()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect()
-}
-
 async fn grpc_round_trip(
     addr: std::net::SocketAddr,
     scene: &SceneFiles,
@@ -159,7 +86,8 @@ async fn rust_and_python_clients_round_trip_100_frames_equal_to_register() {
     let py = if python_available() {
         let case = case.clone();
         Some(tokio::spawn(async move {
-            python_roundtrip_results(http_addr, &case, "python.jsonl", &[]).await
+            python_roundtrip_results(&format!("http://{http_addr}"), &case, "python.jsonl", &[])
+                .await
         }))
     } else {
         eprintln!("SKIPPED the Python client: python3 is not installed");
@@ -372,8 +300,9 @@ async fn binary_results_equal_json_results_to_f32_precision() {
         server.shutdown().await.unwrap();
         return;
     }
+    let url = format!("http://{addr}");
     let py = python_roundtrip_results(
-        addr,
+        &url,
         &case,
         "python-binary.jsonl",
         &["--transport", "ws-binary", "--binary-results"],
@@ -387,9 +316,9 @@ async fn binary_results_equal_json_results_to_f32_precision() {
     // The Python client's single frames (JSON, full precision) with JSON and with binary
     // results: the same registrations, the second at f32 precision.
     let http_json =
-        python_roundtrip_results(addr, &case, "python-http.jsonl", &["--transport", "http"]).await;
+        python_roundtrip_results(&url, &case, "python-http.jsonl", &["--transport", "http"]).await;
     let http_binary = python_roundtrip_results(
-        addr,
+        &url,
         &case,
         "python-http-binary.jsonl",
         &["--transport", "http", "--binary-results"],

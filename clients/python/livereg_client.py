@@ -16,10 +16,15 @@ hashlib) for streams. Lengths are in the scene's units; results are in the cloud
         ...                                             # decoded by recv() to the same dict
     c.close_session(sid)
 
+TLS: give an https:// URL (the WebSocket stream is then wss://). The server's certificate is
+checked against the system's trust store, or against ca_file (PEM) when given:
+
+    c = Client("https://or-3.example:8443", token="...", ca_file="/etc/livereg/ca.pem")
+
 Command line (used by the tests):
 
     python3 livereg_client.py --url http://127.0.0.1:8080 --token-file tokens.txt \\
-        roundtrip --scene SCENE --frames DIR --out results.jsonl --transport ws|ws-binary|http \\
+        [--ca-file CA.pem] roundtrip --scene SCENE --frames DIR --out results.jsonl --transport ws|ws-binary|http \\
         [--binary-results]
     python3 livereg_client.py decode-result FILE    # a binary result message -> JSON on stdout
 """
@@ -30,6 +35,7 @@ import hashlib
 import json
 import os
 import socket
+import ssl
 import struct
 import sys
 import time
@@ -159,10 +165,15 @@ def _multipart(parts):
 class Client:
     """HTTP client of one server with one bearer token."""
 
-    def __init__(self, url, token=None, timeout=60.0):
+    def __init__(self, url, token=None, timeout=60.0, ca_file=None):
         self.url = url.rstrip("/")
         self.token = token
         self.timeout = timeout
+        scheme = urllib.parse.urlparse(self.url).scheme
+        if scheme not in ("http", "https"):
+            raise ValueError("url %r: the scheme must be http or https" % url)
+        # TLS: certificate and host name always checked (system roots, or ca_file's).
+        self.tls = ssl.create_default_context(cafile=ca_file) if scheme == "https" else None
 
     def _request(self, method, path, body=None, content_type=None, raw=False):
         """Sends a request; returns the parsed JSON body (or None), or with raw=True the
@@ -174,7 +185,7 @@ class Client:
             headers["Content-Type"] = content_type
         req = urllib.request.Request(self.url + path, data=body, method=method, headers=headers)
         try:
-            with urllib.request.urlopen(req, timeout=self.timeout) as r:
+            with urllib.request.urlopen(req, timeout=self.timeout, context=self.tls) as r:
                 data = r.read()
                 if raw:
                     return data
@@ -256,24 +267,33 @@ class Client:
         path = "/v1/sessions/%s/stream" % sid
         if binary_results:
             path += "?results=binary"
-        return WebSocket(self.url, path, self.token, self.timeout, binary_results)
+        return WebSocket(self.url, path, self.token, self.timeout, binary_results, self.tls)
 
     def health(self):
         return self._request("GET", "/healthz")
 
 
 class WebSocket:
-    """A minimal RFC 6455 client (no extensions, ws:// only): text and binary messages.
+    """A minimal RFC 6455 client (no extensions): text and binary messages, over ws:// for an
+    http URL and wss:// for an https URL (tls: the ssl.SSLContext that checks the server).
     binary_results: binary messages are binary results, decoded by recv()."""
 
-    def __init__(self, url, path, token, timeout=60.0, binary_results=False):
+    def __init__(self, url, path, token, timeout=60.0, binary_results=False, tls=None):
         self.binary_results = binary_results
         u = urllib.parse.urlparse(url)
-        if u.scheme != "http":
-            raise ValueError("this stdlib WebSocket client speaks ws:// (http) only")
-        host, port = u.hostname, u.port or 80
-        self.sock = socket.create_connection((host, port), timeout=timeout)
-        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        if u.scheme not in ("http", "https"):
+            raise ValueError("url %r: the scheme must be http or https" % url)
+        host, port = u.hostname, u.port or (443 if u.scheme == "https" else 80)
+        sock = socket.create_connection((host, port), timeout=timeout)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        if u.scheme == "https":
+            tls = tls or ssl.create_default_context()
+            try:
+                sock = tls.wrap_socket(sock, server_hostname=host)
+            except Exception:
+                sock.close()
+                raise
+        self.sock = sock
         key = base64.b64encode(os.urandom(16)).decode()
         lines = ["GET %s HTTP/1.1" % path, "Host: %s:%d" % (host, port), "Upgrade: websocket",
                  "Connection: Upgrade", "Sec-WebSocket-Key: " + key, "Sec-WebSocket-Version: 13"]
@@ -453,6 +473,8 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--url", default="http://127.0.0.1:8080")
     p.add_argument("--token-file", help="first line: name:token or token (else $LIVEREG_TOKEN)")
+    p.add_argument("--ca-file", help="PEM CA certificates that sign an https server's "
+                                     "certificate (default: the system's trust store)")
     sub = p.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("roundtrip", help="create, send every frame of DIR, write results, close")
     r.add_argument("--scene", required=True)
@@ -470,7 +492,7 @@ def main(argv=None):
         with open(args.token_file) as f:
             line = next(l.strip() for l in f if l.strip() and not l.startswith("#"))
         token = line.split(":", 1)[1] if ":" in line else line
-    client = Client(args.url, token)
+    client = Client(args.url, token, ca_file=args.ca_file)
     try:
         if args.cmd == "roundtrip":
             _roundtrip(client, args)

@@ -394,6 +394,31 @@ impl GrpcClient {
         })
     }
 
+    /// Connects to `https://addr` through TLS, trusting the CA certificates of `ca_pem` and
+    /// checking that the server's certificate names `domain` (e.g. `localhost`).
+    pub async fn connect_tls(
+        addr: SocketAddr,
+        token: &str,
+        ca_pem: &[u8],
+        domain: &str,
+    ) -> Res<Self> {
+        use tonic::transport::{Certificate, Channel, ClientTlsConfig};
+        let tls = ClientTlsConfig::new()
+            .ca_certificate(Certificate::from_pem(ca_pem))
+            .domain_name(domain);
+        let channel = Channel::from_shared(format!("https://{addr}"))
+            .map_err(|e| format!("grpc address: {e}"))?
+            .tls_config(tls)
+            .map_err(|e| format!("grpc tls: {e}"))?
+            .connect()
+            .await
+            .map_err(|e| format!("grpc connect: {e}"))?;
+        Ok(Self {
+            inner: RegistrationClient::new(channel).max_decoding_message_size(usize::MAX),
+            token: token.to_string(),
+        })
+    }
+
     /// A request carrying the token.
     pub fn req<T>(&self, m: T) -> tonic::Request<T> {
         let mut r = tonic::Request::new(m);

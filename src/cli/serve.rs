@@ -38,7 +38,7 @@ pub struct ServeArgs {
     /// Log format: text or json.
     #[arg(long)]
     pub log_format: Option<String>,
-    /// TLS certificate chain (PEM). Reserved: this build refuses TLS (terminate it in front).
+    /// TLS certificate chain (PEM, leaf first): HTTP, WebSocket and gRPC then speak TLS only.
     #[arg(long, requires = "tls_key")]
     pub tls_cert: Option<PathBuf>,
     /// TLS private key (PEM).

@@ -16,8 +16,8 @@ pub struct TokenEntry {
     pub token: String,
 }
 
-/// TLS certificate chain and private key (PEM files). Reserved: this build refuses it (TLS is
-/// terminated in front of the server; see docs/server.md).
+/// TLS certificate chain and private key (PEM files): with them both the HTTP/WebSocket and
+/// the gRPC listener speak TLS only (see [`super::tls`] and docs/server.md).
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct TlsConfig {
@@ -103,7 +103,7 @@ pub struct ServerConfig {
     pub log_filter: String,
     /// Whether `/metrics` needs a token (default false: scraped from inside the cluster).
     pub metrics_require_token: bool,
-    /// TLS for both HTTP and gRPC (reserved; refused by this build).
+    /// TLS for both HTTP and gRPC (`None`: plain TCP, e.g. behind a TLS-terminating proxy).
     pub tls: Option<TlsConfig>,
     /// Limits.
     pub limits: LimitsConfig,
@@ -368,9 +368,6 @@ impl ServerConfig {
                 ));
             }
         }
-        if self.tls.is_some() {
-            return Err("TLS is configured, but this build does not terminate TLS itself yet: terminate TLS in front of the server (Kubernetes ingress, a reverse proxy; see docs/server.md) and remove `tls`".into());
-        }
         Ok(())
     }
 }
@@ -436,5 +433,29 @@ mod tests {
         c.insecure_loopback_dev = false;
         c.tokens = parse_token_list(["short"].into_iter());
         assert!(c.validate().unwrap_err().contains("shorter than 16"));
+    }
+
+    /// The configuration files shipped in `deploy/` parse (unknown keys are errors) and say
+    /// what their comments promise: the Kubernetes ConfigMap turns TLS on.
+    #[test]
+    fn deploy_configurations_parse() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy");
+        let example = ServerConfig::from_file(&root.join("config.example.toml")).unwrap();
+        assert_eq!(example.data_dir, PathBuf::from("/var/lib/livereg"));
+        let yaml = std::fs::read_to_string(root.join("kubernetes/livereg.yaml")).unwrap();
+        let start = yaml
+            .find("config.toml: |")
+            .expect("the ConfigMap's config.toml")
+            + 14;
+        let block: Vec<&str> = yaml[start..]
+            .lines()
+            .skip(1)
+            .take_while(|l| l.starts_with("    "))
+            .map(|l| &l[4..])
+            .collect();
+        let k8s: ServerConfig = toml::from_str(&block.join("\n")).unwrap();
+        let tls = k8s.tls.expect("TLS on in the cluster");
+        assert_eq!(tls.cert, PathBuf::from("/etc/livereg/tls/tls.crt"));
+        assert_eq!(k8s.worker_threads, 2);
     }
 }

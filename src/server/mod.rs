@@ -7,6 +7,7 @@
 //!   the blocking pool with a newest-wins mailbox; [`service`]: the operations and shared state;
 //! - [`http`], [`ws`], [`grpc`]: the front ends; [`codec`]: frame and result encodings;
 //!   [`result_codec`]: the compact binary result encoding of WebSocket streams;
+//! - [`tls`]: native TLS (rustls) of the listeners;
 //! - [`metrics`]: Prometheus; [`openapi`]: the HTTP API's document; [`error`]: one error type.
 //!
 //! The server uses the session, scene and evaluation layers (and the mesh reader to check
@@ -25,6 +26,7 @@ pub mod registry;
 pub mod result_codec;
 pub mod service;
 pub mod slots;
+pub mod tls;
 pub mod upload;
 pub mod worker;
 pub mod ws;
@@ -134,6 +136,7 @@ impl RunningServer {
 pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
     config.validate()?;
     let tokens = config.all_tokens()?;
+    let tls = config.tls.as_ref().map(tls::TlsFiles::load).transpose()?;
     std::fs::create_dir_all(config.data_dir.join("sessions"))
         .map_err(|e| format!("data_dir {}: cannot create: {e}", config.data_dir.display()))?;
     if config.record {
@@ -159,10 +162,10 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
         .map_err(|e| format!("bound address: {e}"))?;
     let mut tasks = Vec::new();
     let app = http::router(state.clone());
-    let tls = config.tls.clone();
+    let http_tls = tls.as_ref().map(|t| t.server_config.clone());
     let sig = signal(rx.clone());
     tasks.push(tokio::spawn(async move {
-        serve_http(listener, app, tls, sig).await
+        serve_http(listener, app, http_tls, sig).await
     }));
     let mut grpc_addr = None;
     if let Some(addr) = config.grpc_bind {
@@ -180,8 +183,12 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
         // until the client's delayed ACK (measured: +43 ms per frame on loopback).
         let incoming = tonic::transport::server::TcpIncoming::from(l).with_nodelay(Some(true));
         let sig = signal(rx.clone());
-        let builder = tonic::transport::Server::builder();
-        let mut builder = grpc_tls(builder, config.tls.as_ref())?;
+        let mut builder = tonic::transport::Server::builder();
+        if let Some(t) = &tls {
+            builder = builder
+                .tls_config(t.grpc_config())
+                .map_err(|e| format!("gRPC TLS: {e}"))?;
+        }
         tasks.push(tokio::spawn(async move {
             builder
                 .add_service(svc)
@@ -208,7 +215,7 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
             }
         });
     }
-    tracing::info!(%http_addr, grpc_addr = ?grpc_addr, "listening");
+    tracing::info!(%http_addr, grpc_addr = ?grpc_addr, tls = tls.is_some(), "listening");
     Ok(RunningServer {
         http_addr,
         grpc_addr,
@@ -218,28 +225,35 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
     })
 }
 
+/// Serves `app` on `listener`, through TLS when `tls` is given, until `signal`.
 async fn serve_http(
     listener: tokio::net::TcpListener,
     app: axum::Router,
-    _tls: Option<config::TlsConfig>,
+    tls: Option<Arc<tokio_rustls::rustls::ServerConfig>>,
     signal: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> Result<(), String> {
     use axum::serve::ListenerExt;
-    // No Nagle delay: results are small writes that must leave at once.
-    let listener = listener.tap_io(|tcp| {
-        let _ = tcp.set_nodelay(true);
-    });
-    axum::serve(listener, app)
-        .with_graceful_shutdown(signal)
-        .await
-        .map_err(|e| format!("HTTP server: {e}"))
-}
-
-/// TLS is refused by [`ServerConfig::validate`] in this build (terminate TLS in front of the
-/// server); the gRPC builder is returned unchanged.
-fn grpc_tls(
-    b: tonic::transport::Server,
-    _tls: Option<&config::TlsConfig>,
-) -> Result<tonic::transport::Server, String> {
-    Ok(b)
+    let done = |r: std::io::Result<()>| r.map_err(|e| format!("HTTP server: {e}"));
+    match tls {
+        Some(config) => {
+            let listener = tls::TlsListener::new(listener, config)
+                .map_err(|e| format!("HTTP server (TLS): {e}"))?;
+            done(
+                axum::serve(listener, app)
+                    .with_graceful_shutdown(signal)
+                    .await,
+            )
+        }
+        None => {
+            // No Nagle delay: results are small writes that must leave at once.
+            let listener = listener.tap_io(|tcp| {
+                let _ = tcp.set_nodelay(true);
+            });
+            done(
+                axum::serve(listener, app)
+                    .with_graceful_shutdown(signal)
+                    .await,
+            )
+        }
+    }
 }

@@ -192,3 +192,92 @@ pub fn assert_matches_reference(got: &Value, want: &Value) {
         .unwrap();
     }
 }
+
+/// The stdlib-only Python client.
+pub const PYTHON_CLIENT: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/clients/python/livereg_client.py"
+);
+
+/// Whether `python3` runs here (the Python client's tests are skipped otherwise).
+pub fn python_available() -> bool {
+    std::process::Command::new("python3")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success())
+}
+
+/// Arguments of `python3` running the Python client's `roundtrip` on the case in `case`
+/// (its `scene.toml` and `frames/`) against the server at `url` (`http://host:port` or
+/// `https://…`), with room A's token (written to `case/token.txt`), writing the results to
+/// `out`; `global` goes before the subcommand (e.g. `--ca-file`), `extra` after it.
+pub fn python_roundtrip_args(
+    url: &str,
+    case: &std::path::Path,
+    out: &std::path::Path,
+    global: &[&str],
+    extra: &[&str],
+) -> Vec<String> {
+    let token_file = case.join("token.txt");
+    std::fs::write(&token_file, format!("room-a:{TOKEN_A}\n")).unwrap();
+    let mut args: Vec<String> = vec![
+        PYTHON_CLIENT.into(),
+        "--url".into(),
+        url.into(),
+        "--token-file".into(),
+        token_file.display().to_string(),
+    ];
+    args.extend(global.iter().map(|a| a.to_string()));
+    args.extend([
+        "roundtrip".into(),
+        "--scene".into(),
+        case.join("scene.toml").display().to_string(),
+        "--frames".into(),
+        case.join("frames").display().to_string(),
+        "--out".into(),
+        out.display().to_string(),
+    ]);
+    args.extend(extra.iter().map(|a| a.to_string()));
+    args
+}
+
+/// Runs the Python client's `roundtrip` (arguments as [`python_roundtrip_args`]) against the
+/// server at `url`, writing `case/out_name`: the results it wrote, or its error output.
+pub async fn python_roundtrip(
+    url: &str,
+    case: &std::path::Path,
+    out_name: &str,
+    global: &[&str],
+    extra: &[&str],
+) -> Result<Vec<serde_json::Value>, String> {
+    let out = case.join(out_name);
+    let args = python_roundtrip_args(url, case, &out, global, extra);
+    let o = tokio::task::spawn_blocking(move || {
+        std::process::Command::new("python3")
+            .args(&args)
+            .output()
+            .unwrap()
+    })
+    .await
+    .unwrap();
+    if !o.status.success() {
+        return Err(String::from_utf8_lossy(&o.stderr).into_owned());
+    }
+    Ok(std::fs::read_to_string(&out)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect())
+}
+
+/// [`python_roundtrip`] that must succeed.
+pub async fn python_roundtrip_results(
+    url: &str,
+    case: &std::path::Path,
+    out_name: &str,
+    extra: &[&str],
+) -> Vec<serde_json::Value> {
+    python_roundtrip(url, case, out_name, &[], extra)
+        .await
+        .unwrap_or_else(|e| panic!("python client {extra:?} failed: {e}"))
+}
