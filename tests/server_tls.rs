@@ -1,7 +1,8 @@
-//! Native TLS (`tls.cert` / `tls.key`): the real clients over HTTPS, WSS and gRPC with TLS get
-//! the results of `livereg register` on the same frames; a client that does not trust the
-//! certificate, a plain-text client and a client that connects and never speaks are all
-//! refused or ignored without disturbing the others. Certificates: `fixtures/tls/`.
+//! Native TLS (`tls.cert` / `tls.key`): the real clients (Rust: HTTPS + WSS and gRPC with TLS;
+//! Python: HTTPS and WSS) get the results of `livereg register` on the same frames; a client
+//! that does not trust the certificate or checks another name, a plain-text client and a
+//! client that connects and never speaks are all refused or ignored without disturbing the
+//! others. Certificates: `fixtures/tls/`.
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -57,6 +58,29 @@ async fn tls_clients_get_register_results_and_others_are_refused() {
     let closed = g.close_session(&info.id).await.unwrap();
     assert_eq!(closed.frames_registered, FRAMES as u64);
 
+    // HTTPS + WSS (Rust client): create over HTTPS, stream every frame, close.
+    let https = Endpoint {
+        addr: http_addr,
+        tls: Some(ClientTls::new(&ca_pem, "localhost").unwrap()),
+    };
+    let id = http_create_session(&https, TOKEN_A, &scene).await.unwrap();
+    let (wss, _) = ws_lockstep(&https, &id, TOKEN_A, &frames, false)
+        .await
+        .unwrap();
+    let closed = http_close_session(&https, TOKEN_A, &id).await.unwrap();
+    assert_eq!(closed["frames_registered"], FRAMES);
+    // A client that checks for another name refuses the certificate.
+    let wrong_name = Endpoint {
+        addr: http_addr,
+        tls: Some(ClientTls::new(&ca_pem, "or-3.example").unwrap()),
+    };
+    let refused = http(&wrong_name, "GET", "/healthz", &[], b"").await;
+    assert!(
+        refused.as_ref().is_err_and(|e| e.contains("TLS handshake")),
+        "{:?}",
+        refused.map(|r| r.status)
+    );
+
     // Plain-text gRPC on the TLS port: refused, the server goes on.
     let plain = match GrpcClient::connect(grpc_addr, TOKEN_A).await {
         Ok(mut p) => p
@@ -85,8 +109,11 @@ async fn tls_clients_get_register_results_and_others_are_refused() {
 
     let want = want.await.unwrap();
     assert_eq!(want.len(), FRAMES);
-    for (got, w) in grpc.iter().zip(&want) {
-        assert_matches_reference(got, w);
+    for (label, got) in [("grpc", &grpc), ("wss", &wss)] {
+        assert_eq!(got.len(), FRAMES, "{label}");
+        for (g, w) in got.iter().zip(&want) {
+            assert_matches_reference(g, w);
+        }
     }
 
     if !python_available() {

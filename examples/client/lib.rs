@@ -1,6 +1,7 @@
 //! A Rust client of the livereg server: gRPC (tonic, the generated client) and WebSocket
-//! (tokio-tungstenite), with a minimal HTTP/1.1 helper for the JSON API. Used by
-//! `examples/client/main.rs` and by the tests (`tests/server_*.rs` include this file).
+//! (tokio-tungstenite), with a minimal HTTP/1.1 helper for the JSON API, over plain TCP or
+//! TLS ([`Endpoint`]). Used by `examples/client/main.rs` and by the tests (`tests/server_*.rs`
+//! include this file).
 #![allow(dead_code)]
 
 use std::collections::BTreeMap;
@@ -21,6 +22,100 @@ use tokio_tungstenite::tungstenite::Message;
 /// Any error, as text.
 pub type Res<T> = Result<T, String>;
 
+/// TLS settings of a client: the CA certificates it trusts and the name the server's
+/// certificate must carry.
+#[derive(Clone)]
+pub struct ClientTls {
+    connector: tokio_rustls::TlsConnector,
+    ca_pem: Vec<u8>,
+    domain: String,
+}
+
+impl ClientTls {
+    /// Trusts the PEM certificates of `ca_pem` (only them) and checks the name `domain`.
+    pub fn new(ca_pem: &[u8], domain: &str) -> Res<Self> {
+        use tokio_rustls::rustls;
+        use tokio_rustls::rustls::pki_types::pem::PemObject;
+        use tokio_rustls::rustls::pki_types::CertificateDer;
+        let mut roots = rustls::RootCertStore::empty();
+        for c in CertificateDer::pem_slice_iter(ca_pem) {
+            roots
+                .add(c.map_err(|e| format!("CA certificate: {e}"))?)
+                .map_err(|e| format!("CA certificate: {e}"))?;
+        }
+        if roots.is_empty() {
+            return Err("no PEM certificate in the CA file".into());
+        }
+        let provider = std::sync::Arc::new(rustls::crypto::ring::default_provider());
+        let mut config = rustls::ClientConfig::builder_with_provider(provider)
+            .with_safe_default_protocol_versions()
+            .map_err(|e| e.to_string())?
+            .with_root_certificates(roots)
+            .with_no_client_auth();
+        config.alpn_protocols = vec![b"http/1.1".to_vec()];
+        Ok(Self {
+            connector: tokio_rustls::TlsConnector::from(std::sync::Arc::new(config)),
+            ca_pem: ca_pem.to_vec(),
+            domain: domain.to_string(),
+        })
+    }
+}
+
+/// Where a server listens: its address, and TLS when it speaks TLS.
+#[derive(Clone)]
+pub struct Endpoint {
+    /// Socket address.
+    pub addr: SocketAddr,
+    /// `None`: plain TCP (`http://`, `ws://`).
+    pub tls: Option<ClientTls>,
+}
+
+impl From<SocketAddr> for Endpoint {
+    fn from(addr: SocketAddr) -> Self {
+        Self { addr, tls: None }
+    }
+}
+
+impl From<&Endpoint> for Endpoint {
+    fn from(e: &Endpoint) -> Self {
+        e.clone()
+    }
+}
+
+/// A connection of the client, plain or TLS.
+pub trait Io: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send {}
+impl<T: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send> Io for T {}
+
+impl Endpoint {
+    /// A connected socket (no Nagle delay), through the TLS handshake when TLS is on.
+    pub async fn connect(&self) -> Res<Box<dyn Io>> {
+        let s = tokio::net::TcpStream::connect(self.addr)
+            .await
+            .map_err(|e| format!("connect {}: {e}", self.addr))?;
+        let _ = s.set_nodelay(true);
+        match &self.tls {
+            None => Ok(Box::new(s)),
+            Some(t) => {
+                let name = tokio_rustls::rustls::pki_types::ServerName::try_from(t.domain.clone())
+                    .map_err(|e| format!("TLS name {:?}: {e}", t.domain))?;
+                let tls = t
+                    .connector
+                    .connect(name, s)
+                    .await
+                    .map_err(|e| format!("TLS handshake with {}: {e}", self.addr))?;
+                Ok(Box::new(tls))
+            }
+        }
+    }
+
+    /// `http` or `https`, `ws` or `wss`: the scheme for `plain`.
+    fn scheme(&self, plain: &str) -> String {
+        match self.tls {
+            Some(_) => format!("{plain}s"),
+            None => plain.to_string(),
+        }
+    }
+}
 /// An HTTP response: status, headers (lower-case names) and body.
 #[derive(Debug, Clone)]
 pub struct HttpResponse {
@@ -41,16 +136,15 @@ impl HttpResponse {
 
 /// One HTTP/1.1 request (`Connection: close`) with raw `body` bytes.
 pub async fn http(
-    addr: SocketAddr,
+    to: impl Into<Endpoint>,
     method: &str,
     path: &str,
     headers: &[(&str, &str)],
     body: &[u8],
 ) -> Res<HttpResponse> {
-    let mut s = tokio::net::TcpStream::connect(addr)
-        .await
-        .map_err(|e| format!("connect {addr}: {e}"))?;
-    let _ = s.set_nodelay(true);
+    let ep = to.into();
+    let addr = ep.addr;
+    let mut s = ep.connect().await?;
     let mut req = format!(
         "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\nContent-Length: {}\r\n",
         body.len()
@@ -64,9 +158,12 @@ pub async fn http(
     // The server may answer (413) before reading a large body: ignore a failed write then.
     let _ = s.write_all(&bytes).await;
     let mut out = Vec::new();
-    s.read_to_end(&mut out)
-        .await
-        .map_err(|e| format!("read: {e}"))?;
+    if let Err(e) = s.read_to_end(&mut out).await {
+        // A TLS peer that closes without close_notify after a complete response is fine.
+        if out.is_empty() || e.kind() != std::io::ErrorKind::UnexpectedEof {
+            return Err(format!("read: {e}"));
+        }
+    }
     parse_response(&out)
 }
 
@@ -183,7 +280,11 @@ impl SceneFiles {
 }
 
 /// Creates a session over HTTP (multipart upload); returns its id.
-pub async fn http_create_session(addr: SocketAddr, token: &str, scene: &SceneFiles) -> Res<String> {
+pub async fn http_create_session(
+    addr: impl Into<Endpoint>,
+    token: &str,
+    scene: &SceneFiles,
+) -> Res<String> {
     http_create_session_info(addr, token, scene).await?["id"]
         .as_str()
         .map(str::to_string)
@@ -193,7 +294,7 @@ pub async fn http_create_session(addr: SocketAddr, token: &str, scene: &SceneFil
 /// Creates a session over HTTP (multipart upload); returns the whole create response (the
 /// session description: id, recording path, model size, …).
 pub async fn http_create_session_info(
-    addr: SocketAddr,
+    addr: impl Into<Endpoint>,
     token: &str,
     scene: &SceneFiles,
 ) -> Res<Value> {
@@ -219,7 +320,7 @@ pub async fn http_create_session_info(
 }
 
 /// Closes a session over HTTP.
-pub async fn http_close_session(addr: SocketAddr, token: &str, id: &str) -> Res<Value> {
+pub async fn http_close_session(addr: impl Into<Endpoint>, token: &str, id: &str) -> Res<Value> {
     let auth = format!("Bearer {token}");
     let r = http(
         addr,
@@ -241,9 +342,7 @@ pub async fn http_close_session(addr: SocketAddr, token: &str, id: &str) -> Res<
 
 /// A WebSocket stream of one session.
 pub struct WsClient {
-    ws: tokio_tungstenite::WebSocketStream<
-        tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>,
-    >,
+    ws: WsStream,
     binary_results: bool,
 }
 
@@ -265,14 +364,15 @@ pub enum WsEvent {
 }
 
 impl WsClient {
-    /// Opens `ws://addr/v1/sessions/{id}/stream` with the token (JSON results).
-    pub async fn connect(addr: SocketAddr, id: &str, token: &str) -> Res<Self> {
+    /// Opens `ws://addr/v1/sessions/{id}/stream` (`wss://` with TLS) with the token (JSON
+    /// results).
+    pub async fn connect(addr: impl Into<Endpoint>, id: &str, token: &str) -> Res<Self> {
         Self::connect_with(addr, id, token, false).await
     }
 
     /// Opens the stream, asking for binary results (`?results=binary`) when `binary_results`.
     pub async fn connect_with(
-        addr: SocketAddr,
+        addr: impl Into<Endpoint>,
         id: &str,
         token: &str,
         binary_results: bool,
@@ -282,14 +382,20 @@ impl WsClient {
         } else {
             ""
         };
-        let mut req = format!("ws://{addr}/v1/sessions/{id}/stream{query}")
-            .into_client_request()
-            .map_err(|e| e.to_string())?;
+        let ep = addr.into();
+        let mut req = format!(
+            "{}://{}/v1/sessions/{id}/stream{query}",
+            ep.scheme("ws"),
+            ep.addr
+        )
+        .into_client_request()
+        .map_err(|e| e.to_string())?;
         req.headers_mut().insert(
             "authorization",
             format!("Bearer {token}").parse().map_err(|_| "bad token")?,
         );
-        let (ws, _) = tokio_tungstenite::connect_async(req)
+        let io = ep.connect().await?;
+        let (ws, _) = tokio_tungstenite::client_async(req, io)
             .await
             .map_err(|e| format!("websocket connect: {e}"))?;
         Ok(Self { ws, binary_results })
@@ -366,8 +472,7 @@ impl WsClient {
 }
 
 /// The WebSocket connection type of the client.
-pub type WsStream =
-    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+pub type WsStream = tokio_tungstenite::WebSocketStream<Box<dyn Io>>;
 /// Sending half of a split [`WsClient`].
 pub type WsSink = futures_util::stream::SplitSink<WsStream, Message>;
 /// Receiving half of a split [`WsClient`].
@@ -402,14 +507,31 @@ impl GrpcClient {
         ca_pem: &[u8],
         domain: &str,
     ) -> Res<Self> {
+        let tls = ClientTls::new(ca_pem, domain)?;
+        Self::connect_endpoint(
+            &Endpoint {
+                addr,
+                tls: Some(tls),
+            },
+            token,
+        )
+        .await
+    }
+
+    /// Connects to an [`Endpoint`]: `http://addr`, or `https://addr` with its TLS settings.
+    pub async fn connect_endpoint(ep: &Endpoint, token: &str) -> Res<Self> {
         use tonic::transport::{Certificate, Channel, ClientTlsConfig};
-        let tls = ClientTlsConfig::new()
-            .ca_certificate(Certificate::from_pem(ca_pem))
-            .domain_name(domain);
-        let channel = Channel::from_shared(format!("https://{addr}"))
-            .map_err(|e| format!("grpc address: {e}"))?
-            .tls_config(tls)
-            .map_err(|e| format!("grpc tls: {e}"))?
+        let mut channel = Channel::from_shared(format!("{}://{}", ep.scheme("http"), ep.addr))
+            .map_err(|e| format!("grpc address: {e}"))?;
+        if let Some(t) = &ep.tls {
+            let tls = ClientTlsConfig::new()
+                .ca_certificate(Certificate::from_pem(&t.ca_pem))
+                .domain_name(t.domain.clone());
+            channel = channel
+                .tls_config(tls)
+                .map_err(|e| format!("grpc tls: {e}"))?;
+        }
+        let channel = channel
             .connect()
             .await
             .map_err(|e| format!("grpc connect: {e}"))?;
@@ -544,7 +666,7 @@ pub fn binary_result_to_json(r: &ResultMessage) -> Value {
 /// in order, and per frame (end-to-end ms, registration wall ms). Frames in the binary
 /// encoding when `binary`; JSON results.
 pub async fn ws_lockstep(
-    addr: SocketAddr,
+    addr: impl Into<Endpoint>,
     id: &str,
     token: &str,
     frames: &[(String, Vec<[f64; 3]>)],
@@ -558,7 +680,7 @@ pub async fn ws_lockstep(
 /// ([`binary_result_to_json`]). The end-to-end time ends once the result is decoded (into a
 /// `serde_json::Value` for JSON results, a [`ResultMessage`] for binary ones).
 pub async fn ws_lockstep_with(
-    addr: SocketAddr,
+    addr: impl Into<Endpoint>,
     id: &str,
     token: &str,
     frames: &[(String, Vec<[f64; 3]>)],
@@ -657,15 +779,16 @@ pub struct LoadReport {
 /// warmed up with one frame (the cold first frame, reported apart), then streaming `frames`
 /// cyclically at `spec.hz` for `spec.duration`; collects end-to-end latencies.
 pub async fn load_test(
-    addr: SocketAddr,
+    addr: impl Into<Endpoint>,
     token: &str,
     scene: &SceneFiles,
     frames: &[(String, Vec<[f64; 3]>)],
     spec: &LoadSpec,
 ) -> Res<LoadReport> {
+    let addr: Endpoint = addr.into();
     let mut ids = Vec::new();
     for _ in 0..spec.sessions {
-        ids.push(http_create_session(addr, token, scene).await?);
+        ids.push(http_create_session(&addr, token, scene).await?);
     }
     let frames = std::sync::Arc::new(frames.to_vec());
     let mut tasks = Vec::new();
@@ -673,8 +796,9 @@ pub async fn load_test(
         let token = token.to_string();
         let frames = frames.clone();
         let spec = spec.clone();
+        let addr = addr.clone();
         tasks.push(tokio::spawn(async move {
-            one_session(addr, &id, &token, &frames, &spec).await
+            one_session(&addr, &id, &token, &frames, &spec).await
         }));
     }
     let mut rep = LoadReport {
@@ -700,7 +824,7 @@ pub async fn load_test(
         warm.push(s.warmup_ms);
     }
     for id in &ids {
-        http_close_session(addr, token, id).await?;
+        http_close_session(&addr, token, id).await?;
     }
     let sort = |v: &mut Vec<f64>| v.sort_by(f64::total_cmp);
     sort(&mut e2e);
@@ -740,7 +864,7 @@ fn f32_points(p: &[[f64; 3]]) -> Vec<[f32; 3]> {
 }
 
 async fn one_session(
-    addr: SocketAddr,
+    addr: &Endpoint,
     id: &str,
     token: &str,
     frames: &[(String, Vec<[f64; 3]>)],

@@ -11,6 +11,9 @@
 //!     --scene SCENE --frames FRAMES_DIR --sessions 8 --hz 30 --seconds 20 [--binary] \
 //!     [--binary-results]
 //! ```
+//! `--ca-cert CA.pem` talks TLS (https, wss, gRPC over TLS) to a server started with
+//! `--tls-cert/--tls-key`, trusting only the CA's certificates; `--tls-name` is the name the
+//! server's certificate must carry (default `localhost`).
 //! `--binary-results` opens the WebSocket with `?results=binary`: results come back in the
 //! compact binary result encoding (f32 coordinates; docs/server.md) instead of JSON.
 //! The token is read from `--token-file` (first line, `name:token` or `token`) or the
@@ -50,6 +53,38 @@ struct Common {
     /// Directory of point files, taken in lexical order.
     #[arg(long)]
     frames: PathBuf,
+    /// TLS: PEM certificates of the CA that signed the server's certificate.
+    #[arg(long)]
+    ca_cert: Option<PathBuf>,
+    /// TLS: the name the server's certificate must carry.
+    #[arg(long, default_value = "localhost", requires = "ca_cert")]
+    tls_name: String,
+}
+
+impl Common {
+    /// The server's HTTP/WebSocket and gRPC endpoints (TLS with `--ca-cert`).
+    fn endpoints(&self) -> Res<(Endpoint, Endpoint)> {
+        let tls = match &self.ca_cert {
+            Some(f) => {
+                let pem = std::fs::read(f).map_err(|e| format!("{}: {e}", f.display()))?;
+                Some(
+                    ClientTls::new(&pem, &self.tls_name)
+                        .map_err(|e| format!("{}: {e}", f.display()))?,
+                )
+            }
+            None => None,
+        };
+        Ok((
+            Endpoint {
+                addr: self.http,
+                tls: tls.clone(),
+            },
+            Endpoint {
+                addr: self.grpc,
+                tls,
+            },
+        ))
+    }
 }
 
 #[derive(Subcommand)]
@@ -112,7 +147,7 @@ async fn grpc_stream(
     scene: &SceneFiles,
 ) -> Res<(Vec<serde_json::Value>, Vec<(f64, f64)>)> {
     use livereg::server::proto;
-    let mut g = GrpcClient::connect(c.grpc, token).await?;
+    let mut g = GrpcClient::connect_endpoint(&c.endpoints()?.1, token).await?;
     let info = g.create_session(scene).await.map_err(|e| e.to_string())?;
     let (tx, rx) = tokio::sync::mpsc::channel::<proto::StreamRequest>(4);
     let mut out = g
@@ -170,9 +205,10 @@ async fn run(args: Args) -> Res<()> {
                 }
                 "grpc" => grpc_stream(&common, &token, &frames, &scene).await?,
                 "ws" | "ws-binary" => {
-                    let id = http_create_session(common.http, &token, &scene).await?;
+                    let http = common.endpoints()?.0;
+                    let id = http_create_session(&http, &token, &scene).await?;
                     let r = ws_lockstep_with(
-                        common.http,
+                        &http,
                         &id,
                         &token,
                         &frames,
@@ -180,7 +216,7 @@ async fn run(args: Args) -> Res<()> {
                         binary_results,
                     )
                     .await?;
-                    http_close_session(common.http, &token, &id).await?;
+                    http_close_session(&http, &token, &id).await?;
                     r
                 }
                 other => return Err(format!("--transport {other:?}: ws, ws-binary or grpc")),
@@ -233,7 +269,7 @@ async fn run(args: Args) -> Res<()> {
                 binary,
                 binary_results,
             };
-            let rep = load_test(common.http, &token, &scene, &frames, &spec).await?;
+            let rep = load_test(common.endpoints()?.0, &token, &scene, &frames, &spec).await?;
             println!(
                 "{}",
                 serde_json::to_string_pretty(&rep).map_err(|e| e.to_string())?
