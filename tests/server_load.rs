@@ -50,6 +50,7 @@ async fn run_load(
         duration: Duration::from_secs_f64(seconds),
         binary: true,
         binary_results: false,
+        phases: Phases::Spread,
     };
     let rep = load_test(server.http_addr, TOKEN_A, &scene, frames, &spec)
         .await

@@ -732,6 +732,20 @@ pub struct LoadSpec {
     pub binary: bool,
     /// Ask for results in the binary result encoding (`?results=binary`).
     pub binary_results: bool,
+    /// When each session sends within the frame period, once every session is warmed up.
+    pub phases: Phases,
+}
+
+/// Phases of the sessions' frame clocks in a load run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Phases {
+    /// Session `i` of `n` sends at `i / n` of the period: independent clients (operating
+    /// rooms) spread their frames over the period, on average evenly.
+    #[default]
+    Spread,
+    /// Every session sends at the same instants: the worst case, a burst of `n` frames
+    /// each period.
+    Together,
 }
 
 /// What a load run measured.
@@ -791,14 +805,27 @@ pub async fn load_test(
         ids.push(http_create_session(&addr, token, scene).await?);
     }
     let frames = std::sync::Arc::new(frames.to_vec());
+    // Every session starts streaming at a common instant after all warm-ups (plus its phase).
+    let warmed = std::sync::Arc::new(tokio::sync::Barrier::new(ids.len()));
+    let start = std::sync::Arc::new(std::sync::Mutex::new(None::<tokio::time::Instant>));
     let mut tasks = Vec::new();
-    for id in ids.clone() {
+    for (i, id) in ids.clone().into_iter().enumerate() {
         let token = token.to_string();
         let frames = frames.clone();
         let spec = spec.clone();
         let addr = addr.clone();
+        let period = Duration::from_secs_f64(1.0 / spec.hz);
+        let phase = match spec.phases {
+            Phases::Spread => period.mul_f64(i as f64 / ids.len() as f64),
+            Phases::Together => Duration::ZERO,
+        };
+        let clock = StreamClock {
+            warmed: warmed.clone(),
+            start: start.clone(),
+            phase,
+        };
         tasks.push(tokio::spawn(async move {
-            one_session(&addr, &id, &token, &frames, &spec).await
+            one_session(&addr, &id, &token, &frames, &spec, clock).await
         }));
     }
     let mut rep = LoadReport {
@@ -863,22 +890,41 @@ fn f32_points(p: &[[f64; 3]]) -> Vec<[f32; 3]> {
         .collect()
 }
 
+/// When a load session starts streaming: after every session's warm-up (`warmed`), at the
+/// common `start` (set by the first session past the barrier) plus its `phase`.
+struct StreamClock {
+    warmed: std::sync::Arc<tokio::sync::Barrier>,
+    start: std::sync::Arc<std::sync::Mutex<Option<tokio::time::Instant>>>,
+    phase: Duration,
+}
+
 async fn one_session(
     addr: &Endpoint,
     id: &str,
     token: &str,
     frames: &[(String, Vec<[f64; 3]>)],
     spec: &LoadSpec,
+    clock: StreamClock,
 ) -> Res<SessionRun> {
-    let mut ws = WsClient::connect_with(addr, id, token, spec.binary_results).await?;
     // Warm-up: the cold first frame.
     let t = Instant::now();
-    ws.send_json(0, &frames[0].0, &frames[0].1).await?;
-    match ws.next().await {
-        Some(WsEvent::Result(_) | WsEvent::BinaryResult(_)) => {}
-        other => return Err(format!("warm-up: {other:?}")),
+    let warm = async {
+        let mut ws = WsClient::connect_with(addr, id, token, spec.binary_results).await?;
+        ws.send_json(0, &frames[0].0, &frames[0].1).await?;
+        match ws.next().await {
+            Some(WsEvent::Result(_) | WsEvent::BinaryResult(_)) => Ok(ws),
+            other => Err(format!("warm-up: {other:?}")),
+        }
     }
+    .await;
     let warmup_ms = t.elapsed().as_secs_f64() * 1e3;
+    // Every session passes the barrier, a failed one too, so that none waits forever.
+    clock.warmed.wait().await;
+    let ws = warm?;
+    let start = {
+        let mut s = clock.start.lock().map_err(|_| "clock lock")?;
+        *s.get_or_insert_with(|| tokio::time::Instant::now() + Duration::from_millis(20))
+    };
     let (mut tx, mut rx) = ws.split();
     let sent_at = std::sync::Arc::new(std::sync::Mutex::new(BTreeMap::<u64, Instant>::new()));
     let sa = sent_at.clone();
@@ -887,7 +933,7 @@ async fn one_session(
     let binary = spec.binary;
     let frames_owned = frames.to_vec();
     let sender = tokio::spawn(async move {
-        let mut tick = tokio::time::interval(period);
+        let mut tick = tokio::time::interval_at(start + clock.phase, period);
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
         let mut sent = 0u64;
         for k in 1..=n {

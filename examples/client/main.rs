@@ -9,7 +9,7 @@
 //! # load: N sessions streaming at HZ for SECONDS over WebSocket (loopback only)
 //! cargo run --release --example client -- load --http 127.0.0.1:8080 --token-file tokens.txt \
 //!     --scene SCENE --frames FRAMES_DIR --sessions 8 --hz 30 --seconds 20 [--binary] \
-//!     [--binary-results]
+//!     [--binary-results] [--phases spread|together]
 //! ```
 //! `--ca-cert CA.pem` talks TLS (https, wss, gRPC over TLS) to a server started with
 //! `--tls-cert/--tls-key`, trusting only the CA's certificates; `--tls-name` is the name the
@@ -120,6 +120,10 @@ enum Cmd {
         /// Ask for results in the binary result encoding (f32 coordinates) instead of JSON.
         #[arg(long)]
         binary_results: bool,
+        /// When the sessions send within the frame period: `spread` (session i of n at
+        /// i/n of the period, as independent clients) or `together` (bursts of n frames).
+        #[arg(long, default_value = "spread")]
+        phases: String,
     },
 }
 
@@ -255,7 +259,13 @@ async fn run(args: Args) -> Res<()> {
             seconds,
             binary,
             binary_results,
+            phases,
         } => {
+            let phases = match phases.as_str() {
+                "spread" => Phases::Spread,
+                "together" => Phases::Together,
+                other => return Err(format!("--phases {other:?}: spread or together")),
+            };
             if !common.http.ip().is_loopback() {
                 return Err("the load test only targets loopback addresses".into());
             }
@@ -268,6 +278,7 @@ async fn run(args: Args) -> Res<()> {
                 duration: Duration::from_secs_f64(seconds.clamp(0.1, 600.0)),
                 binary,
                 binary_results,
+                phases,
             };
             let rep = load_test(common.endpoints()?.0, &token, &scene, &frames, &spec).await?;
             println!(
