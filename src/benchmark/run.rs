@@ -328,6 +328,65 @@ pub struct BuildInfo {
     pub peak_rss_mib: Option<f64>,
 }
 
+/// One run of a scene over its workloads: the samples per workload and the build info (see
+/// [`run_scene`]).
+pub type SceneRun = (Vec<Vec<FrameSample>>, BuildInfo);
+
+/// Merges repeated runs of the same configuration on the same workloads into one: the first
+/// run's samples (TRE and iteration counts; the runs compute the same registrations, equal up
+/// to rounding) with each frame's wall time replaced by its median over the runs, the median
+/// build time and the largest peak memory. Timing noise (other processes, frequency changes,
+/// the machine drifting ±10–20 % between hours) then moves a configuration's times much less
+/// than one run does, and interleaving the runs over configurations spreads drift over all of
+/// them. The first error of any run is returned, as is an error when the runs registered
+/// different numbers of frames. `runs` must not be empty.
+pub fn merge_repeats(runs: Vec<Result<SceneRun, String>>) -> Result<SceneRun, String> {
+    let mut runs = runs
+        .into_iter()
+        .collect::<Result<Vec<SceneRun>, String>>()?;
+    if runs.is_empty() {
+        return Err("no run to merge".into());
+    }
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        let n = v.len();
+        if n % 2 == 1 {
+            v[n / 2]
+        } else {
+            0.5 * (v[n / 2 - 1] + v[n / 2])
+        }
+    };
+    let shape = |r: &SceneRun| r.0.iter().map(Vec::len).collect::<Vec<_>>();
+    let first_shape = shape(&runs[0]);
+    if let Some(k) = runs.iter().position(|r| shape(r) != first_shape) {
+        return Err(format!(
+            "repeat {k} registered {:?} frames per workload, the first {first_shape:?}",
+            shape(&runs[k])
+        ));
+    }
+    let build_ms = median(runs.iter().map(|r| r.1.build_ms).collect());
+    let peak = runs
+        .iter()
+        .filter_map(|r| r.1.peak_rss_mib)
+        .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
+    let walls: Vec<Vec<Vec<f64>>> = (0..first_shape.len())
+        .map(|w| {
+            (0..first_shape[w])
+                .map(|f| runs.iter().map(|r| r.0[w][f].wall_ms).collect())
+                .collect()
+        })
+        .collect();
+    let (mut samples, mut build) = runs.swap_remove(0);
+    for (w, frames) in samples.iter_mut().enumerate() {
+        for (f, s) in frames.iter_mut().enumerate() {
+            s.wall_ms = median(walls[w][f].clone());
+        }
+    }
+    build.build_ms = build_ms;
+    build.peak_rss_mib = peak;
+    Ok((samples, build))
+}
+
 /// Builds a session for `scene` (rigid only when `rigid_only`) and registers each workload
 /// with a fresh start (reset between workloads); returns the samples per workload and the
 /// build info, with the peak memory of the whole run.
@@ -335,7 +394,7 @@ pub fn run_scene(
     scene: &LoadedScene,
     workloads: &[Workload],
     rigid_only: bool,
-) -> Result<(Vec<Vec<FrameSample>>, BuildInfo), String> {
+) -> Result<SceneRun, String> {
     memory::reset_peak();
     let t = Instant::now();
     let mut session = Session::from_scene(scene).map_err(|e| e.to_string())?;
@@ -365,4 +424,80 @@ pub fn run_scene(
             peak_rss_mib: memory::peak_rss_mib(),
         },
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample(tre: f64, wall_ms: f64) -> FrameSample {
+        FrameSample {
+            tre_mm: vec![tre],
+            wall_ms,
+            warm: true,
+            newton_iterations: 2,
+            icp_iterations: 3,
+            surface_rms_mm: 1.0,
+            causes: Vec::new(),
+            flags: Vec::new(),
+            recovered_causes: Vec::new(),
+        }
+    }
+
+    fn run(walls: &[&[f64]], build_ms: f64, peak: Option<f64>) -> Result<SceneRun, String> {
+        Ok((
+            walls
+                .iter()
+                .map(|w| w.iter().map(|&t| sample(1.5, t)).collect())
+                .collect(),
+            BuildInfo {
+                build_ms,
+                nodes: 10,
+                cells: 4,
+                cut_cells: 2,
+                peak_rss_mib: peak,
+            },
+        ))
+    }
+
+    #[test]
+    fn repeats_merge_to_per_frame_medians() {
+        let merged = merge_repeats(vec![
+            run(&[&[3.0, 10.0], &[5.0]], 7.0, Some(100.0)),
+            run(&[&[1.0, 30.0], &[6.0]], 9.0, Some(120.0)),
+            run(&[&[2.0, 20.0], &[4.0]], 8.0, None),
+        ])
+        .unwrap();
+        let walls: Vec<Vec<f64>> = merged
+            .0
+            .iter()
+            .map(|w| w.iter().map(|s| s.wall_ms).collect())
+            .collect();
+        assert_eq!(walls, vec![vec![2.0, 20.0], vec![5.0]]);
+        assert_eq!(merged.0[0][0].tre_mm, vec![1.5]);
+        assert_eq!(merged.1.build_ms, 8.0);
+        assert_eq!(merged.1.peak_rss_mib, Some(120.0));
+        // An even count takes the mean of the middle two.
+        let two =
+            merge_repeats(vec![run(&[&[1.0]], 1.0, None), run(&[&[4.0]], 3.0, None)]).unwrap();
+        assert_eq!(two.0[0][0].wall_ms, 2.5);
+        assert_eq!(two.1.build_ms, 2.0);
+    }
+
+    #[test]
+    fn a_failed_or_different_repeat_is_an_error() {
+        let err = merge_repeats(vec![
+            run(&[&[1.0]], 1.0, None),
+            Err("model: no active cell".into()),
+        ])
+        .unwrap_err();
+        assert!(err.contains("no active cell"), "{err}");
+        let err = merge_repeats(vec![
+            run(&[&[1.0]], 1.0, None),
+            run(&[&[1.0, 2.0]], 1.0, None),
+        ])
+        .unwrap_err();
+        assert!(err.contains("repeat 1"), "{err}");
+        assert!(merge_repeats(Vec::new()).is_err());
+    }
 }

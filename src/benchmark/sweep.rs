@@ -6,7 +6,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::config::{ModelConfig, ResolvedConfig};
-use super::run::{run_scene, FrameSample, Metrics};
+use super::run::{merge_repeats, run_scene, FrameSample, Metrics, SceneRun};
 use super::workload::Workload;
 use crate::charts::pareto::{pareto_front, ChartPoint};
 use crate::scene::LoadedScene;
@@ -88,6 +88,10 @@ pub struct BenchReport {
     pub scene: String,
     /// Whether this was the `--quick` sweep.
     pub quick: bool,
+    /// Timing passes: every configuration ran this many times, pass after pass over all
+    /// configurations, and each frame's time is its median over the passes (TRE and
+    /// iteration counts are the first pass's; see [`merge_repeats`]).
+    pub repeats: usize,
     /// The workloads every configuration ran.
     pub workloads: Vec<WorkloadInfo>,
     /// Rigid registration only, for reference (`None` when not run).
@@ -170,37 +174,53 @@ impl BenchReport {
 }
 
 /// Runs every configuration of `configs` on `scene` over every workload (each workload from
-/// a reset session), plus the rigid-only baseline when `rigid_baseline`, and marks the
-/// Pareto front. `progress` is called with each configuration's name before it runs. A
-/// configuration that cannot be applied or built is reported with its error; the sweep goes
-/// on.
+/// a reset session), plus the rigid-only baseline when `rigid_baseline`, `repeats` times (at
+/// least once; pass after pass over all configurations, times merged by [`merge_repeats`]),
+/// and marks the Pareto front. `progress` is called with each configuration's name before
+/// each of its runs. A configuration that cannot be applied or built is reported with its
+/// error; the sweep goes on.
 pub fn run_sweep(
     scene: &LoadedScene,
     configs: &[ModelConfig],
     workloads: &[Workload],
     rigid_baseline: bool,
     quick: bool,
+    repeats: usize,
     progress: &mut dyn FnMut(&str),
 ) -> BenchReport {
     let start = Instant::now();
-    let rigid_only = if rigid_baseline {
-        progress("rigid only");
-        run_scene(scene, workloads, true)
-            .ok()
-            .map(|(s, b)| Metrics::of(&s.concat(), &b))
-    } else {
-        None
-    };
-    let mut reports = Vec::with_capacity(configs.len());
-    for c in configs {
-        progress(&c.name);
-        reports.push(run_config(scene, c, workloads));
+    let repeats = repeats.max(1);
+    let mut rigid_runs = Vec::new();
+    // Per configuration: the model it resolved to, and its runs.
+    type Runs = (Option<ResolvedConfig>, Vec<Result<SceneRun, String>>);
+    let mut runs: Vec<Runs> = configs.iter().map(|_| (None, Vec::new())).collect();
+    for _ in 0..repeats {
+        if rigid_baseline {
+            progress("rigid only");
+            rigid_runs.push(run_scene(scene, workloads, true));
+        }
+        for (c, (resolved, passes)) in configs.iter().zip(&mut runs) {
+            progress(&c.name);
+            let (r, run) = run_config_once(scene, c, workloads);
+            *resolved = r;
+            passes.push(run);
+        }
     }
+    let rigid_only = (rigid_baseline)
+        .then(|| merge_repeats(rigid_runs).ok())
+        .flatten()
+        .map(|(s, b)| Metrics::of(&s.concat(), &b));
+    let reports = configs
+        .iter()
+        .zip(runs)
+        .map(|(c, (resolved, passes))| report_of(c, workloads, resolved, merge_repeats(passes)))
+        .collect();
     let mut report = BenchReport {
         version: env!("CARGO_PKG_VERSION").into(),
         machine: MachineInfo::current(),
         scene: scene.path.display().to_string(),
         quick,
+        repeats,
         workloads: workloads
             .iter()
             .map(|w| WorkloadInfo {
@@ -219,28 +239,49 @@ pub fn run_sweep(
     report
 }
 
-/// Runs one configuration (see [`run_sweep`]).
+/// Runs one configuration once (see [`run_sweep`]).
 pub fn run_config(scene: &LoadedScene, c: &ModelConfig, workloads: &[Workload]) -> ConfigReport {
-    let failed = |config: Option<ResolvedConfig>, e: String| ConfigReport {
-        name: c.name.clone(),
-        default: c.is_default(),
-        config,
-        metrics: None,
-        per_workload: Vec::new(),
-        pareto: false,
-        error: Some(e),
-    };
-    let applied = match c.apply(scene) {
-        Ok(a) => a,
-        Err(e) => return failed(None, e),
-    };
-    let resolved = c.resolved(&applied);
-    match run_scene(&applied, workloads, false) {
-        Err(e) => failed(Some(resolved), e),
+    let (resolved, run) = run_config_once(scene, c, workloads);
+    report_of(c, workloads, resolved, run)
+}
+
+/// Applies `c` to `scene` and runs it once: the model it resolved to (`None` when it could
+/// not be applied) and the run.
+fn run_config_once(
+    scene: &LoadedScene,
+    c: &ModelConfig,
+    workloads: &[Workload],
+) -> (Option<ResolvedConfig>, Result<SceneRun, String>) {
+    match c.apply(scene) {
+        Err(e) => (None, Err(e)),
+        Ok(applied) => (
+            Some(c.resolved(&applied)),
+            run_scene(&applied, workloads, false),
+        ),
+    }
+}
+
+/// The report of configuration `c` from its (merged) run.
+fn report_of(
+    c: &ModelConfig,
+    workloads: &[Workload],
+    resolved: Option<ResolvedConfig>,
+    run: Result<SceneRun, String>,
+) -> ConfigReport {
+    match run {
+        Err(e) => ConfigReport {
+            name: c.name.clone(),
+            default: c.is_default(),
+            config: resolved,
+            metrics: None,
+            per_workload: Vec::new(),
+            pareto: false,
+            error: Some(e),
+        },
         Ok((samples, build)) => ConfigReport {
             name: c.name.clone(),
             default: c.is_default(),
-            config: Some(resolved),
+            config: resolved,
             metrics: Some(Metrics::of(&samples.concat(), &build)),
             per_workload: workloads
                 .iter()

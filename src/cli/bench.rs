@@ -47,6 +47,10 @@ pub struct BenchArgs {
     /// Only these configurations of the sweep (comma-separated names, e.g. `default,finite-cell`).
     #[arg(long, value_delimiter = ',')]
     pub only: Vec<String>,
+    /// Timing passes over all configurations (default 3, `--quick`: 1): each frame's time is
+    /// its median over the passes, which steadies the chart's time axis against noise.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=20))]
+    pub repeats: Option<u32>,
     /// Run the stability matrix instead of the sweep (writes stability.json and
     /// stability.md); with `--quick`, its reduced form (two values per axis).
     #[arg(long, conflicts_with_all = ["frames", "only"])]
@@ -93,7 +97,10 @@ pub fn run(args: &BenchArgs) -> Result<Option<BenchReport>, String> {
         (Some(frames), Some(truth)) => vec![user_workload(frames, truth)?],
         _ => synthetic_workloads(&scene, &args.scenarios, frame_count(args)?, args.quick, 0)?,
     };
-    let pb = bar(configs.len() + 1, "bench");
+    let repeats = args
+        .repeats
+        .map_or(if args.quick { 1 } else { 3 }, |r| r as usize);
+    let pb = bar((configs.len() + 1) * repeats, "bench");
     let mut progress = |name: &str| {
         pb.set_message(name.to_string());
         pb.inc(1);
@@ -104,6 +111,7 @@ pub fn run(args: &BenchArgs) -> Result<Option<BenchReport>, String> {
         &workloads,
         true,
         args.quick,
+        repeats,
         &mut progress,
     );
     pb.finish_and_clear();

@@ -65,6 +65,7 @@ pub fn run(args: &CalibrateArgs) -> Result<CalibrationReport, String> {
         &workloads,
         false,
         args.quick,
+        1,
         &mut progress,
     );
     pb.finish_and_clear();
