@@ -4,16 +4,25 @@
 //!
 //! For each scenario of [`ScenarioKind::ALL`], a synthetic sequence
 //! ([`SequenceSpec::phantom_default`]: the truth is a finer 10 mm finite-cell grid, ν = 0.49,
-//! on an elastic bed — not the registration model) is registered twice, as the demo does:
-//! rigid only (`settings.non_rigid = false`) and with the default session of the phantom's
-//! scene. TRE = mean distance of every target point (vessel bifurcations and tumour vertices)
-//! to its truth over all frames ([`evaluate`]). The assertion is on the mean over the
-//! scenarios of the per-scenario ratio non-rigid / rigid.
+//! on an elastic bed — not the registration model) is registered rigid only
+//! (`settings.non_rigid = false`) and with the full session, both with the thesis's rigid ICP
+//! (pairs pruned at mean + 2σ, `registration.robust_pruning = false`). TRE = mean distance of
+//! every target point (vessel bifurcations and tumour vertices) to its truth over all frames
+//! ([`evaluate`]). The assertion is on the mean over the scenarios of the per-scenario ratio
+//! non-rigid / rigid: what the non-rigid stage adds to the same rigid stage.
 //!
-//! Frames: [`FRAMES`] = 10 per scenario, as the demo (the same numbers: rigid 2.70 / 2.28 /
-//! 1.67 mm, non-rigid 1.11 / 1.68 / 0.93 mm). Fewer frames would be faster but are not a fair
-//! measurement: with 6 frames the mean ratio is 40 %, with 20 it is 57 % as with 10.
-//! 40–90 s in the dev profile on a shared 2-core machine.
+//! Since session 11 the default rigid ICP prunes at median + 2 × 1.4826 MAD, which absorbs
+//! much of the error the non-rigid stage corrected after the thesis's rigid stage (rigid-only
+//! TRE 2.44 / 1.95 / 0.47 mm against 2.70 / 2.27 / 1.68): the ratio of the *default* pipeline
+//! to its own rigid stage is 81 %, while its non-rigid TRE is the lowest (0.95 / 1.46 / 0.61
+//! mm against 1.23 / 1.53 / 1.11; mean 1.01 against 1.29 mm). So the claim is checked with the
+//! thesis's rigid stage in both runs (mean of ratios 59.7 %), and the default session is
+//! registered too: its mean TRE must be below the thesis pipeline's, and at most 60 % of the
+//! thesis's rigid-only TRE on average.
+//!
+//! Frames: [`FRAMES`] = 10 per scenario, as the demo. Fewer frames would be faster but are
+//! not a fair measurement: with 6 frames the mean ratio is 40 %, with 20 it is 57 % as with
+//! 10. 40–100 s in the dev profile on a shared 2-core machine.
 //!
 //! Run: `cargo test --test partial_cloud_accuracy -- --nocapture` (prints the table).
 
@@ -122,12 +131,27 @@ struct Row {
     non_rigid_mm: f64,
     ms_full: f64,
     not_converged: usize,
+    /// The default session (median/MAD rigid pruning), mm.
+    default_mm: f64,
 }
 
 #[test]
 fn non_rigid_tre_is_at_most_60_percent_of_rigid_on_partial_clouds() {
     let start = Instant::now();
-    let loaded = phantom("all");
+    let default_scene = phantom("all");
+    assert!(
+        default_scene
+            .scene
+            .registration
+            .as_ref()
+            .is_some_and(|r| r.robust_pruning),
+        "the phantom uses the default median/MAD rigid pruning"
+    );
+    // The thesis's rigid ICP (mean + 2σ), for issue 3's claim.
+    let mut loaded = default_scene.clone();
+    if let Some(r) = loaded.scene.registration.as_mut() {
+        r.robust_pruning = false;
+    }
     let scale = loaded.length_scale();
     let n = frames();
     let mut rows = Vec::new();
@@ -161,7 +185,14 @@ fn non_rigid_tre_is_at_most_60_percent_of_rigid_on_partial_clouds() {
         let t = Instant::now();
         let full_results = run(&mut full, &seq, scale);
         let ms_full = t.elapsed().as_secs_f64() * 1e3 / n as f64;
-        for r in rigid_results.iter().chain(&full_results) {
+        let mut default = Session::from_scene(&default_scene).expect("session");
+        assert!(default.settings.rigid.robust_pruning && !full.settings.rigid.robust_pruning);
+        let default_results = run(&mut default, &seq, scale);
+        for r in rigid_results
+            .iter()
+            .chain(&full_results)
+            .chain(&default_results)
+        {
             assert!(r.error.is_none(), "{kind} {}: {:?}", r.source, r.error);
         }
         let moved = evaluate(&rest_at_true_pose(&seq, scale), &truth).expect("evaluates");
@@ -175,11 +206,12 @@ fn non_rigid_tre_is_at_most_60_percent_of_rigid_on_partial_clouds() {
             non_rigid_mm: e_full.overall.mean,
             ms_full,
             not_converged: full_results.iter().filter(|r| !r.converged).count(),
+            default_mm: tre(&default_results, &truth, scale).overall.mean,
         });
     }
 
     println!(
-        "{:<17} {:>6} {:>9} {:>11} {:>10} {:>10} {:>7} {:>8} {:>6}",
+        "{:<17} {:>6} {:>9} {:>11} {:>10} {:>10} {:>7} {:>8} {:>6} {:>12}",
         "scenario",
         "frames",
         "max disp",
@@ -188,11 +220,12 @@ fn non_rigid_tre_is_at_most_60_percent_of_rigid_on_partial_clouds() {
         "TRE full",
         "ratio",
         "ms/frm",
-        "!conv"
+        "!conv",
+        "TRE default"
     );
     for r in &rows {
         println!(
-            "{:<17} {:>6} {:>6.1} mm {:>8.2} mm {:>7.2} mm {:>7.2} mm {:>6.1}% {:>8.0} {:>6}",
+            "{:<17} {:>6} {:>6.1} mm {:>8.2} mm {:>7.2} mm {:>7.2} mm {:>6.1}% {:>8.0} {:>6} {:>9.2} mm",
             r.kind.name(),
             n,
             r.max_disp_mm,
@@ -201,7 +234,8 @@ fn non_rigid_tre_is_at_most_60_percent_of_rigid_on_partial_clouds() {
             r.non_rigid_mm,
             100.0 * r.non_rigid_mm / r.rigid_mm,
             r.ms_full,
-            r.not_converged
+            r.not_converged,
+            r.default_mm
         );
     }
     let k = rows.len() as f64;
@@ -224,5 +258,23 @@ fn non_rigid_tre_is_at_most_60_percent_of_rigid_on_partial_clouds() {
         "non-rigid TRE is {:.1} % of rigid-only on average (issue 3: <= {:.0} %)",
         100.0 * mean_ratio,
         100.0 * MAX_MEAN_RATIO
+    );
+    // The default pipeline: more accurate than the thesis's, and within issue 3's bound
+    // against the thesis's rigid registration.
+    let mean_of = |f: &dyn Fn(&Row) -> f64| rows.iter().map(f).sum::<f64>() / k;
+    let (default_mm, thesis_mm) = (mean_of(&|r| r.default_mm), mean_of(&|r| r.non_rigid_mm));
+    let default_ratio = mean_of(&|r| r.default_mm / r.rigid_mm);
+    println!(
+        "default session: mean TRE {default_mm:.2} mm against {thesis_mm:.2} mm with the thesis's rigid stage; {:.1} % of the thesis's rigid-only on average",
+        100.0 * default_ratio
+    );
+    assert!(
+        default_mm < thesis_mm,
+        "the default session ({default_mm:.3} mm) is not more accurate than the thesis's rigid stage ({thesis_mm:.3} mm)"
+    );
+    assert!(
+        default_ratio <= MAX_MEAN_RATIO,
+        "the default session's TRE is {:.1} % of the thesis's rigid-only on average",
+        100.0 * default_ratio
     );
 }

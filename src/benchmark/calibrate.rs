@@ -171,6 +171,7 @@ mod tests {
                 ms_mean: ms,
                 warm_ms_p50: ms,
                 warm_ms_p95: 2.0 * ms,
+                warm_ms_mean: ms,
                 newton_per_frame: 1.0,
                 icp_per_frame: 1.0,
                 failed_frames: failed,

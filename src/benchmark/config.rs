@@ -195,7 +195,12 @@ impl ModelConfig {
             coarse_to_fine: s.registration.as_ref().and_then(|r| r.coarse_to_fine),
             min_fraction: s.grid.min_fraction,
             step_stabilization: s.solver.step_stabilization,
-            robust_pruning: s.registration.as_ref().is_some_and(|r| r.robust_pruning),
+            robust_pruning: s
+                .registration
+                .as_ref()
+                .map_or(crate::scene::defaults::robust_pruning(), |r| {
+                    r.robust_pruning
+                }),
             background_factorization: s
                 .registration
                 .as_ref()
@@ -315,7 +320,12 @@ pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
                 });
             }
         }
-        let robust = s.registration.as_ref().is_some_and(|r| r.robust_pruning);
+        let robust = s
+            .registration
+            .as_ref()
+            .map_or(crate::scene::defaults::robust_pruning(), |r| {
+                r.robust_pruning
+            });
         out.push(ModelConfig {
             robust_pruning: Some(!robust),
             ..named(if robust {
@@ -415,7 +425,8 @@ mod tests {
     #[test]
     fn alpha_and_pruning_change_their_scene_keys() {
         let scene = phantom();
-        assert!(!scene
+        // The phantom keeps the default: median/MAD pruning in rigid ICP.
+        assert!(scene
             .scene
             .registration
             .as_ref()
@@ -424,18 +435,20 @@ mod tests {
             name: "x".into(),
             min_fraction: Some(1e-3),
             step_stabilization: Some(0.0),
-            robust_pruning: Some(true),
+            robust_pruning: Some(false),
             ..ModelConfig::default()
         };
         let a = c.apply(&scene).unwrap();
         assert_eq!(a.scene.grid.min_fraction, 1e-3);
         assert_eq!(a.scene.solver.step_stabilization, 0.0);
-        assert!(a.scene.registration.as_ref().unwrap().robust_pruning);
+        assert!(!a.scene.registration.as_ref().unwrap().robust_pruning);
         let r = c.resolved(&a);
-        assert_eq!((r.min_fraction, r.robust_pruning), (1e-3, true));
+        assert_eq!((r.min_fraction, r.robust_pruning), (1e-3, false));
         assert_eq!(r.step_stabilization, 0.0);
         let settings = crate::session::SessionSettings::from_scene(&a.scene, a.length_scale());
-        assert!(settings.rigid.robust_pruning);
+        assert!(!settings.rigid.robust_pruning);
+        let default = crate::session::SessionSettings::from_scene(&scene.scene, 1e-3);
+        assert!(default.rigid.robust_pruning);
         assert!(!settings.warm.robust_pruning && !settings.cold.robust_pruning);
         let bad = ModelConfig {
             name: "bad alpha".into(),

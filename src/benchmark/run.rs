@@ -201,6 +201,9 @@ pub struct Metrics {
     pub warm_ms_p50: f64,
     /// See `warm_ms_p50`.
     pub warm_ms_p95: f64,
+    /// Mean wall time of the warm frames, ms (0 without warm frames): a running session's
+    /// cost per frame, its throughput's inverse.
+    pub warm_ms_mean: f64,
     /// Mean Newton iterations per frame.
     pub newton_per_frame: f64,
     /// Mean non-rigid ICP iterations per frame.
@@ -272,6 +275,7 @@ impl Metrics {
             ms_mean: ms.mean,
             warm_ms_p50: warm_ms.median,
             warm_ms_p95: warm_ms.p95,
+            warm_ms_mean: warm_ms.mean,
             newton_per_frame: samples.iter().map(|s| s.newton_iterations).sum::<usize>() as f64 / n,
             icp_per_frame: samples.iter().map(|s| s.icp_iterations).sum::<usize>() as f64 / n,
             failed_frames: failed,
@@ -302,6 +306,7 @@ impl Metrics {
             self.ms_mean,
             self.warm_ms_p50,
             self.warm_ms_p95,
+            self.warm_ms_mean,
             self.newton_per_frame,
             self.icp_per_frame,
             self.failure_rate,

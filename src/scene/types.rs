@@ -505,10 +505,11 @@ pub struct RegistrationSpec {
     /// starts from its prolongated displacement (`None`, default: off); in `(1, 4]`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub coarse_to_fine: Option<f64>,
-    /// Rigid ICP prunes its pairs at median + 2 × 1.4826 MAD of their distances when true;
-    /// default false: at mean + 2σ as in the thesis, which gross outliers defeat. (The
-    /// non-rigid stage keeps mean + 2σ: see `NonRigidSettings::robust_pruning`.)
-    #[serde(default)]
+    /// Rigid ICP prunes its pairs at median + 2 × 1.4826 MAD of their distances when true
+    /// (the default since session 11: docs/bench.md); false: at mean + 2σ as in the thesis,
+    /// which gross outliers and small visible patches defeat. (The non-rigid stage keeps
+    /// mean + 2σ: see `NonRigidSettings::robust_pruning`.)
+    #[serde(default = "defaults::robust_pruning")]
     pub robust_pruning: bool,
     /// Warm frames refactorise the tangent on a helper thread while their Newton steps go on
     /// with the old factorisation (default false): faster on large grids, slightly less
@@ -532,7 +533,7 @@ impl Default for RegistrationSpec {
             time_budget_ms: None,
             max_cloud_points: None,
             coarse_to_fine: None,
-            robust_pruning: false,
+            robust_pruning: defaults::robust_pruning(),
             background_factorization: false,
         }
     }
@@ -583,6 +584,10 @@ pub mod defaults {
     /// `registration.alpha`.
     pub fn alpha() -> f64 {
         0.75
+    }
+    /// `registration.robust_pruning`.
+    pub fn robust_pruning() -> bool {
+        true
     }
     /// `registration.penalty_steps`.
     pub fn penalty_steps() -> u32 {

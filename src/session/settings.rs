@@ -76,7 +76,12 @@ impl Default for SessionSettings {
             rigid_mode: RigidMode::Icp,
             pose_update: PoseUpdate::Hold,
             pose_reacquire_rms: 0.008,
-            rigid: RigidIcp::default(),
+            // Median/MAD pruning (`registration.robust_pruning`, default true); the rigid
+            // ICP's own default stays the thesis's mean + 2σ.
+            rigid: RigidIcp {
+                robust_pruning: crate::scene::defaults::robust_pruning(),
+                ..RigidIcp::default()
+            },
             tracking_relative_tolerance: 1e-4,
             target_spacing: 0.005,
             max_rigid_rms: 0.02,
