@@ -206,9 +206,9 @@ pub fn run_sweep(
             passes.push(run);
         }
     }
-    let rigid_only = (rigid_baseline)
-        .then(|| merge_repeats(rigid_runs).ok())
-        .flatten()
+    // No baseline run (or a failed one) merges to an error: no rigid-only row.
+    let rigid_only = merge_repeats(rigid_runs)
+        .ok()
         .map(|(s, b)| Metrics::of(&s.concat(), &b));
     let reports = configs
         .iter()
