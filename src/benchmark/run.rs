@@ -8,7 +8,7 @@ use serde::Serialize;
 
 use super::memory;
 use super::workload::Workload;
-use crate::evaluation::Summary;
+use crate::evaluation::{percentile, Summary};
 use crate::scene::LoadedScene;
 use crate::session::{FrameResult, Session, BEFORE_RECOVERY};
 
@@ -352,14 +352,10 @@ pub fn merge_repeats(runs: Vec<Result<SceneRun, String>>) -> Result<SceneRun, St
     if runs.is_empty() {
         return Err("no run to merge".into());
     }
+    // The project's quantile (`evaluation::percentile`): the mean of the middle two when even.
     let median = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
-        let n = v.len();
-        if n % 2 == 1 {
-            v[n / 2]
-        } else {
-            0.5 * (v[n / 2 - 1] + v[n / 2])
-        }
+        percentile(&v, 0.5)
     };
     let shape = |r: &SceneRun| r.0.iter().map(Vec::len).collect::<Vec<_>>();
     let first_shape = shape(&runs[0]);
@@ -374,19 +370,14 @@ pub fn merge_repeats(runs: Vec<Result<SceneRun, String>>) -> Result<SceneRun, St
         .iter()
         .filter_map(|r| r.1.peak_rss_mib)
         .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
-    let walls: Vec<Vec<Vec<f64>>> = (0..first_shape.len())
-        .map(|w| {
-            (0..first_shape[w])
-                .map(|f| runs.iter().map(|r| r.0[w][f].wall_ms).collect())
-                .collect()
-        })
-        .collect();
-    let (mut samples, mut build) = runs.swap_remove(0);
-    for (w, frames) in samples.iter_mut().enumerate() {
+    let (first, rest) = runs.split_first_mut().expect("not empty");
+    for (w, frames) in first.0.iter_mut().enumerate() {
         for (f, s) in frames.iter_mut().enumerate() {
-            s.wall_ms = median(walls[w][f].clone());
+            let walls = std::iter::once(s.wall_ms).chain(rest.iter().map(|r| r.0[w][f].wall_ms));
+            s.wall_ms = median(walls.collect());
         }
     }
+    let (samples, mut build) = runs.swap_remove(0);
     build.build_ms = build_ms;
     build.peak_rss_mib = peak;
     Ok((samples, build))
