@@ -45,6 +45,8 @@ pub struct ModelConfig {
     /// Warm-frame refactorisation on a helper thread
     /// (`registration.background_factorization`).
     pub background_factorization: Option<bool>,
+    /// Removal of isolated cloud points (`registration.remove_isolated_points`).
+    pub remove_isolated_points: Option<bool>,
     /// Single-precision factorisations in warm frames (`solver.mixed_precision`).
     pub mixed_precision: Option<bool>,
 }
@@ -80,6 +82,8 @@ pub struct ResolvedConfig {
     pub robust_pruning: bool,
     /// Warm-frame refactorisation on a helper thread.
     pub background_factorization: bool,
+    /// Isolated cloud points removed before registration.
+    pub remove_isolated_points: bool,
     /// Single-precision factorisations in warm frames.
     pub mixed_precision: bool,
 }
@@ -147,6 +151,7 @@ impl ModelConfig {
             || self.coarse_to_fine.is_some()
             || self.robust_pruning.is_some()
             || self.background_factorization.is_some()
+            || self.remove_isolated_points.is_some()
         {
             let r = s.registration.get_or_insert_with(RegistrationSpec::default);
             if let Some(v) = self.robust_pruning {
@@ -154,6 +159,9 @@ impl ModelConfig {
             }
             if let Some(v) = self.background_factorization {
                 r.background_factorization = v;
+            }
+            if let Some(v) = self.remove_isolated_points {
+                r.remove_isolated_points = v;
             }
             if let Some(v) = self.penalty_steps {
                 r.penalty_steps = v;
@@ -205,6 +213,12 @@ impl ModelConfig {
                 .registration
                 .as_ref()
                 .is_some_and(|r| r.background_factorization),
+            remove_isolated_points: s
+                .registration
+                .as_ref()
+                .map_or(crate::scene::defaults::remove_isolated_points(), |r| {
+                    r.remove_isolated_points
+                }),
             mixed_precision: s.solver.mixed_precision,
         }
     }
@@ -332,6 +346,20 @@ pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
                 "mean-2sigma pruning"
             } else {
                 "median-mad pruning"
+            })
+        });
+        let isolated = s
+            .registration
+            .as_ref()
+            .map_or(crate::scene::defaults::remove_isolated_points(), |r| {
+                r.remove_isolated_points
+            });
+        out.push(ModelConfig {
+            remove_isolated_points: Some(!isolated),
+            ..named(if isolated {
+                "isolated points kept"
+            } else {
+                "isolated points removed"
             })
         });
         if !s

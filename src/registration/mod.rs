@@ -29,6 +29,7 @@
 
 pub mod coarse_to_fine;
 pub mod correspondences;
+pub mod isolated_points;
 pub mod kabsch;
 pub mod model_target;
 pub mod non_rigid_icp;

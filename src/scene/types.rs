@@ -516,6 +516,12 @@ pub struct RegistrationSpec {
     /// accurate (docs/registration.md). Results stay deterministic.
     #[serde(default)]
     pub background_factorization: bool,
+    /// Cloud points far from every other point (statistical outlier removal on the cloud
+    /// alone: mean distance to their 8 nearest neighbours above median + 3 × 1.4826 MAD and
+    /// 2.5 × the median) are removed before both stages when true (the default since session
+    /// 12: docs/bench.md); the frame is flagged `isolated_removed`.
+    #[serde(default = "defaults::remove_isolated_points")]
+    pub remove_isolated_points: bool,
 }
 
 impl Default for RegistrationSpec {
@@ -535,6 +541,7 @@ impl Default for RegistrationSpec {
             coarse_to_fine: None,
             robust_pruning: defaults::robust_pruning(),
             background_factorization: false,
+            remove_isolated_points: defaults::remove_isolated_points(),
         }
     }
 }
@@ -587,6 +594,10 @@ pub mod defaults {
     }
     /// `registration.robust_pruning`.
     pub fn robust_pruning() -> bool {
+        true
+    }
+    /// `registration.remove_isolated_points`.
+    pub fn remove_isolated_points() -> bool {
         true
     }
     /// `registration.penalty_steps`.

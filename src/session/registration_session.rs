@@ -10,6 +10,9 @@ use crate::geometry::Camera;
 use crate::mechanics::LawKind;
 use crate::mesh::TriSurface;
 use crate::registration::correspondences::rejection_threshold;
+use crate::registration::isolated_points::{
+    isolated_mask, ISOLATION_MEDIAN_FACTOR, ISOLATION_NEIGHBOURS, ISOLATION_SIGMA,
+};
 use crate::registration::non_rigid_icp::{NonRigidReport, NonRigidTimings};
 use crate::registration::{
     IcpResult, IndexedPoints, ModelTarget, NonRigidIcp, NonRigidSettings, Prolongation, RigidIcp,
@@ -343,6 +346,15 @@ impl Session {
             .step_by(stride)
             .map(|p| p * scale)
             .collect();
+        let cloud = if self.settings.remove_isolated_points {
+            let kept = without_isolated_points(cloud);
+            if kept.1 > 0 {
+                flags.push("isolated_removed".into());
+            }
+            kept.0
+        } else {
+            cloud
+        };
         if cloud.len() < 3 {
             return Err(FrameError::Rigid(format!(
                 "{} points; at least 3 are needed",
@@ -752,6 +764,29 @@ struct Done {
 /// a non-rigid registration.
 fn solver_failed(r: &NonRigidReport) -> bool {
     !r.warnings.is_empty()
+}
+
+/// `cloud` without its isolated points ([`isolated_mask`] with the module's constants), and
+/// how many were removed.
+fn without_isolated_points(cloud: Vec<Point3<f64>>) -> (Vec<Point3<f64>>, usize) {
+    let n = cloud.len();
+    let Some(indexed) = IndexedPoints::new(cloud.clone()) else {
+        return (cloud, 0);
+    };
+    let mask = isolated_mask(
+        &indexed,
+        ISOLATION_NEIGHBOURS,
+        ISOLATION_SIGMA,
+        ISOLATION_MEDIAN_FACTOR,
+    );
+    let kept: Vec<Point3<f64>> = cloud
+        .into_iter()
+        .zip(&mask)
+        .filter(|(_, &m)| !m)
+        .map(|(p, _)| p)
+        .collect();
+    let removed = n - kept.len();
+    (kept, removed)
 }
 
 fn all_finite(u: &[f64]) -> bool {

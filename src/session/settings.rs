@@ -46,6 +46,10 @@ pub struct SessionSettings {
     /// Clouds with more points are thinned (every k-th point) to at most this many, and the
     /// frame is flagged `decimated`.
     pub max_cloud_points: usize,
+    /// Remove isolated cloud points (far from every other point) before both stages
+    /// ([`isolated_mask`](crate::registration::isolated_points::isolated_mask)); the frame
+    /// is flagged `isolated_removed` when it removed any (default true).
+    pub remove_isolated_points: bool,
     /// When a frame's non-rigid stage reports a solver failure (diverged, inverted element,
     /// Newton iteration cap) or a non-finite state, retry it from the last good state with
     /// smaller penalty increments, then also with a more robust law for that frame; the frame
@@ -90,6 +94,7 @@ impl Default for SessionSettings {
             warm: NonRigidSettings::warm(),
             time_budget_ms: None,
             max_cloud_points: DEFAULT_MAX_CLOUD_POINTS,
+            remove_isolated_points: crate::scene::defaults::remove_isolated_points(),
             recovery: true,
             coarse_to_fine: None,
         }
@@ -121,6 +126,7 @@ impl SessionSettings {
                 s.max_cloud_points = n as usize;
             }
             s.coarse_to_fine = r.coarse_to_fine;
+            s.remove_isolated_points = r.remove_isolated_points;
         }
         if matches!(scene.material.law, LawKind::NeoHookean | LawKind::Svk) {
             // `NonRigidSettings::warm`'s single Newton step per ICP iteration and 0.3 mm stop

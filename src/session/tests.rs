@@ -180,6 +180,55 @@ fn a_still_scene_does_not_drift_and_reset_goes_cold() {
 }
 
 #[test]
+fn isolated_outliers_are_removed_before_registration() {
+    let (path, rest) = scene("isolated", "icp");
+    let clean = bent(&rest, 8.0);
+    // 30 % of the final cloud uniform in a box 3 cm beyond the ellipsoid on every side
+    // (a deterministic generator), as the stability matrix's outlier rows.
+    let n_out = (clean.len() as f64 * 0.3 / 0.7).round() as usize;
+    let mut state = 11u64;
+    let mut next = move || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut dirty = clean.clone();
+    for _ in 0..n_out {
+        dirty.push(Point3::new(
+            -80.0 + 160.0 * next(),
+            -67.5 + 135.0 * next(),
+            -55.0 + 118.0 * next(),
+        ));
+    }
+    let reference = session(&path).register(&frame(clean.clone(), "clean"));
+    assert!(reference.error.is_none(), "{:?}", reference.error);
+    assert!(!reference.flags.iter().any(|f| f == "isolated_removed"));
+    assert_eq!(reference.cloud_points, (clean.len(), clean.len()));
+
+    let filtered = session(&path).register(&frame(dirty.clone(), "dirty"));
+    assert!(filtered.error.is_none(), "{:?}", filtered.error);
+    assert!(filtered.flags.iter().any(|f| f == "isolated_removed"));
+    let removed = dirty.len() - filtered.cloud_points.1;
+    assert!(
+        removed > n_out / 2 && removed <= n_out,
+        "removed {removed} of {n_out} outliers"
+    );
+
+    let mut off = session(&path);
+    off.settings.remove_isolated_points = false;
+    let unfiltered = off.register(&frame(dirty, "dirty, kept"));
+    assert_eq!(unfiltered.cloud_points.1, unfiltered.cloud_points.0);
+    // The filtered frame lands near the clean one; the unfiltered one is pulled away.
+    let with = max_change(&filtered, &reference);
+    let without = max_change(&unfiltered, &reference);
+    assert!(
+        with < 0.5 && without > 2.0 * with,
+        "targets move {with:.3} mm from the clean result with the filter, {without:.3} mm without"
+    );
+}
+
+#[test]
 fn huge_clouds_are_thinned_and_the_budget_stops_a_frame_with_a_valid_state() {
     let (path, rest) = scene("budget", "none");
     let mut s = session(&path);
