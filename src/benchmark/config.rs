@@ -229,11 +229,14 @@ impl ModelConfig {
 /// (10⁻⁴, 10⁻³, 10⁻², 3·10⁻², 10⁻¹), cut-cell step stabilisation γ (0, 10, 30, 100, 300,
 /// 1000), law (neo-Hookean, SVK, linear, corotated), linear solver (LDLᵀ,
 /// Jacobi-CG), penalty ramp (1 and 5 steps), the other pair-pruning rule (mean + 2σ or
-/// median/MAD), coarse-to-fine start (cells ×2) — changes already equal to the scene's value
+/// median/MAD), isolated cloud points kept (or removed), background factorisation, mixed
+/// precision, coarse-to-fine start (cells ×2) — changes already equal to the scene's value
 /// are left out. `quick`: the default, cell ×1.5 and ×2, finite-cell, full-cell, no stabilisation
 /// and neo-Hookean.
 pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
     let s = &scene.scene;
+    // The scene's own values of the registration settings the sweep flips.
+    let base = ModelConfig::scene_default().resolved(scene);
     let named = |name: &str| ModelConfig {
         name: name.to_string(),
         ..ModelConfig::default()
@@ -322,67 +325,43 @@ pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
                 });
             }
         }
-        let steps = s
-            .registration
-            .as_ref()
-            .map_or(crate::scene::defaults::penalty_steps(), |r| r.penalty_steps);
         for n in [1, 5] {
-            if n != steps {
+            if n != base.penalty_steps {
                 out.push(ModelConfig {
                     penalty_steps: Some(n),
                     ..named(&format!("ramp {n}"))
                 });
             }
         }
-        let robust = s
-            .registration
-            .as_ref()
-            .map_or(crate::scene::defaults::robust_pruning(), |r| {
-                r.robust_pruning
-            });
         out.push(ModelConfig {
-            robust_pruning: Some(!robust),
-            ..named(if robust {
+            robust_pruning: Some(!base.robust_pruning),
+            ..named(if base.robust_pruning {
                 "mean-2sigma pruning"
             } else {
                 "median-mad pruning"
             })
         });
-        let isolated = s
-            .registration
-            .as_ref()
-            .map_or(crate::scene::defaults::remove_isolated_points(), |r| {
-                r.remove_isolated_points
-            });
         out.push(ModelConfig {
-            remove_isolated_points: Some(!isolated),
-            ..named(if isolated {
+            remove_isolated_points: Some(!base.remove_isolated_points),
+            ..named(if base.remove_isolated_points {
                 "isolated points kept"
             } else {
                 "isolated points removed"
             })
         });
-        if !s
-            .registration
-            .as_ref()
-            .is_some_and(|r| r.background_factorization)
-        {
+        if !base.background_factorization {
             out.push(ModelConfig {
                 background_factorization: Some(true),
                 ..named("background factorisation")
             });
         }
-        if !s.solver.mixed_precision {
+        if !base.mixed_precision {
             out.push(ModelConfig {
                 mixed_precision: Some(true),
                 ..named("mixed precision")
             });
         }
-        if s.registration
-            .as_ref()
-            .and_then(|r| r.coarse_to_fine)
-            .is_none()
-        {
+        if base.coarse_to_fine.is_none() {
             out.push(ModelConfig {
                 coarse_to_fine: Some(2.0),
                 ..named("coarse-to-fine")

@@ -347,11 +347,11 @@ impl Session {
             .map(|p| p * scale)
             .collect();
         let cloud = if self.settings.remove_isolated_points {
-            let kept = without_isolated_points(cloud);
-            if kept.1 > 0 {
+            let (kept, removed) = without_isolated_points(cloud);
+            if removed > 0 {
                 flags.push("isolated_removed".into());
             }
-            kept.0
+            kept
         } else {
             cloud
         };

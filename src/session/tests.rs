@@ -186,19 +186,13 @@ fn isolated_outliers_are_removed_before_registration() {
     // 30 % of the final cloud uniform in a box 3 cm beyond the ellipsoid on every side
     // (a deterministic generator), as the stability matrix's outlier rows.
     let n_out = (clean.len() as f64 * 0.3 / 0.7).round() as usize;
-    let mut state = 11u64;
-    let mut next = move || {
-        state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (state >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = crate::synthetic::Rng::new(11);
     let mut dirty = clean.clone();
     for _ in 0..n_out {
         dirty.push(Point3::new(
-            -80.0 + 160.0 * next(),
-            -67.5 + 135.0 * next(),
-            -55.0 + 118.0 * next(),
+            rng.uniform_in(-80.0, 80.0),
+            rng.uniform_in(-67.5, 67.5),
+            rng.uniform_in(-55.0, 63.0),
         ));
     }
     let reference = session(&path).register(&frame(clean.clone(), "clean"));
