@@ -306,6 +306,7 @@ pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
             LawKind::Svk,
             LawKind::Linear,
             LawKind::Corotated,
+            LawKind::MooneyRivlin,
         ]
     };
     for &l in laws {
@@ -378,6 +379,7 @@ pub fn law_name(l: LawKind) -> &'static str {
         LawKind::Corotated => "corotated",
         LawKind::Svk => "svk",
         LawKind::NeoHookean => "neo-hookean",
+        LawKind::MooneyRivlin => "mooney-rivlin",
     }
 }
 

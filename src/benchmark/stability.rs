@@ -14,6 +14,7 @@ use super::run::{run_scene, Cause, Metrics};
 use super::sweep::MachineInfo;
 use super::workload::Workload;
 use crate::grid::IntegrationMode;
+use crate::mechanics::LawKind;
 use crate::scene::LoadedScene;
 use crate::synthetic::{generate_sequence, ScenarioKind, SequenceSpec};
 
@@ -114,6 +115,8 @@ pub struct StabilityOptions {
     pub reduced: bool,
     /// The methods (model configurations) compared.
     pub methods: Vec<ModelConfig>,
+    /// Law of the synthetic truth (`None`: [`TruthModel`]'s default, neo-Hookean).
+    pub truth_law: Option<LawKind>,
 }
 
 impl StabilityOptions {
@@ -145,6 +148,7 @@ impl StabilityOptions {
             frames: if reduced { 2 } else { 4 },
             reduced,
             methods,
+            truth_law: None,
         }
     }
 }
@@ -182,6 +186,8 @@ pub struct StabilityReport {
     pub scenario: String,
     /// Frames per sequence.
     pub frames: usize,
+    /// Constitutive law of the synthetic truth (scene-file name).
+    pub truth_law: String,
     /// Whether this is the reduced (CI) matrix.
     pub reduced: bool,
     /// The cells, axis by axis, value by value, method by method.
@@ -292,6 +298,9 @@ pub fn run_matrix(
     let scale = scene.length_scale();
     let mut base_spec = SequenceSpec::phantom_default(options.scenario);
     base_spec.frames = options.frames.max(1);
+    if let Some(law) = options.truth_law {
+        base_spec.truth.law = law;
+    }
     let sequence = |spec: &SequenceSpec| -> Result<Workload, String> {
         catch_unwind(AssertUnwindSafe(|| generate_sequence(scene, spec)))
             .map_err(|p| format!("panic while simulating the truth: {}", panic_text(&p)))?
@@ -396,6 +405,7 @@ pub fn run_matrix(
         machine: MachineInfo::current(),
         scenario: options.scenario.name().into(),
         frames: base_spec.frames,
+        truth_law: super::config::law_name(base_spec.truth.law).into(),
         reduced: options.reduced,
         crashes: cells.iter().filter(|c| c.crashed).count(),
         non_finite_frames: cells

@@ -48,6 +48,8 @@ pub struct WorkloadInfo {
     pub frames: usize,
     /// Largest true displacement, mm, when known.
     pub max_displacement_mm: Option<f64>,
+    /// Law of the synthetic truth, when known.
+    pub truth_law: Option<String>,
 }
 
 /// The machine the numbers were measured on.
@@ -227,6 +229,7 @@ pub fn run_sweep(
                 name: w.name.clone(),
                 frames: w.frames.len(),
                 max_displacement_mm: w.max_displacement_mm,
+                truth_law: w.truth_law.clone(),
             })
             .collect(),
         rigid_only,

@@ -18,6 +18,9 @@ pub struct Workload {
     pub truth: Vec<Vec<(String, Vec<Point3<f64>>)>>,
     /// Largest true surface displacement over the frames, mm (`None` when unknown).
     pub max_displacement_mm: Option<f64>,
+    /// Constitutive law the truth was simulated with (scene-file name; `None` when unknown,
+    /// as for the user's own frames).
+    pub truth_law: Option<String>,
 }
 
 impl Workload {
@@ -55,6 +58,7 @@ impl Workload {
                     .fold(0.0, f64::max)
                     * 1e3,
             ),
+            truth_law: Some(crate::benchmark::config::law_name(seq.spec.truth.law).to_string()),
         }
     }
 

@@ -10,12 +10,14 @@ use nalgebra::Point3;
 
 use super::progress::bar;
 use super::register::frame_inputs;
+use crate::benchmark::config::law_name;
 use crate::benchmark::{
     run_matrix, run_sweep, sweep_configs, Axis, BenchReport, StabilityOptions, StabilityReport,
     Workload,
 };
 use crate::charts::pareto::write_chart;
 use crate::evaluation::read_truth;
+use crate::mechanics::LawKind;
 use crate::scene::{load_scene, LoadedScene};
 use crate::synthetic::{generate_sequence, ScenarioKind, SequenceSpec};
 
@@ -51,6 +53,11 @@ pub struct BenchArgs {
     /// its median over the passes, which steadies the chart's time axis against noise.
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=20))]
     pub repeats: Option<u32>,
+    /// Constitutive law of the synthetic ground truth (default neo-Hookean, the truth of
+    /// every recorded table; `mooney-rivlin` is none of the registration laws, so no law is
+    /// graded against itself).
+    #[arg(long, value_name = "LAW", value_parser = parse_law)]
+    pub truth_law: Option<LawKind>,
     /// Run the stability matrix instead of the sweep (writes stability.json and
     /// stability.md); with `--quick`, its reduced form (two values per axis).
     #[arg(long, conflicts_with_all = ["frames", "only"])]
@@ -95,7 +102,14 @@ pub fn run(args: &BenchArgs) -> Result<Option<BenchReport>, String> {
     }
     let workloads = match (&args.frames, &args.truth) {
         (Some(frames), Some(truth)) => vec![user_workload(frames, truth)?],
-        _ => synthetic_workloads(&scene, &args.scenarios, frame_count(args)?, args.quick, 0)?,
+        _ => synthetic_workloads(
+            &scene,
+            &args.scenarios,
+            frame_count(args)?,
+            args.quick,
+            0,
+            args.truth_law,
+        )?,
     };
     let repeats = args
         .repeats
@@ -130,6 +144,7 @@ pub fn run(args: &BenchArgs) -> Result<Option<BenchReport>, String> {
 /// `stability.md` in the output directory.
 pub fn run_stability(args: &BenchArgs, scene: &LoadedScene) -> Result<StabilityReport, String> {
     let mut options = StabilityOptions::standard(args.quick);
+    options.truth_law = args.truth_law;
     if let Some(n) = args.frame_count {
         if n == 0 {
             return Err("--frame-count must be >= 1".into());
@@ -200,13 +215,14 @@ pub fn write_report(report: &BenchReport, out: &Path) -> Result<(), String> {
 
 /// The synthetic scenarios of `scene` (`names`, default all; `--quick`: tool-push) with
 /// `frames` frames each; `seed_offset` is added to each scenario's cloud seed (0: the
-/// defaults of [`SequenceSpec::phantom_default`]).
+/// defaults of [`SequenceSpec::phantom_default`]); `truth_law` replaces the truth model's law.
 pub fn synthetic_workloads(
     scene: &LoadedScene,
     names: &[String],
     frames: usize,
     quick: bool,
     seed_offset: u64,
+    truth_law: Option<LawKind>,
 ) -> Result<Vec<Workload>, String> {
     let kinds = if names.is_empty() && quick {
         vec![ScenarioKind::ToolPush]
@@ -220,6 +236,9 @@ pub fn synthetic_workloads(
         let mut spec = SequenceSpec::phantom_default(kind);
         spec.frames = frames;
         spec.cloud.seed = spec.cloud.seed.wrapping_add(seed_offset);
+        if let Some(law) = truth_law {
+            spec.truth.law = law;
+        }
         let seq = generate_sequence(scene, &spec).map_err(|e| format!("{}: {e}", kind.name()))?;
         out.push(Workload::from_sequence(&seq, scene.length_scale()));
         pb.inc(1);
@@ -271,5 +290,23 @@ pub fn user_workload(frames: &Path, truth: &Path) -> Result<Workload, String> {
         frames: list,
         truth: truth_frames,
         max_displacement_mm: None,
+        truth_law: None,
     })
+}
+
+/// A law by its scene-file name (`--truth-law`).
+fn parse_law(name: &str) -> Result<LawKind, String> {
+    const LAWS: [LawKind; 5] = [
+        LawKind::Linear,
+        LawKind::Corotated,
+        LawKind::Svk,
+        LawKind::NeoHookean,
+        LawKind::MooneyRivlin,
+    ];
+    LAWS.into_iter()
+        .find(|&l| law_name(l) == name)
+        .ok_or_else(|| {
+            let names: Vec<&str> = LAWS.into_iter().map(law_name).collect();
+            format!("unknown law `{name}`: expected one of {}", names.join(", "))
+        })
 }

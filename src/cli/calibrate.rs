@@ -52,7 +52,7 @@ pub fn run(args: &CalibrateArgs) -> Result<CalibrationReport, String> {
         return Err("--frames must be >= 1".into());
     }
     let scene = load_scene(&args.scene).map_err(|e| e.to_string())?;
-    let workloads = synthetic_workloads(&scene, &args.scenarios, args.frames, false, 0)?;
+    let workloads = synthetic_workloads(&scene, &args.scenarios, args.frames, false, 0, None)?;
     let configs = candidates(args.quick);
     let pb = bar(configs.len(), "calibrate");
     let mut progress = |name: &str| {
@@ -79,7 +79,7 @@ pub fn run(args: &CalibrateArgs) -> Result<CalibrationReport, String> {
     // Fresh frames: other cloud seeds and one more frame per scenario, so that the loads
     // fall between the calibration frames' loads.
     eprintln!("livereg: checking `{}` on fresh frames…", chosen.name);
-    let fresh = synthetic_workloads(&scene, &args.scenarios, args.frames + 1, false, 7919)?;
+    let fresh = synthetic_workloads(&scene, &args.scenarios, args.frames + 1, false, 7919, None)?;
     let check = run_config(&scene, chosen, &fresh);
     let validated = check
         .metrics

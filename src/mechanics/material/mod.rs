@@ -12,7 +12,8 @@
 //! corotated linear [`LawKind::Corotated`] (`corotated.rs`),
 //! St Venant–Kirchhoff [`LawKind::Svk`] (`svk.rs`, thesis eq. 2.8) and
 //! compressible neo-Hookean [`LawKind::NeoHookean`] (`neo_hookean.rs`,
-//! thesis eq. 2.9). [`Material`] dispatches on the law.
+//! thesis eq. 2.9) and compressible Mooney–Rivlin [`LawKind::MooneyRivlin`]
+//! (`mooney_rivlin.rs`, seed 003). [`Material`] dispatches on the law.
 //!
 //! Every energy is of the form `W = μ W_μ(F) + λ W_λ(F)`; [`Part`] selects the
 //! μ-term, the λ-term, or both, so that the element can integrate the
@@ -20,8 +21,11 @@
 
 mod corotated;
 mod linear;
+mod mooney_rivlin;
 mod neo_hookean;
 mod svk;
+
+pub use mooney_rivlin::MOONEY_RIVLIN_C10_SHARE;
 
 /// A 3×3 matrix of `f64` (deformation gradient, dimensionless; or a stress in Pa).
 pub type Mat3 = nalgebra::Matrix3<f64>;
@@ -83,7 +87,7 @@ pub struct PointResponse {
 }
 
 /// Constitutive law selector. Serde names: `"linear"`, `"corotated"`, `"svk"`,
-/// `"neo-hookean"`.
+/// `"neo-hookean"`, `"mooney-rivlin"`.
 #[derive(
     Debug, Clone, Copy, PartialEq, Eq, Hash, Default, serde::Deserialize, serde::Serialize,
 )]
@@ -103,6 +107,12 @@ pub enum LawKind {
     /// `W = μ/2 (tr C − 3) − μ ln J + λ/2 (ln J)²`. Requires `J = det F > 0`. The default.
     #[default]
     NeoHookean,
+    /// Compressible Mooney–Rivlin (seed 003) with seed 003's liver ratio C10 : C01 =
+    /// 0.16 : 0.14 ([`MOONEY_RIVLIN_C10_SHARE`]), scaled to the material's μ and λ:
+    /// `W = C10 (I₁ − 3) + C01 (I₂ − 3) − d ln J + e/2 (ln J)²`, `2(C10 + C01) = μ`,
+    /// `d = 2C10 + 4C01`, `e = λ − 4C01` (linear elasticity with μ, λ at small strain).
+    /// Requires `J > 0`. See `mooney_rivlin.rs`.
+    MooneyRivlin,
 }
 
 /// Lamé parameters actually used by a law for a given [`Part`] (Pa).
@@ -211,6 +221,7 @@ impl Material {
             LawKind::Corotated => corotated::Corotated::energy(p, f),
             LawKind::Svk => svk::Svk::energy(p, f),
             LawKind::NeoHookean => neo_hookean::NeoHookean::energy(p, f),
+            LawKind::MooneyRivlin => mooney_rivlin::MooneyRivlin::energy(p, f),
         }
     }
 
@@ -226,6 +237,7 @@ impl Material {
             LawKind::Corotated => corotated::Corotated::pk1(p, f),
             LawKind::Svk => svk::Svk::pk1(p, f),
             LawKind::NeoHookean => neo_hookean::NeoHookean::pk1(p, f),
+            LawKind::MooneyRivlin => mooney_rivlin::MooneyRivlin::pk1(p, f),
         }
     }
 
@@ -240,6 +252,7 @@ impl Material {
             LawKind::Corotated => corotated::Corotated::energy_pk1(p, f),
             LawKind::Svk => svk::Svk::energy_pk1(p, f),
             LawKind::NeoHookean => neo_hookean::NeoHookean::energy_pk1(p, f),
+            LawKind::MooneyRivlin => mooney_rivlin::MooneyRivlin::energy_pk1(p, f),
         }
     }
 
@@ -259,6 +272,7 @@ impl Material {
             LawKind::Corotated => corotated::Corotated::response(p, f),
             LawKind::Svk => svk::Svk::response(p, f),
             LawKind::NeoHookean => neo_hookean::NeoHookean::response(p, f),
+            LawKind::MooneyRivlin => mooney_rivlin::MooneyRivlin::response(p, f),
         }
     }
 
@@ -293,6 +307,7 @@ impl Material {
             LawKind::Corotated => corotated::Corotated::pk2(p, f),
             LawKind::Svk => svk::Svk::pk2(p, f),
             LawKind::NeoHookean => neo_hookean::NeoHookean::pk2(p, f),
+            LawKind::MooneyRivlin => mooney_rivlin::MooneyRivlin::pk2(p, f),
         }
     }
 
@@ -312,6 +327,7 @@ impl Material {
             LawKind::Corotated => corotated::Corotated::material_tangent(p, f),
             LawKind::Svk => svk::Svk::material_tangent(p, f),
             LawKind::NeoHookean => neo_hookean::NeoHookean::material_tangent(p, f),
+            LawKind::MooneyRivlin => mooney_rivlin::MooneyRivlin::material_tangent(p, f),
         }
     }
 }

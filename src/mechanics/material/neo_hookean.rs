@@ -17,7 +17,7 @@ pub(super) struct NeoHookean;
 
 /// `J = det F`, `ln J` and `H = F⁻ᵀ = cof(F)/J`; errors on `J ≤ 0`.
 #[inline(always)]
-fn kinematics(f: &Mat3) -> Result<(f64, Mat3), MaterialError> {
+pub(super) fn kinematics(f: &Mat3) -> Result<(f64, Mat3), MaterialError> {
     let (f00, f01, f02) = (f[(0, 0)], f[(0, 1)], f[(0, 2)]);
     let (f10, f11, f12) = (f[(1, 0)], f[(1, 1)], f[(1, 2)]);
     let (f20, f21, f22) = (f[(2, 0)], f[(2, 1)], f[(2, 2)]);

@@ -5,11 +5,12 @@
 use super::*;
 use nalgebra::{Rotation3, Unit, Vector3};
 
-const LAWS: [LawKind; 4] = [
+const LAWS: [LawKind; 5] = [
     LawKind::Linear,
     LawKind::Corotated,
     LawKind::Svk,
     LawKind::NeoHookean,
+    LawKind::MooneyRivlin,
 ];
 const PARTS: [Part; 3] = [Part::Full, Part::Shear, Part::Volumetric];
 
@@ -113,7 +114,7 @@ fn materials() -> Vec<Material> {
 
 fn fs_for(law: LawKind, rng: &mut Rng) -> Vec<(&'static str, Mat3)> {
     let mut fs = sample_fs(rng);
-    if law != LawKind::NeoHookean {
+    if !matches!(law, LawKind::NeoHookean | LawKind::MooneyRivlin) {
         fs.extend(inverted_fs(rng));
     }
     fs
@@ -492,6 +493,7 @@ fn law_kind_serde_names() {
         (LawKind::Corotated, "\"corotated\""),
         (LawKind::Svk, "\"svk\""),
         (LawKind::NeoHookean, "\"neo-hookean\""),
+        (LawKind::MooneyRivlin, "\"mooney-rivlin\""),
     ] {
         assert_eq!(serde_json::to_string(&law).unwrap(), name);
         assert_eq!(serde_json::from_str::<LawKind>(name).unwrap(), law);
