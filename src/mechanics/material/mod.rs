@@ -109,8 +109,8 @@ pub enum LawKind {
     NeoHookean,
     /// Compressible Mooney–Rivlin (seed 003) with seed 003's liver ratio C10 : C01 =
     /// 0.16 : 0.14 ([`MOONEY_RIVLIN_C10_SHARE`]), scaled to the material's μ and λ:
-    /// `W = C10 (I₁ − 3) + C01 (I₂ − 3) − d ln J + e/2 (ln J)²`, `2(C10 + C01) = μ`,
-    /// `d = 2C10 + 4C01`, `e = λ − 4C01` (linear elasticity with μ, λ at small strain).
+    /// `W = C10 (Ī₁ − 3) + C01 (Ī₂ − 3) + κ/2 (ln J)²` (isochoric invariants),
+    /// `2(C10 + C01) = μ`, `κ = λ + 2μ/3` (linear elasticity with μ, λ at small strain).
     /// Requires `J > 0`. See `mooney_rivlin.rs`.
     MooneyRivlin,
 }

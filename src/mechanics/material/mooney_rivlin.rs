@@ -1,30 +1,36 @@
 //! Compressible Mooney–Rivlin hyperelasticity (seed 003; `method.md` §2), with the ratio of
-//! its two moduli fixed at seed 003's liver values (C10 = 0.16 kPa, C01 = 0.14 kPa).
+//! its two moduli fixed at seed 003's liver values (C10 = 0.16 kPa, C01 = 0.14 kPa), in the
+//! isochoric/volumetric split of finite-element codes:
 //!
-//! `W = C10 (I₁ − 3) + C01 (I₂ − 3) − d ln J + e/2 (ln J)²` (J/m³), `C = FᵀF`, `I₁ = tr C`,
-//! `I₂ = ½(I₁² − tr C²)`, `J = det F`, with
-//! * `C10 = a μ/2`, `C01 = b μ/2`, `a = 0.16/0.30`, `b = 0.14/0.30` (so `2(C10 + C01) = μ`),
-//! * `d = (a + 2b) μ` (the stress vanishes at `F = I`),
-//! * `e = λ − 2bμ` (the small-strain limit is linear elasticity with exactly the Lamé
-//!   parameters `μ`, `λ`, like every other law here).
+//! `W = C10 (Ī₁ − 3) + C01 (Ī₂ − 3) + κ/2 (ln J)²` (J/m³), `C = FᵀF`, `J = det F`,
+//! `Ī₁ = J^(−2/3) I₁`, `Ī₂ = J^(−4/3) I₂`, `I₁ = tr C`, `I₂ = ½(I₁² − tr C²)`, with
+//! * `C10 = a μ/2`, `C01 = b μ/2`, `a = 0.16/0.30`, `b = 1 − a` (so `2(C10 + C01) = μ`),
+//! * `κ = λ + 2μ/3`, the bulk modulus,
 //!
-//! The scene's `E` and `ν` set `μ` and `λ`; seed 003's ratio `C10 : C01` sets how much of the
-//! shear stiffness comes from `I₂`, which stiffens the law in compression and shear beyond
-//! neo-Hookean (`b = 0` is the neo-Hookean law of eq. 2.9 exactly). Used as a ground truth
-//! that is none of the registration laws (`TruthModel::law`), and available to scenes.
+//! so that at small strain it is linear elasticity with exactly the Lamé parameters `μ`, `λ`,
+//! like every other law here. The scene's `E` and `ν` set `μ` and `λ`; seed 003's ratio sets
+//! how much of the shear stiffness comes from `Ī₂`, which stiffens the law in shear and
+//! compression beyond neo-Hookean (simple shear: `σ₂₂ − σ₃₃ = −2C01 γ²`, zero for a
+//! neo-Hookean solid). Used as a ground truth that is none of the registration laws
+//! (`TruthModel::law`), and available to scenes.
 //!
-//! * S-form: `S = 2C10 I + 2C01 (I₁ I − C) + (e ln J − d) C⁻¹`,
-//!   `ℂ = 4C01 (I⊗I − 𝕀ˢʸᵐ) + e C⁻¹⊗C⁻¹ + 2(d − e ln J) C⁻¹⊙C⁻¹` (Pa).
-//! * F-form (hot path), `H = F⁻ᵀ`, `B = FFᵀ`:
-//!   `P = 2C10 F + 2C01 (I₁ F − F C) + (e ln J − d) H`,
-//!   `∂P_iJ/∂F_kL = (2C10 + 2C01 I₁) δ_ik δ_JL + 4C01 F_iJ F_kL
-//!   − 2C01 (δ_ik C_JL + F_iL F_kJ + B_ik δ_JL) + e H_iJ H_kL + (d − e ln J) H_iL H_kJ` (Pa).
+//! F-form, `H = F⁻ᵀ`, `B = FFᵀ`, `α = J^(−2/3)`, `G = I₁F − FC`:
+//! * `P = 2C10 α (F − I₁/3 H) + 2C01 α² (G − ⅔ I₂ H) + κ ln J H`;
+//! * `∂P_iJ/∂F_kL = 2C10 α [δ_ik δ_JL − ⅔(F_iJ H_kL + H_iJ F_kL) + 2/9 I₁ H_iJ H_kL
+//!   + I₁/3 H_iL H_kJ]`
+//!   `+ 2C01 α² [2F_iJ F_kL + I₁ δ_ik δ_JL − δ_ik C_JL − F_iL F_kJ − B_ik δ_JL
+//!   − 4/3 (G_iJ H_kL + H_iJ G_kL) + 8/9 I₂ H_iJ H_kL + ⅔ I₂ H_iL H_kJ]`
+//!   `+ κ (H_iJ H_kL − ln J H_iL H_kJ)` (Pa);
+//! * `S = F⁻¹P`, and `dS/dE` from `∂P/∂F`.
 //!
-//! Shear part: the terms in μ; volumetric part: `λ/2 (ln J)²`.
-//! `J ≤ 0` → [`MaterialError::Inverted`], as for neo-Hookean.
+//! Parts: the isochoric terms and `μ/3 (ln J)²` are the shear part (bounded below on its own,
+//! as the shear part integrated at every quadrature point must be), `λ/2 (ln J)²` the
+//! volumetric part. `J ≤ 0` → [`MaterialError::Inverted`], as for neo-Hookean.
 
 use super::neo_hookean::kinematics;
-use super::{Lame, Law, Mat3, MaterialError, PointResponse, Tangent9, Voigt6, VOIGT};
+use super::{
+    material_tangent_from_a, Lame, Law, Mat3, MaterialError, PointResponse, Tangent9, Voigt6,
+};
 
 /// Share `a = C10 / (C10 + C01)` of seed 003's liver moduli (C10 = 0.16 kPa, C01 = 0.14 kPa).
 pub const MOONEY_RIVLIN_C10_SHARE: f64 = 0.16 / 0.30;
@@ -32,108 +38,138 @@ pub const MOONEY_RIVLIN_C10_SHARE: f64 = 0.16 / 0.30;
 /// Zero-sized marker for the Mooney–Rivlin law.
 pub(super) struct MooneyRivlin;
 
-/// The law's coefficients for Lamé parameters `p` (Pa): `(C10, C01, d, e)`.
-#[inline(always)]
-fn coefficients(p: Lame) -> (f64, f64, f64, f64) {
-    let a = MOONEY_RIVLIN_C10_SHARE;
-    let b = 1.0 - a;
-    (
-        0.5 * a * p.mu,
-        0.5 * b * p.mu,
-        (a + 2.0 * b) * p.mu,
-        p.lambda - 2.0 * b * p.mu,
-    )
+/// Everything the stress and tangent share at one `F`.
+struct State {
+    c10: f64,
+    c01: f64,
+    kappa: f64,
+    ln_j: f64,
+    /// `J^(−2/3)`.
+    alpha: f64,
+    i1: f64,
+    i2: f64,
+    c: Mat3,
+    h: Mat3,
+    /// `G = I₁F − FC`.
+    g: Mat3,
 }
 
-/// Energy (J/m³) and `P` (Pa) from `F`, `ln J` and `H = F⁻ᵀ`; also returns `C` and `I₁`.
-#[inline(always)]
-fn energy_and_pk1(p: Lame, f: &Mat3, ln_j: f64, h: &Mat3) -> (f64, Mat3, Mat3, f64) {
-    let (c10, c01, d, e) = coefficients(p);
-    let c = f.tr_mul(f);
-    let i1 = c.trace();
-    let i2 = 0.5 * (i1 * i1 - c.norm_squared());
-    let energy = c10 * (i1 - 3.0) + c01 * (i2 - 3.0) - d * ln_j + 0.5 * e * ln_j * ln_j;
-    let pk1 = f * (2.0 * c10 + 2.0 * c01 * i1) - (f * c) * (2.0 * c01) + h * (e * ln_j - d);
-    (energy, pk1, c, i1)
+impl State {
+    /// Errors with `Inverted` on `J ≤ 0`.
+    #[inline(always)]
+    fn new(p: Lame, f: &Mat3) -> Result<Self, MaterialError> {
+        let (ln_j, h) = kinematics(f)?;
+        let a = MOONEY_RIVLIN_C10_SHARE;
+        let c = f.tr_mul(f);
+        let i1 = c.trace();
+        Ok(Self {
+            c10: 0.5 * a * p.mu,
+            c01: 0.5 * (1.0 - a) * p.mu,
+            kappa: p.lambda + 2.0 / 3.0 * p.mu,
+            ln_j,
+            alpha: (-2.0 / 3.0 * ln_j).exp(),
+            i1,
+            i2: 0.5 * (i1 * i1 - c.norm_squared()),
+            g: f * i1 - f * c,
+            c,
+            h,
+        })
+    }
+
+    /// Strain-energy density, J/m³.
+    fn energy(&self) -> f64 {
+        let a2 = self.alpha * self.alpha;
+        self.c10 * (self.alpha * self.i1 - 3.0)
+            + self.c01 * (a2 * self.i2 - 3.0)
+            + 0.5 * self.kappa * self.ln_j * self.ln_j
+    }
+
+    /// First Piola–Kirchhoff stress, Pa.
+    fn pk1(&self, f: &Mat3) -> Mat3 {
+        let a2 = self.alpha * self.alpha;
+        (f - self.h * (self.i1 / 3.0)) * (2.0 * self.c10 * self.alpha)
+            + (self.g - self.h * (2.0 / 3.0 * self.i2)) * (2.0 * self.c01 * a2)
+            + self.h * (self.kappa * self.ln_j)
+    }
+
+    /// `∂P/∂F`, Pa (module docs).
+    fn tangent(&self, f: &Mat3) -> Tangent9 {
+        let (h, c, g) = (&self.h, &self.c, &self.g);
+        let b = f * f.transpose();
+        let k1 = 2.0 * self.c10 * self.alpha;
+        let k2 = 2.0 * self.c01 * self.alpha * self.alpha;
+        let (i1, i2, kappa, ln_j) = (self.i1, self.i2, self.kappa, self.ln_j);
+        Tangent9::from_fn(|r, s| {
+            let (i, jj) = (r / 3, r % 3);
+            let (k, ll) = (s / 3, s % 3);
+            let hh = h[(i, jj)] * h[(k, ll)];
+            let hx = h[(i, ll)] * h[(k, jj)];
+            let mut v1 = -2.0 / 3.0 * (f[(i, jj)] * h[(k, ll)] + h[(i, jj)] * f[(k, ll)])
+                + 2.0 / 9.0 * i1 * hh
+                + i1 / 3.0 * hx;
+            let mut v2 = 2.0 * f[(i, jj)] * f[(k, ll)]
+                - f[(i, ll)] * f[(k, jj)]
+                - 4.0 / 3.0 * (g[(i, jj)] * h[(k, ll)] + h[(i, jj)] * g[(k, ll)])
+                + 8.0 / 9.0 * i2 * hh
+                + 2.0 / 3.0 * i2 * hx;
+            if i == k {
+                v2 -= c[(jj, ll)];
+                if jj == ll {
+                    v1 += 1.0;
+                    v2 += i1;
+                }
+            }
+            if jj == ll {
+                v2 -= b[(i, k)];
+            }
+            k1 * v1 + k2 * v2 + kappa * (hh - ln_j * hx)
+        })
+    }
 }
 
 impl Law for MooneyRivlin {
     fn energy(p: Lame, f: &Mat3) -> Result<f64, MaterialError> {
-        let (ln_j, h) = kinematics(f)?;
-        Ok(energy_and_pk1(p, f, ln_j, &h).0)
+        Ok(State::new(p, f)?.energy())
     }
 
     fn pk1(p: Lame, f: &Mat3) -> Result<Mat3, MaterialError> {
-        let (ln_j, h) = kinematics(f)?;
-        Ok(energy_and_pk1(p, f, ln_j, &h).1)
+        Ok(State::new(p, f)?.pk1(f))
     }
 
     fn energy_pk1(p: Lame, f: &Mat3) -> Result<(f64, Mat3), MaterialError> {
-        let (ln_j, h) = kinematics(f)?;
-        let (w, pk1, _, _) = energy_and_pk1(p, f, ln_j, &h);
-        Ok((w, pk1))
+        let st = State::new(p, f)?;
+        Ok((st.energy(), st.pk1(f)))
     }
 
     fn response(p: Lame, f: &Mat3) -> Result<PointResponse, MaterialError> {
-        let (ln_j, h) = kinematics(f)?;
-        let (energy, pk1, c, i1) = energy_and_pk1(p, f, ln_j, &h);
-        let (c10, c01, d, e) = coefficients(p);
-        let b = f * f.transpose();
-        let diag = 2.0 * c10 + 2.0 * c01 * i1;
-        let g = d - e * ln_j;
-        let tangent = Tangent9::from_fn(|r, s| {
-            let (i, jj) = (r / 3, r % 3);
-            let (k, ll) = (s / 3, s % 3);
-            let mut v = 4.0 * c01 * f[(i, jj)] * f[(k, ll)] - 2.0 * c01 * f[(i, ll)] * f[(k, jj)]
-                + e * h[(i, jj)] * h[(k, ll)]
-                + g * h[(i, ll)] * h[(k, jj)];
-            if i == k {
-                v -= 2.0 * c01 * c[(jj, ll)];
-                if jj == ll {
-                    v += diag;
-                }
-            }
-            if jj == ll {
-                v -= 2.0 * c01 * b[(i, k)];
-            }
-            v
-        });
+        let st = State::new(p, f)?;
         Ok(PointResponse {
-            energy,
-            pk1,
-            tangent,
+            energy: st.energy(),
+            pk1: st.pk1(f),
+            tangent: st.tangent(f),
         })
     }
 
-    /// `S = 2C10 I + 2C01 (I₁ I − C) + (e ln J − d) C⁻¹`, `C⁻¹ = HᵀH`.
+    /// `S = F⁻¹ P = 2C10 α (I − I₁/3 C⁻¹) + 2C01 α² (I₁ I − C − ⅔ I₂ C⁻¹) + κ ln J C⁻¹`.
     fn pk2(p: Lame, f: &Mat3) -> Result<Mat3, MaterialError> {
-        let (ln_j, h) = kinematics(f)?;
-        let (c10, c01, d, e) = coefficients(p);
-        let c = f.tr_mul(f);
-        let c_inv = h.tr_mul(&h);
-        Ok(
-            Mat3::identity() * (2.0 * c10 + 2.0 * c01 * c.trace()) - c * (2.0 * c01)
-                + c_inv * (e * ln_j - d),
-        )
+        let st = State::new(p, f)?;
+        let ci = st.h.tr_mul(&st.h);
+        let id = Mat3::identity();
+        let a2 = st.alpha * st.alpha;
+        Ok((id - ci * (st.i1 / 3.0)) * (2.0 * st.c10 * st.alpha)
+            + (id * st.i1 - st.c - ci * (2.0 / 3.0 * st.i2)) * (2.0 * st.c01 * a2)
+            + ci * (st.kappa * st.ln_j))
     }
 
-    /// `ℂ_IJKL = 4C01 (δ_IJ δ_KL − ½(δ_IK δ_JL + δ_IL δ_JK)) + e C⁻¹_IJ C⁻¹_KL
-    /// + (d − e ln J)(C⁻¹_IK C⁻¹_JL + C⁻¹_IL C⁻¹_JK)`.
+    /// From the 9×9 tangent: `dS = F⁻¹(dP − dF S)` with `dF = F⁻ᵀ dE`.
     fn material_tangent(p: Lame, f: &Mat3) -> Result<Voigt6, MaterialError> {
-        let (ln_j, h) = kinematics(f)?;
-        let (_, c01, d, e) = coefficients(p);
-        let ci = h.tr_mul(&h);
-        let g = d - e * ln_j;
-        let delta = |x: usize, y: usize| if x == y { 1.0 } else { 0.0 };
-        Ok(Voigt6::from_fn(|a, b| {
-            let (i, j) = VOIGT[a];
-            let (k, l) = VOIGT[b];
-            4.0 * c01
-                * (delta(i, j) * delta(k, l)
-                    - 0.5 * (delta(i, k) * delta(j, l) + delta(i, l) * delta(j, k)))
-                + e * ci[(i, j)] * ci[(k, l)]
-                + g * (ci[(i, k)] * ci[(j, l)] + ci[(i, l)] * ci[(j, k)])
-        }))
+        let st = State::new(p, f)?;
+        let s = Self::pk2(p, f)?;
+        Ok(material_tangent_from_a(
+            &st.tangent(f),
+            &s,
+            &st.h.transpose(),
+        ))
     }
 }
 
@@ -164,16 +200,6 @@ mod tests {
             let w = m.energy(&f, Part::Full).unwrap();
             assert!((w - (c10 + c01) * gamma * gamma).abs() <= 1e-12 * m.mu);
             let s = m.pk2(&f, Part::Full).unwrap();
-            // C = [[1, γ, 0], [γ, 1 + γ², 0], [0, 0, 1]], C⁻¹ = [[1 + γ², −γ, 0], [−γ, 1, 0], [0, 0, 1]]
-            // S = 2C10 I + 2C01 (I₁ I − C) − d C⁻¹ with ln J = 0.
-            let d = (MOONEY_RIVLIN_C10_SHARE + 2.0 * (1.0 - MOONEY_RIVLIN_C10_SHARE)) * m.mu;
-            let s11 =
-                2.0 * c10 + 2.0 * c01 * (3.0 + gamma * gamma - 1.0) - d * (1.0 + gamma * gamma);
-            let s22 = 2.0 * c10 + 2.0 * c01 * (3.0 + gamma * gamma - 1.0 - gamma * gamma) - d;
-            let s12 = -2.0 * c01 * gamma + d * gamma;
-            assert!((s[(0, 0)] - s11).abs() <= 1e-12 * m.mu, "γ {gamma}");
-            assert!((s[(1, 1)] - s22).abs() <= 1e-12 * m.mu, "γ {gamma}");
-            assert!((s[(0, 1)] - s12).abs() <= 1e-12 * m.mu, "γ {gamma}");
             // Cauchy stress σ = F S Fᵀ / J (J = 1): shear μγ for every γ, and the normal
             // stress differences of the Mooney–Rivlin solid in simple shear.
             let sigma = f * s * f.transpose();
@@ -191,30 +217,27 @@ mod tests {
         }
     }
 
-    /// With `C01 = 0` the law is neo-Hookean (eq. 2.9): check through the difference of the
-    /// two energies, which must be exactly the `C01` terms.
+    /// Pure dilation `F = sI` leaves the isochoric invariants at 3: `W = κ/2 (3 ln s)²` and
+    /// `P = κ (3 ln s)/s I`, `κ = λ + 2μ/3`; the shear part alone is bounded below as `s → 0`.
     #[test]
-    fn mooney_rivlin_minus_neo_hookean_is_the_c01_terms() {
+    fn mooney_rivlin_dilation_closed_form() {
         let m = mat();
-        let nh = Material {
-            law: LawKind::NeoHookean,
-            ..m
-        };
-        let b = 1.0 - MOONEY_RIVLIN_C10_SHARE;
-        let f = Mat3::new(1.3, 0.2, -0.1, 0.05, 0.8, 0.3, -0.2, 0.1, 1.1);
-        let c = f.tr_mul(&f);
-        let (i1, j) = (c.trace(), f.determinant());
-        let i2 = 0.5 * (i1 * i1 - c.norm_squared());
-        // W_MR − W_NH = C01 (I₂ − 3) + (a/2 − 1/2) μ (I₁ − 3) − (a + 2b − 1) μ ln J − bμ (ln J)²
-        let a = MOONEY_RIVLIN_C10_SHARE;
-        let expect = 0.5 * b * m.mu * (i2 - 3.0) + 0.5 * (a - 1.0) * m.mu * (i1 - 3.0)
-            - (a + 2.0 * b - 1.0) * m.mu * j.ln()
-            - b * m.mu * j.ln() * j.ln();
-        let diff = m.energy(&f, Part::Full).unwrap() - nh.energy(&f, Part::Full).unwrap();
-        assert!(
-            (diff - expect).abs() <= 1e-12 * m.wave_speed_modulus(),
-            "{diff} {expect}"
-        );
+        let kappa = m.lambda + 2.0 / 3.0 * m.mu;
+        for &sc in &[0.5, 0.9, 1.0, 1.2] {
+            let f = Mat3::identity() * sc;
+            let ln_j = 3.0 * f64::ln(sc);
+            let w = m.energy(&f, Part::Full).unwrap();
+            assert!(
+                (w - 0.5 * kappa * ln_j * ln_j).abs() <= 1e-12 * kappa,
+                "s {sc}"
+            );
+            let p = m.pk1(&f, Part::Full).unwrap();
+            let expect = Mat3::identity() * (kappa * ln_j / sc);
+            assert!((p - expect).amax() <= 1e-12 * kappa, "s {sc}");
+        }
+        for &sc in &[1e-1, 1e-2, 1e-4] {
+            assert!(m.energy(&(Mat3::identity() * sc), Part::Shear).unwrap() >= 0.0);
+        }
     }
 
     /// `det F ≤ 0` is an `Inverted` error from every entry point, never a number.
