@@ -298,8 +298,9 @@ pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
             });
         }
     }
+    // `--quick`: neo-Hookean and corotated, but for the scene's own law.
     let laws: &[LawKind] = if quick {
-        &[LawKind::NeoHookean]
+        &[LawKind::NeoHookean, LawKind::Corotated]
     } else {
         &[
             LawKind::NeoHookean,
@@ -496,8 +497,8 @@ mod tests {
             assert_eq!(names.len(), c.len());
             assert!(c[0].is_default());
             assert!(c[1..].iter().all(|c| !c.is_default()));
-            // The phantom is weighted-cell and corotated: neither appears as a change.
-            assert!(!names.contains(&"weighted-cell") && !names.contains(&"corotated"));
+            // The phantom is weighted-cell and neo-Hookean: neither appears as a change.
+            assert!(!names.contains(&"weighted-cell") && !names.contains(&"neo-hookean"));
             // Nor does its own fictitious weight (the default 1e-2) as an α row.
             assert!(!names.contains(&"alpha 1e-2"));
             for x in &c {

@@ -374,7 +374,7 @@ fn scene_file_follows_the_contract() {
     assert_eq!(get("grid.cell_size").as_float(), Some(22.5));
     assert_eq!(get("grid.subdivisions").as_integer(), Some(2));
     assert_eq!(get("grid.integration").as_str(), Some("weighted-cell"));
-    assert_eq!(get("material.law").as_str(), Some("corotated"));
+    assert_eq!(get("material.law").as_str(), Some("neo-hookean"));
     assert_eq!(get("material.young_modulus").as_float(), Some(4500.0));
     assert_eq!(get("material.poisson_ratio").as_float(), Some(0.45));
     assert_eq!(get("material.density").as_float(), Some(1060.0));

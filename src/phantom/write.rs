@@ -74,7 +74,7 @@ pub const SUPPORT_DEPTH_FRACTION: f64 = 0.3;
 
 /// The `scene.toml` text for `phantom` (lengths in millimetres, `units = "mm"`), following
 /// the scene contract: the liver surface, the vessel and tumour structures, the grid
-/// (15 mm cells, 3 subdivisions, weighted-cell integration), a corotated material
+/// (22.5 mm cells, 2 subdivisions, weighted-cell integration), a neo-Hookean material
 /// (E = 4500 Pa, ν = 0.45, ρ = 1060 kg/m³), the ligament box held fixed, an elastic support
 /// (1e5 N/m³, not sliding) under the posterior [`SUPPORT_DEPTH_FRACTION`] of its depth, ICP
 /// rigid registration and a camera 25 cm in front of and above the anterior-superior face.
@@ -111,16 +111,17 @@ points = "{TARGETS_FILE}"
 name = "tumour"
 mesh = "{TUMOUR_FILE}"
 
-# 22.5 mm cells, 2 octree levels on cut cells: in `livereg bench` (docs/bench.md) they register
-# as accurately as 15 mm cells or 3 levels (mean TRE 1.22 mm on the three scenarios) in a
-# quarter of the time per frame.
+# 22.5 mm cells, 2 octree levels on cut cells, the neo-Hookean law (thesis eq. 2.9): in
+# `livereg bench` (docs/bench.md) they register as accurately as 17 mm cells, 4 levels or
+# finite cells (mean TRE 0.94 mm on the three scenarios) at a half to a third of their time per
+# frame, and the law is the most accurate measured also against a Mooney–Rivlin ground truth.
 [grid]
 cell_size = 22.5
 subdivisions = 2
 integration = "weighted-cell"
 
 [material]
-law = "corotated"
+law = "neo-hookean"
 young_modulus = 4500.0
 poisson_ratio = 0.45
 density = 1060.0

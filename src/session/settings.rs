@@ -128,7 +128,10 @@ impl SessionSettings {
             s.coarse_to_fine = r.coarse_to_fine;
             s.remove_isolated_points = r.remove_isolated_points;
         }
-        if matches!(scene.material.law, LawKind::NeoHookean | LawKind::Svk) {
+        if matches!(
+            scene.material.law,
+            LawKind::NeoHookean | LawKind::Svk | LawKind::MooneyRivlin
+        ) {
             // `NonRigidSettings::warm`'s single Newton step per ICP iteration and 0.3 mm stop
             // are measured on the corotated and linear laws. The hyperelastic laws keep the
             // earlier two steps and 0.5 mm (`livereg bench`, session 7: neo-Hookean 1.72 mm

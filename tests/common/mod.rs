@@ -9,12 +9,13 @@ use livereg::mesh::TriSurface;
 use livereg::session::FrameResult;
 use nalgebra::{DMatrix, Point3};
 
-/// All four laws.
-pub const LAWS: [LawKind; 4] = [
+/// All five laws.
+pub const LAWS: [LawKind; 5] = [
     LawKind::Linear,
     LawKind::Corotated,
     LawKind::Svk,
     LawKind::NeoHookean,
+    LawKind::MooneyRivlin,
 ];
 
 /// Grid options with the given cell size, levels and mode (α = 1e-4, no offset).
