@@ -16,11 +16,10 @@
 //!
 //! F-form, `H = F⁻ᵀ`, `B = FFᵀ`, `α = J^(−2/3)`, `G = I₁F − FC`:
 //! * `P = 2C10 α (F − I₁/3 H) + 2C01 α² (G − ⅔ I₂ H) + κ ln J H`;
-//! * `∂P_iJ/∂F_kL = 2C10 α [δ_ik δ_JL − ⅔(F_iJ H_kL + H_iJ F_kL) + 2/9 I₁ H_iJ H_kL
-//!   + I₁/3 H_iL H_kJ]`
-//!   `+ 2C01 α² [2F_iJ F_kL + I₁ δ_ik δ_JL − δ_ik C_JL − F_iL F_kJ − B_ik δ_JL
-//!   − 4/3 (G_iJ H_kL + H_iJ G_kL) + 8/9 I₂ H_iJ H_kL + ⅔ I₂ H_iL H_kJ]`
-//!   `+ κ (H_iJ H_kL − ln J H_iL H_kJ)` (Pa);
+//! * `∂P_iJ/∂F_kL = 2C10 α T₁ + 2C01 α² T₂ + κ (H_iJ H_kL − ln J H_iL H_kJ)` (Pa), with
+//!   `T₁ = δ_ik δ_JL − ⅔(F_iJ H_kL + H_iJ F_kL) + 2/9 I₁ H_iJ H_kL + I₁/3 H_iL H_kJ` and
+//!   `T₂ = 2F_iJ F_kL + I₁ δ_ik δ_JL − δ_ik C_JL − F_iL F_kJ − B_ik δ_JL
+//!   − 4/3 (G_iJ H_kL + H_iJ G_kL) + 8/9 I₂ H_iJ H_kL + ⅔ I₂ H_iL H_kJ`;
 //! * `S = F⁻¹P`, and `dS/dE` from `∂P/∂F`.
 //!
 //! Parts: the isochoric terms and `μ/3 (ln J)²` are the shear part (bounded below on its own,
