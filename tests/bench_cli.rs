@@ -216,10 +216,44 @@ fn calibrate_and_bench_reject_bad_options_with_a_reason() {
             vec!["bench", "--scenarios", "nope", "--out", d.to_str().unwrap()],
             "nope",
         ),
+        (
+            vec!["bench", "--truth-law", "ogden", "--out", d.to_str().unwrap()],
+            "ogden",
+        ),
     ] {
         let (code, _, stderr) = livereg(&args);
         assert_ne!(code, 0, "{args:?}");
         assert!(stderr.contains(needle), "{args:?}: {stderr}");
         assert!(!stderr.contains("panicked"), "{stderr}");
     }
+}
+
+/// `--truth-law` changes the law the ground truth is simulated with (the truth moves
+/// differently), and bench.json says which law graded the configurations.
+#[test]
+fn truth_law_changes_the_ground_truth_and_is_recorded() {
+    let mut max_disp = Vec::new();
+    for law in ["neo-hookean", "mooney-rivlin"] {
+        let d = out_dir(&format!("bench-truth-{law}"));
+        let (code, _, stderr) = livereg(&[
+            "bench",
+            "--quick",
+            "--only",
+            "default",
+            "--truth-law",
+            law,
+            "--out",
+            d.to_str().unwrap(),
+        ]);
+        assert_eq!(code, 0, "{stderr}");
+        let v: Value =
+            serde_json::from_str(&std::fs::read_to_string(d.join("bench.json")).unwrap()).unwrap();
+        let w = &v["workloads"][0];
+        assert_eq!(w["truth_law"], law, "{w}");
+        assert_numbers_finite(&v["configs"][0], law);
+        max_disp.push(w["max_displacement_mm"].as_f64().unwrap());
+    }
+    // Same load and small-strain moduli, different laws: the truths differ, by a fraction.
+    let rel = (max_disp[0] - max_disp[1]).abs() / max_disp[0];
+    assert!(rel > 1e-4 && rel < 0.3, "max displacements {max_disp:?}");
 }
