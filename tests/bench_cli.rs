@@ -217,7 +217,13 @@ fn calibrate_and_bench_reject_bad_options_with_a_reason() {
             "nope",
         ),
         (
-            vec!["bench", "--truth-law", "ogden", "--out", d.to_str().unwrap()],
+            vec![
+                "bench",
+                "--truth-law",
+                "ogden",
+                "--out",
+                d.to_str().unwrap(),
+            ],
             "ogden",
         ),
     ] {

@@ -176,6 +176,20 @@ pub fn run_workload(session: &mut Session, w: &Workload, scale: f64) -> Vec<Fram
     out
 }
 
+/// The one-sided normal quantile (95 %) of [`Metrics::tre_upper_mm`].
+pub const TRE_PREDICTION_Z: f64 = 1.645;
+
+/// Sample standard deviation of `v` over `√len` (0 with fewer than 2 values).
+fn standard_error(v: &[f64]) -> f64 {
+    if v.len() < 2 {
+        return 0.0;
+    }
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    (var / n).sqrt()
+}
+
 /// The numbers of one configuration over its frames. Lengths in mm, times in ms.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Metrics {
@@ -188,6 +202,11 @@ pub struct Metrics {
     pub tre_p95_mm: f64,
     /// See `tre_mean_mm`.
     pub tre_max_mm: f64,
+    /// Standard error of `tre_mean_mm` over frames, mm: the sample standard deviation of the
+    /// frames' own mean TREs over √frames (0 with fewer than 2 frames). Frames of one
+    /// sequence are correlated and their loads differ, so this is a scale of how far another
+    /// draw of frames may land, not an exact confidence interval.
+    pub tre_standard_error_mm: f64,
     /// Mean surface RMS of the frames' last pairing, mm.
     pub surface_rms_mm: f64,
     /// Median, 95th percentile and mean wall time per frame, ms.
@@ -269,6 +288,13 @@ impl Metrics {
             tre_mean_mm: tre.mean,
             tre_p95_mm: tre.p95,
             tre_max_mm: tre.max,
+            tre_standard_error_mm: standard_error(
+                &samples
+                    .iter()
+                    .filter(|s| !s.tre_mm.is_empty())
+                    .map(|s| s.tre_mm.iter().sum::<f64>() / s.tre_mm.len() as f64)
+                    .collect::<Vec<_>>(),
+            ),
             surface_rms_mm: samples.iter().map(|s| s.surface_rms_mm).sum::<f64>() / n,
             ms_p50: ms.median,
             ms_p95: ms.p95,
@@ -294,12 +320,19 @@ impl Metrics {
         }
     }
 
+    /// Upper prediction of the mean TRE on other frames of the same kind, mm:
+    /// `tre_mean_mm + z · tre_standard_error_mm` with `z` = [`TRE_PREDICTION_Z`].
+    pub fn tre_upper_mm(&self) -> f64 {
+        self.tre_mean_mm + TRE_PREDICTION_Z * self.tre_standard_error_mm
+    }
+
     /// Whether every number is finite (what CI checks of `bench --quick`).
     pub fn all_finite(&self) -> bool {
         [
             self.tre_mean_mm,
             self.tre_p95_mm,
             self.tre_max_mm,
+            self.tre_standard_error_mm,
             self.surface_rms_mm,
             self.ms_p50,
             self.ms_p95,
@@ -438,6 +471,32 @@ mod tests {
             flags: Vec::new(),
             recovered_causes: Vec::new(),
         }
+    }
+
+    /// The standard error is over frames (each frame's own mean TRE), by the textbook
+    /// formula: frames 1, 2, 3, 4 mm → sd √(5/3), SE √(5/3)/2; one frame → 0.
+    #[test]
+    fn tre_standard_error_is_over_frame_means() {
+        let b = BuildInfo::default();
+        let m = Metrics::of(
+            &[
+                sample(1.0, 1.0),
+                sample(2.0, 1.0),
+                FrameSample {
+                    tre_mm: vec![2.0, 4.0],
+                    ..sample(0.0, 1.0)
+                },
+                sample(4.0, 1.0),
+            ],
+            &b,
+        );
+        let expect = (5.0f64 / 3.0).sqrt() / 2.0;
+        assert!((m.tre_standard_error_mm - expect).abs() < 1e-12, "{m:?}");
+        assert!((m.tre_upper_mm() - (m.tre_mean_mm + TRE_PREDICTION_Z * expect)).abs() < 1e-12);
+        assert_eq!(
+            Metrics::of(&[sample(3.0, 1.0)], &b).tre_standard_error_mm,
+            0.0
+        );
     }
 
     fn run(walls: &[&[f64]], build_ms: f64, peak: Option<f64>) -> Result<SceneRun, String> {

@@ -93,6 +93,7 @@ pub fn run(args: &CalibrateArgs) -> Result<CalibrationReport, String> {
             .clone()
             .expect("a configuration with numbers resolved"),
         predicted: c.metrics.clone().expect("chosen among those with numbers"),
+        predicted_tre_upper_mm: c.metrics.as_ref().map_or(0.0, |m| m.tre_upper_mm()),
         validated_meets_goal: goal.met_by(&validated),
         validated,
         candidates: sweep.configs.clone(),
@@ -103,10 +104,11 @@ pub fn run(args: &CalibrateArgs) -> Result<CalibrationReport, String> {
         serde_json::to_string(&report).map_err(|e| e.to_string())?
     );
     eprintln!(
-        "livereg: chose `{}`: predicted {:.2} mm at {:.0} ms per frame (warm p95 {:.0}); on \
-         fresh frames {:.2} mm at {:.0} ms (warm p95 {:.0}); wrote {}",
+        "livereg: chose `{}`: predicted {:.2} mm (at most {:.2}) at {:.0} ms per frame (warm \
+         p95 {:.0}); on fresh frames {:.2} mm at {:.0} ms (warm p95 {:.0}); wrote {}",
         report.chosen,
         report.predicted.tre_mean_mm,
+        report.predicted_tre_upper_mm,
         report.predicted.ms_p50,
         report.predicted.warm_ms_p95,
         report.validated.tre_mean_mm,
