@@ -296,17 +296,11 @@ pub fn user_workload(frames: &Path, truth: &Path) -> Result<Workload, String> {
 
 /// A law by its scene-file name (`--truth-law`).
 fn parse_law(name: &str) -> Result<LawKind, String> {
-    const LAWS: [LawKind; 5] = [
-        LawKind::Linear,
-        LawKind::Corotated,
-        LawKind::Svk,
-        LawKind::NeoHookean,
-        LawKind::MooneyRivlin,
-    ];
-    LAWS.into_iter()
+    LawKind::ALL
+        .into_iter()
         .find(|&l| law_name(l) == name)
         .ok_or_else(|| {
-            let names: Vec<&str> = LAWS.into_iter().map(law_name).collect();
+            let names: Vec<&str> = LawKind::ALL.into_iter().map(law_name).collect();
             format!("unknown law `{name}`: expected one of {}", names.join(", "))
         })
 }

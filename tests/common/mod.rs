@@ -9,14 +9,8 @@ use livereg::mesh::TriSurface;
 use livereg::session::FrameResult;
 use nalgebra::{DMatrix, Point3};
 
-/// All five laws.
-pub const LAWS: [LawKind; 5] = [
-    LawKind::Linear,
-    LawKind::Corotated,
-    LawKind::Svk,
-    LawKind::NeoHookean,
-    LawKind::MooneyRivlin,
-];
+/// Every law.
+pub const LAWS: [LawKind; 5] = LawKind::ALL;
 
 /// Grid options with the given cell size, levels and mode (α = 1e-4, no offset).
 pub fn options(cell_size: f64, subdivisions: u32, mode: IntegrationMode) -> GridOptions {

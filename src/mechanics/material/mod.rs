@@ -115,6 +115,17 @@ pub enum LawKind {
     MooneyRivlin,
 }
 
+impl LawKind {
+    /// Every law, in the order of their serde names' list.
+    pub const ALL: [LawKind; 5] = [
+        LawKind::Linear,
+        LawKind::Corotated,
+        LawKind::Svk,
+        LawKind::NeoHookean,
+        LawKind::MooneyRivlin,
+    ];
+}
+
 /// Lamé parameters actually used by a law for a given [`Part`] (Pa).
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Lame {

@@ -5,13 +5,7 @@
 use super::*;
 use nalgebra::{Rotation3, Unit, Vector3};
 
-const LAWS: [LawKind; 5] = [
-    LawKind::Linear,
-    LawKind::Corotated,
-    LawKind::Svk,
-    LawKind::NeoHookean,
-    LawKind::MooneyRivlin,
-];
+const LAWS: [LawKind; 5] = LawKind::ALL;
 const PARTS: [Part; 3] = [Part::Full, Part::Shear, Part::Volumetric];
 
 /// SplitMix64: tiny seeded generator (no `rand` crate).
