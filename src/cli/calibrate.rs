@@ -85,6 +85,7 @@ pub fn run(args: &CalibrateArgs) -> Result<CalibrationReport, String> {
         .metrics
         .ok_or_else(|| check.error.unwrap_or_else(|| "the check run failed".into()))?;
     let c = &sweep.configs[index];
+    let predicted = c.metrics.clone().expect("chosen among those with numbers");
     let report = CalibrationReport {
         goal,
         chosen: chosen.name.clone(),
@@ -92,8 +93,8 @@ pub fn run(args: &CalibrateArgs) -> Result<CalibrationReport, String> {
             .config
             .clone()
             .expect("a configuration with numbers resolved"),
-        predicted: c.metrics.clone().expect("chosen among those with numbers"),
-        predicted_tre_upper_mm: c.metrics.as_ref().map_or(0.0, |m| m.tre_upper_mm()),
+        predicted_tre_upper_mm: predicted.tre_upper_mm(),
+        predicted,
         validated_meets_goal: goal.met_by(&validated),
         validated,
         candidates: sweep.configs.clone(),

@@ -91,6 +91,17 @@ impl State {
             + self.h * (self.kappa * self.ln_j)
     }
 
+    /// Second Piola–Kirchhoff stress, Pa:
+    /// `S = F⁻¹ P = 2C10 α (I − I₁/3 C⁻¹) + 2C01 α² (I₁ I − C − ⅔ I₂ C⁻¹) + κ ln J C⁻¹`.
+    fn pk2(&self) -> Mat3 {
+        let ci = self.h.tr_mul(&self.h);
+        let id = Mat3::identity();
+        let a2 = self.alpha * self.alpha;
+        (id - ci * (self.i1 / 3.0)) * (2.0 * self.c10 * self.alpha)
+            + (id * self.i1 - self.c - ci * (2.0 / 3.0 * self.i2)) * (2.0 * self.c01 * a2)
+            + ci * (self.kappa * self.ln_j)
+    }
+
     /// `∂P/∂F`, Pa (module docs).
     fn tangent(&self, f: &Mat3) -> Tangent9 {
         let (h, c, g) = (&self.h, &self.c, &self.g);
@@ -149,24 +160,16 @@ impl Law for MooneyRivlin {
         })
     }
 
-    /// `S = F⁻¹ P = 2C10 α (I − I₁/3 C⁻¹) + 2C01 α² (I₁ I − C − ⅔ I₂ C⁻¹) + κ ln J C⁻¹`.
     fn pk2(p: Lame, f: &Mat3) -> Result<Mat3, MaterialError> {
-        let st = State::new(p, f)?;
-        let ci = st.h.tr_mul(&st.h);
-        let id = Mat3::identity();
-        let a2 = st.alpha * st.alpha;
-        Ok((id - ci * (st.i1 / 3.0)) * (2.0 * st.c10 * st.alpha)
-            + (id * st.i1 - st.c - ci * (2.0 / 3.0 * st.i2)) * (2.0 * st.c01 * a2)
-            + ci * (st.kappa * st.ln_j))
+        Ok(State::new(p, f)?.pk2())
     }
 
     /// From the 9×9 tangent: `dS = F⁻¹(dP − dF S)` with `dF = F⁻ᵀ dE`.
     fn material_tangent(p: Lame, f: &Mat3) -> Result<Voigt6, MaterialError> {
         let st = State::new(p, f)?;
-        let s = Self::pk2(p, f)?;
         Ok(material_tangent_from_a(
             &st.tangent(f),
-            &s,
+            &st.pk2(),
             &st.h.transpose(),
         ))
     }
