@@ -12,6 +12,7 @@
 
 pub mod calibrate;
 pub mod config;
+pub mod indentation;
 pub mod memory;
 pub mod run;
 pub mod stability;

@@ -11,6 +11,10 @@ use nalgebra::Point3;
 use super::progress::bar;
 use super::register::frame_inputs;
 use crate::benchmark::config::law_name;
+use crate::benchmark::indentation::{
+    indentation_cases, indentation_table, run_indentation, IndentationMetrics, IndentationVariant,
+};
+use crate::benchmark::ModelConfig;
 use crate::benchmark::{
     run_matrix, run_sweep, sweep_configs, Axis, BenchReport, StabilityOptions, StabilityReport,
     Workload,
@@ -19,6 +23,7 @@ use crate::charts::pareto::write_chart;
 use crate::evaluation::read_truth;
 use crate::mechanics::LawKind;
 use crate::scene::{load_scene, LoadedScene};
+use crate::synthetic::indentation::{bundled_fixture_dir, INDENTATION_LAWS, INDENTATION_SEQUENCES};
 use crate::synthetic::{generate_sequence, ScenarioKind, SequenceSpec};
 
 /// Arguments of `livereg bench`.
@@ -62,6 +67,15 @@ pub struct BenchArgs {
     /// stability.md); with `--quick`, its reduced form (two values per axis).
     #[arg(long, conflicts_with_all = ["frames", "only"])]
     pub stability: bool,
+    /// Run the tool-indentation class (issue 18) instead: the sequences of
+    /// `fixtures/liver_indentation` (truth from a tetrahedral FE solve) registered with the
+    /// scene (default: that fixture's scene) and each configuration of `--only` (default:
+    /// the scene as it is); writes indentation.json and indentation.md.
+    #[arg(long, conflicts_with_all = ["frames", "stability"])]
+    pub indentation: bool,
+    /// With `--indentation`: the variants (`no-camera`, `camera`, `rigid-icp`; default all).
+    #[arg(long, value_delimiter = ',', requires = "indentation")]
+    pub variants: Vec<String>,
 }
 
 /// Runs `livereg bench`; prints the table and writes the report and chart (the sweep's
@@ -73,6 +87,9 @@ pub fn run(args: &BenchArgs) -> Result<Option<BenchReport>, String> {
             args.out.display()
         )
     })?;
+    if args.indentation {
+        return run_indentation_bench(args).map(|_| None);
+    }
     let scene = match &args.scene {
         Some(p) => load_scene(p).map_err(|e| e.to_string())?,
         None => {
@@ -183,6 +200,81 @@ pub fn run_stability(args: &BenchArgs, scene: &LoadedScene) -> Result<StabilityR
         args.out.display()
     );
     Ok(report)
+}
+
+/// `livereg bench --indentation`: the tool-indentation class, each configuration of `--only`
+/// (default: the scene itself) on every sequence × truth law (`--truth-law`: one) × variant;
+/// writes `indentation.json` and `indentation.md`.
+pub fn run_indentation_bench(args: &BenchArgs) -> Result<Vec<IndentationMetrics>, String> {
+    let dir = bundled_fixture_dir();
+    let scene_path = args.scene.clone().unwrap_or_else(|| dir.join("scene.toml"));
+    let scene = load_scene(&scene_path).map_err(|e| e.to_string())?;
+    let variants = if args.variants.is_empty() {
+        IndentationVariant::ALL.to_vec()
+    } else {
+        args.variants
+            .iter()
+            .map(|v| {
+                IndentationVariant::from_name(v).ok_or_else(|| {
+                    format!("--variants: unknown `{v}` (known: no-camera, camera, rigid-icp)")
+                })
+            })
+            .collect::<Result<_, _>>()?
+    };
+    let laws: Vec<&str> = match args.truth_law {
+        Some(l) => vec![law_name(l)],
+        None => INDENTATION_LAWS.to_vec(),
+    };
+    for l in &laws {
+        if !INDENTATION_LAWS.contains(l) {
+            return Err(format!(
+                "--truth-law {l}: the indentation truth exists for {}",
+                INDENTATION_LAWS.join(", ")
+            ));
+        }
+    }
+    let sequences: Vec<&str> = if args.scenarios.is_empty() {
+        INDENTATION_SEQUENCES.to_vec()
+    } else {
+        args.scenarios.iter().map(String::as_str).collect()
+    };
+    let cases = indentation_cases(&dir, &sequences, &laws, &variants, args.frame_count)?;
+    let configs: Vec<ModelConfig> = if args.only.is_empty() {
+        vec![ModelConfig::scene_default()]
+    } else {
+        let all = sweep_configs(&scene, false);
+        args.only
+            .iter()
+            .map(|n| {
+                all.iter()
+                    .find(|c| &c.name == n)
+                    .cloned()
+                    .ok_or_else(|| format!("--only: no configuration `{n}`"))
+            })
+            .collect::<Result<_, _>>()?
+    };
+    let pb = bar(cases.len() * configs.len(), "indentation");
+    let mut rows = Vec::new();
+    for c in &configs {
+        let applied = c.apply(&scene)?;
+        let mut progress = |name: &str| {
+            pb.set_message(format!("{} {name}", c.name));
+            pb.inc(1);
+        };
+        for mut m in run_indentation(&applied, &cases, &mut progress)? {
+            m.workload = format!("{} {}", c.name, m.workload);
+            rows.push(m);
+        }
+    }
+    pb.finish_and_clear();
+    let json = serde_json::to_string_pretty(&rows).map_err(|e| e.to_string())?;
+    let path = args.out.join("indentation.json");
+    std::fs::write(&path, json).map_err(|e| format!("{}: {e}", path.display()))?;
+    let table = indentation_table(&rows);
+    let path = args.out.join("indentation.md");
+    std::fs::write(&path, &table).map_err(|e| format!("{}: {e}", path.display()))?;
+    print!("{table}");
+    Ok(rows)
 }
 
 /// Frames per synthetic scenario.

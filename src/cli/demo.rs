@@ -123,6 +123,7 @@ pub fn run_with(
                 converged: true,
                 rigid: RigidRecord::from_transform(&RigidTransform::identity(), scale),
                 diagnostics: DiagnosticsRecord::default(),
+                contact_force: None,
                 structures: seq
                     .rest_structures
                     .iter()

@@ -91,6 +91,35 @@ pub struct ResultRecord {
     /// For every structure of the scene, the deformed position of each point, in file
     /// order, in the cloud's frame, scene units.
     pub structures: BTreeMap<String, Vec<[f64; 3]>>,
+    /// The contact force the registration estimated (contracts.md: the surface loads it
+    /// needed), omitted when none was estimated (rigid-only registration, no frame yet).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact_force: Option<ContactForceRecord>,
+}
+
+/// The surface loads a frame's registration needed: the resultant force applied to the liver
+/// (N, cloud frame) and where it acts (scene units, cloud frame). At equilibrium it is the
+/// force the tool (or whatever deformed the liver) applied; see docs/registration.md.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ContactForceRecord {
+    /// Resultant force, N, cloud frame.
+    pub resultant_n: [f64; 3],
+    /// Its magnitude, N.
+    pub magnitude_n: f64,
+    /// Centre of the loads: application points weighted by each force's component along the
+    /// resultant, scene units, cloud frame.
+    pub centre: [f64; 3],
+}
+
+impl ContactForceRecord {
+    /// The record of a session's estimate (resultant N, centre in scene units, cloud frame).
+    pub fn from_estimate(c: &crate::registration::ContactForce) -> Self {
+        Self {
+            resultant_n: [c.resultant.x, c.resultant.y, c.resultant.z],
+            magnitude_n: c.resultant.norm(),
+            centre: [c.centre.x, c.centre.y, c.centre.z],
+        }
+    }
 }
 
 /// One line of a truth file: `frame` and `structures` are required, the rest is ignored.
@@ -140,6 +169,10 @@ impl ResultRecord {
                 .iter()
                 .map(|(name, pts)| (name.clone(), pts.iter().map(|p| [p.x, p.y, p.z]).collect()))
                 .collect(),
+            contact_force: r
+                .contact_force
+                .as_ref()
+                .map(ContactForceRecord::from_estimate),
         }
     }
 }

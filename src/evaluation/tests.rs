@@ -63,6 +63,7 @@ fn result(
             ..DiagnosticsRecord::default()
         },
         structures: structures(list),
+        contact_force: None,
     }
 }
 

@@ -78,6 +78,24 @@ impl Embedding {
         })
     }
 
+    /// Embeds those of `points` (rest positions, grid units) that [`Embedding::new`] accepts
+    /// and returns them with the indices of the points kept, in order; the others are skipped.
+    pub fn new_where_possible(
+        grid: &WeightedCellGrid,
+        points: &[Point3<f64>],
+    ) -> (Self, Vec<usize>) {
+        let mut out = Self::default();
+        let mut kept = Vec::with_capacity(points.len());
+        for (index, p) in points.iter().enumerate() {
+            if let Ok(e) = embed_point(grid, p, index) {
+                out.points.push(e);
+                out.rest.push(*p);
+                kept.push(index);
+            }
+        }
+        (out, kept)
+    }
+
     /// Number of embedded points.
     pub fn len(&self) -> usize {
         self.points.len()

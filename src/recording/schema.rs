@@ -141,6 +141,12 @@ pub fn result() -> Value {
                 "additionalProperties": {"type": "array", "items": vec3()},
                 "description": "deformed points of every structure, scene units, cloud frame"
             },
+            "contact_force": {
+                "type": "object",
+                "description": "surface loads the registration needed: resultant (N) and centre (scene units), cloud frame",
+                "required": ["resultant_n", "magnitude_n", "centre"],
+                "properties": {"resultant_n": vec3(), "magnitude_n": {"type": "number"}, "centre": vec3()}
+            },
             "timestamp_ns": {"type": "integer"},
             "warm": {"type": "boolean"},
             "factorizations": {"type": "integer"},

@@ -68,6 +68,10 @@ fn result(k: usize) -> FrameResult {
         surface: vec![Point3::new(std::f64::consts::PI, 1e-300, -7.0 * k as f64); 4],
         structures: vec![("t".into(), vec![Point3::new(0.1, 0.2, 0.3 + k as f64)])],
         times: StageTimes::default(),
+        contact_force: (k == 1).then(|| crate::registration::ContactForce {
+            resultant: nalgebra::Vector3::new(0.5, -1.25, 0.0625),
+            centre: Point3::new(10.0, -20.5, 3.0),
+        }),
     }
 }
 

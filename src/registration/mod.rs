@@ -35,6 +35,7 @@ pub mod model_target;
 pub mod non_rigid_icp;
 pub mod rigid_icp;
 pub mod rigid_transform;
+pub mod surface_anchors;
 
 #[cfg(test)]
 mod test_support;
@@ -46,8 +47,8 @@ pub use correspondences::{Correspondences, IndexedPoints, PairingRule};
 pub use kabsch::kabsch;
 pub use model_target::ModelTarget;
 pub use non_rigid_icp::{
-    register_non_rigid, NonRigidError, NonRigidIcp, NonRigidReport, NonRigidSettings,
-    NonRigidTimings,
+    register_non_rigid, ContactForce, DataTerm, NonRigidError, NonRigidIcp, NonRigidReport,
+    NonRigidSettings, NonRigidTimings,
 };
 pub use rigid_icp::{IcpError, IcpMetric, IcpResult, RigidIcp};
 pub use rigid_transform::RigidTransform;

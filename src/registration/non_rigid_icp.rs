@@ -4,13 +4,17 @@
 
 use std::time::Instant;
 
-use nalgebra::Point3;
+use nalgebra::{Point3, Vector3};
 
-use super::correspondences::{pair, IndexedPoints, PairingRule, RIM_NEIGHBOURS, RIM_RATIO};
+use super::correspondences::{
+    pair, Correspondences, IndexedPoints, PairingRule, RIM_NEIGHBOURS, RIM_RATIO,
+};
+use super::surface_anchors::{incident_triangles, pair_cloud_to_surface, AnchoredPairs};
 use crate::geometry::{Camera, VisibleSurface};
 use crate::grid::Embedding;
 use crate::mechanics::{NewtonSettings, NewtonSolver, PenaltySprings};
 use crate::mesh::TriSurface;
+pub use crate::scene::DataTerm;
 use crate::simulation::SceneModel;
 
 /// Settings of the non-rigid stage. Stiffnesses in N/m per source point, lengths in metres.
@@ -39,11 +43,16 @@ pub struct NonRigidSettings {
     /// Pairs farther apart than mean + this × standard deviation are outliers (thesis: 2).
     pub outlier_sigma: f64,
     /// Prune with the median and MAD instead of the mean and standard deviation
-    /// ([`robust_threshold`](super::correspondences::robust_threshold)). Default false: it
-    /// is robust to gross outliers, but a large *local* deformation (a lifted lobe: a few
-    /// percent of the pairs centimetres long) looks like outliers to it and is never pulled
-    /// (measured: a full-surface, noise-free cloud of a 27 mm lobe lift ended at 0.78 mm TRE;
-    /// mean + 2σ meets `tests/non_rigid_registration.rs`'s bound of 0.58 mm). The rigid stage uses it (`RigidIcp::robust_pruning`).
+    /// ([`robust_threshold`](super::correspondences::robust_threshold)). Default false for
+    /// a cold registration (from rest, or after a reset), true for warm frames
+    /// ([`NonRigidSettings::warm`]) with the cloud → surface data term. From rest a large
+    /// *local* deformation (a lifted lobe: a few percent of the pairs centimetres long) looks
+    /// like outliers to it and is never pulled (a full-surface, noise-free cloud of a 27 mm
+    /// lobe lift ended at 0.78 mm TRE with the surface → cloud term, 0.91 mm with cloud →
+    /// surface, against 0.58 mm with mean + 2σ). A warm frame starts from the last one, so
+    /// its true pairs are short, and there it stops the drift of a sliding tool
+    /// (tool-indentation press-slide, linear truth, 12 mm cells: 6.75 → 1.24 mm mean node
+    /// error; docs/registration.md). The rigid stage uses it too (`RigidIcp::robust_pruning`).
     pub robust_pruning: bool,
     /// Pairs farther apart than this (m) are dropped as well: with a partial cloud, visible
     /// model points beyond the seen patch would otherwise be dragged onto its rim. `None`: no cap.
@@ -67,6 +76,10 @@ pub struct NonRigidSettings {
     /// factorisation ([`NewtonSolver::set_background_lag`]); 0 (default): refactorise in
     /// place. Faster on large grids, less accurate (docs/registration.md).
     pub background_lag: usize,
+    /// Which way points are paired: model surface vertices to their nearest cloud points
+    /// (thesis alg. 3), or every cloud point to its closest point on the model surface
+    /// ([`DataTerm::CloudToSurface`]).
+    pub data_term: DataTerm,
 }
 
 impl Default for NonRigidSettings {
@@ -87,6 +100,7 @@ impl Default for NonRigidSettings {
             factor_reuse: 1,
             point_to_plane: true,
             background_lag: 0,
+            data_term: DataTerm::default(),
         }
     }
 }
@@ -119,6 +133,7 @@ impl NonRigidSettings {
             tolerance: 3e-4,
             visibility_interval: 16,
             factor_reuse: 8,
+            robust_pruning: true,
             ..Self::default()
         }
     }
@@ -218,6 +233,65 @@ pub struct NonRigidReport {
     pub warnings: Vec<String>,
     /// Where the time went.
     pub timings: NonRigidTimings,
+    /// The surface loads the registration needed: resultant and centre of the data term's
+    /// spring forces at the final state (`None` when no spring was applied).
+    pub contact_force: Option<ContactForce>,
+}
+
+/// The resultant of surface loads and where it acts: what the registration had to apply to the
+/// model to explain the cloud (at equilibrium, the force the tool or the surroundings applied to
+/// the liver). Newtons and metres, model frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ContactForce {
+    /// Sum of the forces, N.
+    pub resultant: Vector3<f64>,
+    /// Their centre, m: the deformed application points weighted by the magnitude of each
+    /// force's component along the resultant.
+    pub centre: Point3<f64>,
+}
+
+impl ContactForce {
+    /// Resultant and centre of the forces `springs` apply to the body at displacement `u`
+    /// (m): `f_j = k_j (d_j − u_j)`, or its component `k_j n_j n_jᵀ (d_j − u_j)` for
+    /// point-to-plane springs (thesis eq. 4.18–4.20). `None` without springs.
+    pub fn of(springs: &PenaltySprings, u: &[f64]) -> Option<Self> {
+        if springs.embedding.is_empty() {
+            return None;
+        }
+        let now = springs.embedding.interpolate(u);
+        let at = springs.embedding.positions(u);
+        let forces: Vec<Vector3<f64>> = now
+            .iter()
+            .enumerate()
+            .map(|(j, uj)| {
+                let gap = springs.target[j] - uj;
+                let f = match &springs.normals {
+                    Some(n) => n[j] * n[j].dot(&gap),
+                    None => gap,
+                };
+                f * springs.stiffness[j]
+            })
+            .collect();
+        let resultant: Vector3<f64> = forces.iter().sum();
+        let direction = resultant.try_normalize(1e-300);
+        let weights: Vec<f64> = forces
+            .iter()
+            .map(|f| direction.map_or(f.norm(), |d| f.dot(&d).abs()))
+            .collect();
+        let total: f64 = weights.iter().sum();
+        let centre = if total > 0.0 {
+            Point3::from(
+                at.iter()
+                    .zip(&weights)
+                    .map(|(p, w)| p.coords * *w)
+                    .sum::<Vector3<f64>>()
+                    / total,
+            )
+        } else {
+            Point3::from(at.iter().map(|p| p.coords).sum::<Vector3<f64>>() / at.len() as f64)
+        };
+        Some(Self { resultant, centre })
+    }
 }
 
 fn ms(t: Instant) -> f64 {
@@ -320,9 +394,11 @@ impl NonRigidIcp {
                 pairing_ms: rim_ms,
                 ..NonRigidTimings::default()
             },
+            contact_force: None,
         };
         let emb = &model.surface_embedding;
         let interval = settings.visibility_interval.max(1);
+        let mut incident: Option<Vec<Vec<usize>>> = None;
         let result = (|| {
             'steps: for step in 0..steps {
                 let k = if steps == 1 {
@@ -371,29 +447,69 @@ impl NonRigidIcp {
                     }
                     let candidates = &self.visible.as_ref().expect("set above").0;
                     let t = Instant::now();
-                    let normals = settings
-                        .point_to_plane
-                        .then(|| TriSurface::vertex_normals_at(&x, &model.surface.triangles));
-                    let pairs = pair(
-                        &x,
-                        normals.as_deref(),
-                        candidates,
-                        &cloud,
-                        rim.as_deref(),
-                        &rule,
-                    )
-                    .ok_or(NonRigidError::NoCorrespondence)?;
-                    report.sources = pairs.sources.len();
-                    report.surface_rms = pairs.rms;
+                    let pulled = match settings.data_term {
+                        DataTerm::SurfaceToCloud => {
+                            let normals = settings.point_to_plane.then(|| {
+                                TriSurface::vertex_normals_at(&x, &model.surface.triangles)
+                            });
+                            let pairs = pair(
+                                &x,
+                                normals.as_deref(),
+                                candidates,
+                                &cloud,
+                                rim.as_deref(),
+                                &rule,
+                            )
+                            .ok_or(NonRigidError::NoCorrespondence)?;
+                            Pulled::from_vertices(pairs, emb, k)
+                        }
+                        DataTerm::CloudToSurface => {
+                            let triangles = &model.surface.triangles;
+                            let incident = incident
+                                .get_or_insert_with(|| incident_triangles(x.len(), triangles));
+                            let normals = TriSurface::vertex_normals_at(&x, triangles);
+                            let allowed = camera.map(|_| {
+                                let mut m = vec![false; x.len()];
+                                for &i in candidates {
+                                    m[i] = true;
+                                }
+                                m
+                            });
+                            let pairs = pair_cloud_to_surface(
+                                &x,
+                                triangles,
+                                incident,
+                                &normals,
+                                allowed.as_deref(),
+                                &cloud,
+                                &rule,
+                            )
+                            .ok_or(NonRigidError::NoCorrespondence)?;
+                            Pulled::from_anchors(
+                                pairs,
+                                &x,
+                                triangles,
+                                &cloud,
+                                &model.problem.grid,
+                                emb,
+                                u,
+                                k,
+                                settings.point_to_plane,
+                            )
+                            .ok_or(NonRigidError::NoCorrespondence)?
+                        }
+                    };
+                    report.sources = pulled.sources.len();
+                    report.surface_rms = pulled.rms;
                     // Convergence: the pulled surface stopped moving during the last iteration
                     // (RMS and largest motion of the pulled points). A solver that only made
                     // shortened steps has not moved the surface because it could not, not
                     // because it is done.
                     let converged = solver_settled
                         && previous.as_ref().is_some_and(|prev| {
-                            let n = pairs.sources.len().max(1) as f64;
+                            let n = pulled.sources.len().max(1) as f64;
                             let (sum, max) =
-                                pairs.sources.iter().fold((0.0, 0.0f64), |(s, m), &i| {
+                                pulled.sources.iter().fold((0.0, 0.0f64), |(s, m), &i| {
                                     let d2 = (x[i] - prev[i]).norm_squared();
                                     (s + d2, m.max(d2))
                                 });
@@ -413,43 +529,29 @@ impl NonRigidIcp {
                     // magnitude (measured: a node moved by 2 m), and the line search then
                     // cuts the whole step to 1/16. Newly paired sources join at the next
                     // factorisation.
-                    let pairs = match &self.factored {
+                    let pulled = match &self.factored {
                         Some(mask)
                             if self.newton.reuses_factorization() && mask.len() == x.len() =>
                         {
-                            pairs.restricted_to(mask)
+                            pulled.restricted_to(mask)
                         }
-                        _ => pairs,
+                        _ => pulled,
                     };
-                    let mask = || {
+                    let pulled_mask = {
                         let mut m = vec![false; x.len()];
-                        for &i in &pairs.sources {
+                        for &i in &pulled.sources {
                             m[i] = true;
                         }
                         m
                     };
+                    let mask = || pulled_mask.clone();
                     let (own_before, helper_before, pending_before) = (
                         self.newton.factorizations() - self.newton.background_factorizations(),
                         self.newton.background_factorizations(),
                         self.newton.background_pending(),
                     );
-                    let pull = PenaltySprings {
-                        embedding: Embedding {
-                            points: pairs.sources.iter().map(|&i| emb.points[i]).collect(),
-                            rest: pairs.sources.iter().map(|&i| emb.rest[i]).collect(),
-                        },
-                        target: pairs
-                            .sources
-                            .iter()
-                            .zip(&pairs.targets)
-                            .map(|(&i, p)| p - emb.rest[i])
-                            .collect(),
-                        stiffness: vec![k; pairs.sources.len()],
-                        follows_load: false,
-                        normals: pairs.normals.clone(),
-                    };
                     model.problem.springs.truncate(fixed_sets);
-                    model.problem.springs.push(pull);
+                    model.problem.springs.push(pulled.springs);
                     let r = self
                         .newton
                         .improve(&mut model.problem, u, settings.newton_iterations);
@@ -479,6 +581,9 @@ impl NonRigidIcp {
             }
             Ok(())
         })();
+        if model.problem.springs.len() > fixed_sets {
+            report.contact_force = ContactForce::of(&model.problem.springs[fixed_sets], u);
+        }
         model.problem.springs.truncate(fixed_sets);
         report.factorizations = self.newton.factorizations() - factorizations_before;
         result.map(|()| report)
@@ -495,6 +600,124 @@ pub fn register_non_rigid(
     settings: &NonRigidSettings,
 ) -> Result<NonRigidReport, NonRigidError> {
     NonRigidIcp::new(*settings, model.newton).register(model, cloud, camera, u, None)
+}
+
+/// The springs of one ICP iteration and what they pull: the surface vertices whose motion
+/// decides convergence (sources, or the anchors' dominant corners) and the pairs' RMS (m).
+struct Pulled {
+    sources: Vec<usize>,
+    springs: PenaltySprings,
+    rms: f64,
+}
+
+impl Pulled {
+    /// Springs of stiffness `k` (N/m) at the paired surface vertices (`emb`: the surface
+    /// vertices' embedding), towards their targets.
+    fn from_vertices(pairs: Correspondences, emb: &Embedding, k: f64) -> Self {
+        let springs = PenaltySprings {
+            embedding: Embedding {
+                points: pairs.sources.iter().map(|&i| emb.points[i]).collect(),
+                rest: pairs.sources.iter().map(|&i| emb.rest[i]).collect(),
+            },
+            target: pairs
+                .sources
+                .iter()
+                .zip(&pairs.targets)
+                .map(|(&i, p)| p - emb.rest[i])
+                .collect(),
+            stiffness: vec![k; pairs.sources.len()],
+            follows_load: false,
+            normals: pairs.normals,
+        };
+        Self {
+            sources: pairs.sources,
+            springs,
+            rms: pairs.rms,
+        }
+    }
+
+    /// Springs of stiffness `k` (N/m) at the anchors of `pairs` (surface points at `x`, of
+    /// `triangles`; their rest positions from `emb`, the surface vertices' embedding, embedded
+    /// in `grid`): each moves the anchor's grid point by its normal offset (point-to-plane),
+    /// or by the whole anchor → cloud point vector. `None` when fewer than 3 anchors embed.
+    #[allow(clippy::too_many_arguments)]
+    fn from_anchors(
+        pairs: AnchoredPairs,
+        x: &[Point3<f64>],
+        triangles: &[[usize; 3]],
+        cloud: &IndexedPoints,
+        grid: &crate::grid::WeightedCellGrid,
+        emb: &Embedding,
+        u: &[f64],
+        k: f64,
+        point_to_plane: bool,
+    ) -> Option<Self> {
+        let rest: Vec<Point3<f64>> = pairs
+            .anchors
+            .iter()
+            .map(|a| a.position(&emb.rest, triangles))
+            .collect();
+        let (embedding, kept) = Embedding::new_where_possible(grid, &rest);
+        if kept.len() < 3 {
+            return None;
+        }
+        let now = embedding.positions(u);
+        let target = kept
+            .iter()
+            .zip(&now)
+            .zip(&embedding.rest)
+            .map(|((&s, p), r)| {
+                let motion = if point_to_plane {
+                    pairs.normals[s] * pairs.offsets[s]
+                } else {
+                    cloud.points[pairs.cloud_index[s]] - pairs.anchors[s].position(x, triangles)
+                };
+                p + motion - r
+            })
+            .collect();
+        let springs = PenaltySprings {
+            embedding,
+            target,
+            stiffness: vec![k; kept.len()],
+            follows_load: false,
+            normals: point_to_plane.then(|| kept.iter().map(|&s| pairs.normals[s]).collect()),
+        };
+        Some(Self {
+            sources: kept.iter().map(|&s| pairs.dominant[s]).collect(),
+            springs,
+            rms: pairs.rms,
+        })
+    }
+
+    /// The springs whose source is flagged in `mask` (indexed by surface vertex); all of them
+    /// when fewer than 3 would remain.
+    fn restricted_to(self, mask: &[bool]) -> Self {
+        let keep: Vec<usize> = (0..self.sources.len())
+            .filter(|&s| mask[self.sources[s]])
+            .collect();
+        if keep.len() < 3 || keep.len() == self.sources.len() {
+            return self;
+        }
+        let s = &self.springs;
+        let springs = PenaltySprings {
+            embedding: Embedding {
+                points: keep.iter().map(|&i| s.embedding.points[i]).collect(),
+                rest: keep.iter().map(|&i| s.embedding.rest[i]).collect(),
+            },
+            target: keep.iter().map(|&i| s.target[i]).collect(),
+            stiffness: keep.iter().map(|&i| s.stiffness[i]).collect(),
+            follows_load: s.follows_load,
+            normals: s
+                .normals
+                .as_ref()
+                .map(|n| keep.iter().map(|&i| n[i]).collect()),
+        };
+        Self {
+            sources: keep.iter().map(|&i| self.sources[i]).collect(),
+            springs,
+            rms: self.rms,
+        }
+    }
 }
 
 /// Young's modulus (Pa) from the Lamé parameters.

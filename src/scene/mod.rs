@@ -22,10 +22,10 @@ pub use error::{Problem, SceneError};
 pub use load::{load_scene, load_scene_str, parse_scene, LoadedScene, SceneFormat};
 pub use output::{GridSummary, ProbeResult, SimulateReport};
 pub use types::{
-    defaults, BoundarySpec, BoxRegion, Camera, FixedRegion, FixedSpec, GridSpec, IntegrationMode,
-    LawKind, LoadSpec, MaterialSpec, ModelSpec, PointSource, PoseUpdate, ProbeSpec,
-    RegistrationSpec, RigidMode, Scene, SolverKind, SolverSpec, StructureSpec, SupportSpec,
-    TractionSpec, Units, Vec3, VolumetricIntegration,
+    defaults, BoundarySpec, BoxRegion, Camera, DataTerm, FixedRegion, FixedSpec, GridSpec,
+    IntegrationMode, LawKind, LoadSpec, MaterialSpec, ModelSpec, PointSource, PoseUpdate,
+    ProbeSpec, RegistrationSpec, RigidMode, Scene, SolverKind, SolverSpec, StructureSpec,
+    SupportSpec, TractionSpec, Units, Vec3, VolumetricIntegration,
 };
 pub use validate::{
     validate_scene, MAX_BISECTIONS, MAX_LOAD_STEPS, MAX_STEP_STABILIZATION, MAX_SUBDIVISIONS,

@@ -460,6 +460,29 @@ pub struct Camera {
     pub up: Option<Vec3>,
 }
 
+/// The direction of the correspondences of non-rigid ICP.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DataTerm {
+    /// Model vertices (visible from the camera, or all) → nearest cloud point, blended with
+    /// the reverse direction by eq. 5.4 (thesis alg. 3), rim sources dropped.
+    SurfaceToCloud,
+    /// Every cloud point → its closest point on the deformed model surface, a barycentric
+    /// point of a triangle (`registration::surface_anchors`): the spring acts there.
+    #[default]
+    CloudToSurface,
+}
+
+impl DataTerm {
+    /// Scene-file name: `"surface-to-cloud"`, `"cloud-to-surface"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            DataTerm::SurfaceToCloud => "surface-to-cloud",
+            DataTerm::CloudToSurface => "cloud-to-surface",
+        }
+    }
+}
+
 /// `[registration]`: registration settings. All optional.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -522,6 +545,11 @@ pub struct RegistrationSpec {
     /// 12: docs/bench.md); the frame is flagged `isolated_removed`.
     #[serde(default = "defaults::remove_isolated_points")]
     pub remove_isolated_points: bool,
+    /// Direction of the non-rigid stage's correspondences (`"surface-to-cloud"`: model
+    /// vertices to their nearest cloud points, thesis alg. 3; `"cloud-to-surface"`: every cloud
+    /// point to its closest point on the deformed model surface).
+    #[serde(default)]
+    pub data_term: DataTerm,
 }
 
 impl Default for RegistrationSpec {
@@ -542,6 +570,7 @@ impl Default for RegistrationSpec {
             robust_pruning: defaults::robust_pruning(),
             background_factorization: false,
             remove_isolated_points: defaults::remove_isolated_points(),
+            data_term: DataTerm::default(),
         }
     }
 }

@@ -336,6 +336,11 @@ impl ResultMessage {
                 })
                 .collect(),
             surface: self.surface.iter().flatten().copied().collect(),
+            contact_force: rec.contact_force.as_ref().map(|c| proto::ContactForce {
+                resultant_n: c.resultant_n.to_vec(),
+                magnitude_n: c.magnitude_n,
+                centre: c.centre.to_vec(),
+            }),
             skipped: self.skipped,
             server_ms: self.server_ms,
             queue_ms: self.queue_ms,

@@ -23,7 +23,7 @@
 //! 4-byte aligned offsets (typed-array views need no copy). The metadata is the JSON result
 //! message without `surface` and `structures`: `type` (`"result"`), `seq`, `skipped`,
 //! `server_ms`, `queue_ms`, `frame`, `source`, `wall_ms`, `converged`, `rigid`, `diagnostics`,
-//! plus `structure_names` (the structures' names, in the order of their arrays: the JSON
+//! `contact_force` (when estimated), plus `structure_names` (the structures' names, in the order of their arrays: the JSON
 //! result's key order). Coordinates are in scene units, in the cloud frame, in the same order as
 //! the JSON result's arrays. Decoders ignore metadata keys they do not know.
 //!
@@ -37,7 +37,7 @@ use serde::{Deserialize, Serialize};
 
 use super::codec::ResultMessage;
 use super::error::ApiError;
-use crate::evaluation::{DiagnosticsRecord, ResultRecord, RigidRecord};
+use crate::evaluation::{ContactForceRecord, DiagnosticsRecord, ResultRecord, RigidRecord};
 
 /// How results are sent: `?results=json|binary` on the stream URL, or on a frame's POST.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -107,6 +107,8 @@ struct MetaOut<'a> {
     converged: bool,
     rigid: &'a RigidRecord,
     diagnostics: &'a DiagnosticsRecord,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    contact_force: Option<&'a ContactForceRecord>,
     structure_names: Vec<&'a str>,
 }
 
@@ -125,6 +127,8 @@ struct MetaIn {
     converged: bool,
     rigid: RigidRecord,
     diagnostics: DiagnosticsRecord,
+    #[serde(default)]
+    contact_force: Option<ContactForceRecord>,
     structure_names: Vec<String>,
 }
 
@@ -147,6 +151,7 @@ pub fn encode_binary_result(msg: &ResultMessage) -> Result<Vec<u8>, ResultDecode
         rigid,
         diagnostics,
         structures,
+        contact_force,
     } = &msg.record;
     let meta = MetaOut {
         kind: "result",
@@ -160,6 +165,7 @@ pub fn encode_binary_result(msg: &ResultMessage) -> Result<Vec<u8>, ResultDecode
         converged: *converged,
         rigid,
         diagnostics,
+        contact_force: contact_force.as_ref(),
         structure_names: structures.keys().map(String::as_str).collect(),
     };
     let mut json = serde_json::to_vec(&meta).map_err(|e| bad(format!("metadata: {e}")))?;
@@ -284,6 +290,7 @@ pub fn decode_binary_result(bytes: &[u8]) -> Result<ResultMessage, ResultDecodeE
             rigid: meta.rigid,
             diagnostics: meta.diagnostics,
             structures,
+            contact_force: meta.contact_force,
         },
         surface,
     })
@@ -330,6 +337,11 @@ mod tests {
                     warnings: vec!["bisection limit".into()],
                 },
                 structures,
+                contact_force: Some(ContactForceRecord {
+                    resultant_n: [0.25, -3.5, 1.0],
+                    magnitude_n: 3.648,
+                    centre: [-12.5, 40.25, 8.0],
+                }),
             },
             surface: (0..50)
                 .map(|i| {

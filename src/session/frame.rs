@@ -41,9 +41,12 @@ pub enum FrameError {
     /// The rigid stage failed.
     #[error("rigid registration: {0}")]
     Rigid(String),
-    /// The cloud does not fit the model even rigidly.
+    /// The cloud does not fit the model even roughly before registration: its RMS distance
+    /// (after rigid ICP, or at the identity with `rigid = "none"`) is beyond what any
+    /// deformation of this liver explains ([`crate::session::SessionSettings::max_unregistered_rms`]).
     #[error(
-        "the cloud does not match the model: rigid RMS {rms_mm:.1} mm exceeds {limit_mm:.1} mm"
+        "the cloud does not match the model: RMS {rms_mm:.1} mm before registration exceeds \
+         {limit_mm:.1} mm"
     )]
     NoMatch {
         /// RMS distance after rigid ICP, mm.
@@ -65,6 +68,20 @@ pub enum FrameError {
         /// The no-match limit, mm.
         limit_mm: f64,
     },
+    /// After registration the cloud still does not lie on the deformed model: whatever the
+    /// deformation, this cloud is not this liver's surface (or the registration could not
+    /// follow it); the last good state is kept.
+    #[error(
+        "the cloud does not lie on the registered model: RMS {rms_mm:.1} mm after registration \
+         exceeds {limit_mm:.1} mm"
+    )]
+    NoFit {
+        /// RMS distance (point to tangent plane, after mean + 2σ) of the cloud to the
+        /// registered surface, mm.
+        rms_mm: f64,
+        /// The limit, mm.
+        limit_mm: f64,
+    },
     /// The non-rigid stage failed.
     #[error("non-rigid registration: {0}")]
     NonRigid(String),
@@ -82,7 +99,9 @@ impl FrameError {
             FrameError::Empty => "empty",
             FrameError::NonFinite { .. } => "non-finite",
             FrameError::Rigid(_) => "rigid",
-            FrameError::NoMatch { .. } | FrameError::PoseLost { .. } => "no-match",
+            FrameError::NoMatch { .. } | FrameError::PoseLost { .. } | FrameError::NoFit { .. } => {
+                "no-match"
+            }
             FrameError::NonRigid(_) => "non-rigid",
             FrameError::NonFiniteState => "non-finite-state",
         }
@@ -148,4 +167,8 @@ pub struct FrameResult {
     pub structures: Vec<(String, Vec<Point3<f64>>)>,
     /// Where the time went.
     pub times: StageTimes,
+    /// The surface loads the registration needed (resultant in N, centre in scene units,
+    /// both in the cloud frame); `None` for rigid-only registration or before any frame
+    /// succeeded. A failed frame carries the last good state's.
+    pub contact_force: Option<crate::registration::ContactForce>,
 }

@@ -13,7 +13,7 @@ use crate::registration::correspondences::rejection_threshold;
 use crate::registration::isolated_points::{
     isolated_mask, ISOLATION_MEDIAN_FACTOR, ISOLATION_NEIGHBOURS, ISOLATION_SIGMA,
 };
-use crate::registration::non_rigid_icp::{NonRigidReport, NonRigidTimings};
+use crate::registration::non_rigid_icp::{ContactForce, NonRigidReport, NonRigidTimings};
 use crate::registration::{
     IcpResult, IndexedPoints, ModelTarget, NonRigidIcp, NonRigidSettings, Prolongation, RigidIcp,
     RigidTransform,
@@ -33,6 +33,8 @@ struct GoodState {
     /// The last good frame's cloud as registered (metres, cloud frame, after thinning): its
     /// centroid and fit are where a lost pose is searched first ([`Session::reacquire_pose`]).
     cloud: Option<Vec<Point3<f64>>>,
+    /// The surface loads the last good frame's registration needed (model frame, SI).
+    contact_force: Option<ContactForce>,
 }
 
 /// Registers a stream of frames to one model, carrying the state from frame to frame.
@@ -142,6 +144,7 @@ impl Session {
                 model_to_cloud: RigidTransform::identity(),
                 registered: false,
                 cloud: None,
+                contact_force: None,
             },
             frames: 0,
             coarse: None,
@@ -157,6 +160,7 @@ impl Session {
             model_to_cloud: RigidTransform::identity(),
             registered: false,
             cloud: None,
+            contact_force: None,
         };
         self.non_rigid_cold.invalidate();
         self.non_rigid_warm.invalidate();
@@ -250,6 +254,7 @@ impl Session {
             surface: Vec::new(),
             structures: Vec::new(),
             times,
+            contact_force: None,
         };
         match outcome {
             Ok(done) => {
@@ -258,6 +263,7 @@ impl Session {
                     model_to_cloud: done.model_to_cloud,
                     registered: true,
                     cloud: Some(done.cloud),
+                    contact_force: done.contact_force,
                 };
                 result.model_to_cloud = done.model_to_cloud;
                 result.converged = done.converged;
@@ -303,6 +309,10 @@ impl Session {
                 )
             })
             .collect();
+        result.contact_force = self.good.contact_force.map(|c| ContactForce {
+            resultant: pose.apply_vector(&c.resultant),
+            centre: out(&c.centre),
+        });
         result.times.output_ms = ms(t);
         result.wall_ms = ms(start);
         result
@@ -396,6 +406,7 @@ impl Session {
                 cloud,
                 sources: 0,
                 warnings: Vec::new(),
+                contact_force: None,
             });
         }
 
@@ -508,6 +519,14 @@ impl Session {
         if report.deadline_reached {
             flags.push("time_budget".into());
         }
+        // The gate on what the frame is: does the cloud lie on the registered surface?
+        let fit = self.fit_rms(&aligned, &u);
+        if fit > self.settings.max_rigid_rms {
+            return Err(FrameError::NoFit {
+                rms_mm: fit * 1e3,
+                limit_mm: self.settings.max_rigid_rms * 1e3,
+            });
+        }
         Ok(Done {
             u,
             model_to_cloud,
@@ -521,6 +540,7 @@ impl Session {
             cloud,
             sources: report.sources,
             warnings: report.warnings,
+            contact_force: report.contact_force,
         })
     }
 }
@@ -581,10 +601,16 @@ impl Session {
         // Frame to frame (rigid-only or tracked pose): the start is the last pose.
         let tracking = self.good.registered;
         let r = self.rigid_fit(cloud, start, tracking)?;
-        if r.rms > self.settings.max_rigid_rms {
+        let limit = if self.settings.non_rigid {
+            self.settings.max_unregistered_rms
+        } else {
+            // Rigid-only: the rigid fit is the registration.
+            self.settings.max_rigid_rms
+        };
+        if r.rms > limit {
             return Err(FrameError::NoMatch {
                 rms_mm: r.rms * 1e3,
-                limit_mm: self.settings.max_rigid_rms * 1e3,
+                limit_mm: limit * 1e3,
             });
         }
         Ok((r.model_to_cloud, r.iterations))
@@ -701,18 +727,24 @@ impl Session {
 
     /// [`Session::held_pose_rms`] at the model → cloud pose `model_to_cloud`.
     fn pose_rms(&self, cloud: &[Point3<f64>], model_to_cloud: &RigidTransform) -> f64 {
-        let x = self.model.surface_embedding.positions(&self.good.u);
+        let to_model = model_to_cloud.inverse();
+        let aligned: Vec<Point3<f64>> = cloud.iter().map(|p| to_model.apply(p)).collect();
+        self.fit_rms(&aligned, &self.good.u)
+    }
+
+    /// RMS distance (metres) from `cloud` (metres, model frame) to the surface deformed by `u`,
+    /// measured to the tangent plane at the nearest vertex, after the mean + 2σ outlier rule.
+    fn fit_rms(&self, cloud: &[Point3<f64>], u: &[f64]) -> f64 {
+        let x = self.model.surface_embedding.positions(u);
         let normals = TriSurface::vertex_normals_at(&x, &self.model.surface.triangles);
         let Some(vertices) = IndexedPoints::new(x) else {
             return f64::INFINITY;
         };
-        let to_model = model_to_cloud.inverse();
         let d: Vec<f64> = cloud
             .iter()
-            .map(|p| {
-                let q = to_model.apply(p);
-                let (i, _) = vertices.nearest(&q);
-                normals[i].dot(&(q - vertices.points[i])).abs()
+            .map(|q| {
+                let (i, _) = vertices.nearest(q);
+                normals[i].dot(&(*q - vertices.points[i])).abs()
             })
             .collect();
         let limit = rejection_threshold(&d, 2.0);
@@ -758,6 +790,7 @@ struct Done {
     cloud: Vec<Point3<f64>>,
     sources: usize,
     warnings: Vec<String>,
+    contact_force: Option<ContactForce>,
 }
 
 /// Whether the Newton solver reported a failure (diverged, inverted, iteration cap) during

@@ -9,6 +9,7 @@ use nalgebra::{Point3, Vector3};
 use super::*;
 use crate::mesh::primitives::icosphere;
 use crate::mesh::{write_obj, write_points, TriSurface};
+use crate::scene::DataTerm;
 use crate::scene::{load_scene, PoseUpdate};
 
 /// A clamped ellipsoid scene in mm; returns the scene path and the rest surface (mm).
@@ -181,6 +182,13 @@ fn a_still_scene_does_not_drift_and_reset_goes_cold() {
 
 #[test]
 fn isolated_outliers_are_removed_before_registration() {
+    for data_term in [DataTerm::SurfaceToCloud, DataTerm::CloudToSurface] {
+        isolated_outliers_case(data_term);
+    }
+}
+
+/// The filter keeps the clean result; returns nothing, asserts per data term.
+fn isolated_outliers_case(data_term: DataTerm) {
     let (path, rest) = scene("isolated", "icp");
     let clean = bent(&rest, 8.0);
     // 30 % of the final cloud uniform in a box 3 cm beyond the ellipsoid on every side
@@ -195,6 +203,12 @@ fn isolated_outliers_are_removed_before_registration() {
             rng.uniform_in(-55.0, 63.0),
         ));
     }
+    let session = |p: &std::path::Path| {
+        let mut s = session(p);
+        s.settings.cold.data_term = data_term;
+        s.settings.warm.data_term = data_term;
+        s
+    };
     let reference = session(&path).register(&frame(clean.clone(), "clean"));
     assert!(reference.error.is_none(), "{:?}", reference.error);
     assert!(!reference.flags.iter().any(|f| f == "isolated_removed"));
@@ -213,12 +227,21 @@ fn isolated_outliers_are_removed_before_registration() {
     off.settings.remove_isolated_points = false;
     let unfiltered = off.register(&frame(dirty, "dirty, kept"));
     assert_eq!(unfiltered.cloud_points.1, unfiltered.cloud_points.0);
-    // The filtered frame lands near the clean one; the unfiltered one is pulled away.
+    // The filtered frame lands near the clean one; the unfiltered one is pulled away. With
+    // the cloud → surface term every outlier the filter leaves (those within about one
+    // sample spacing of the surface) gets a spring, so a cold frame with 30 % outliers moves
+    // further (measured: 2.94 mm with the filter, 7.08 mm without, against 0.5 mm / more
+    // than twice that with surface → cloud): the price of that term, reported in
+    // docs/registration.md; the filter still removes most of the harm.
     let with = max_change(&filtered, &reference);
     let without = max_change(&unfiltered, &reference);
+    let bound = match data_term {
+        DataTerm::SurfaceToCloud => 0.5,
+        DataTerm::CloudToSurface => 3.5,
+    };
     assert!(
-        with < 0.5 && without > 2.0 * with,
-        "targets move {with:.3} mm from the clean result with the filter, {without:.3} mm without"
+        with < bound && without > 2.0 * with,
+        "{data_term:?}: targets move {with:.3} mm from the clean result with the filter, {without:.3} mm without"
     );
 }
 

@@ -21,6 +21,7 @@
 //! ```
 
 pub mod error;
+pub mod indentation;
 pub mod point_cloud;
 pub mod rng;
 pub mod sequence;

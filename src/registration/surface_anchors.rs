@@ -1,0 +1,299 @@
+//! The cloud → surface data term of non-rigid ICP (issue 18): every cloud point is paired with
+//! its closest point on the model's current deformed surface — a point inside a triangle,
+//! given by its barycentric weights (a [`SurfaceAnchor`]) — and the spring acts there. Every
+//! point of a partial cloud has a counterpart on the whole model, but not the reverse, so this
+//! direction needs no guess of which model points the camera saw: there is nothing to drag
+//! onto the rim of a partial cloud, and a cloud point at the bottom of a deep dent pulls the
+//! surface point above it however far it is. Lengths in metres.
+
+use nalgebra::{Point3, Vector3};
+
+use super::correspondences::{rejection_threshold, robust_threshold, IndexedPoints, PairingRule};
+use super::model_target::closest_barycentric;
+
+/// A point of the model surface: a triangle and barycentric weights of its corners.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurfaceAnchor {
+    /// Triangle index.
+    pub triangle: usize,
+    /// Barycentric weights of the triangle's corners (sum 1).
+    pub weights: [f64; 3],
+}
+
+impl SurfaceAnchor {
+    /// The anchor's position on a surface whose vertices are at `x`.
+    pub fn position(&self, x: &[Point3<f64>], triangles: &[[usize; 3]]) -> Point3<f64> {
+        let t = triangles[self.triangle];
+        Point3::from(
+            x[t[0]].coords * self.weights[0]
+                + x[t[1]].coords * self.weights[1]
+                + x[t[2]].coords * self.weights[2],
+        )
+    }
+
+    /// The corner with the largest weight.
+    pub fn dominant_vertex(&self, triangles: &[[usize; 3]]) -> usize {
+        let t = triangles[self.triangle];
+        let k = (0..3)
+            .max_by(|&a, &b| self.weights[a].total_cmp(&self.weights[b]))
+            .unwrap_or(0);
+        t[k]
+    }
+}
+
+/// For each vertex, the triangles that use it.
+pub fn incident_triangles(vertices: usize, triangles: &[[usize; 3]]) -> Vec<Vec<usize>> {
+    let mut out = vec![Vec::new(); vertices];
+    for (t, tri) in triangles.iter().enumerate() {
+        for &v in tri {
+            if v < vertices {
+                out[v].push(t);
+            }
+        }
+    }
+    out
+}
+
+/// Vertices examined per cloud point: the closest surface point lies on a triangle around one
+/// of the nearest few vertices on any mesh whose triangles are not much longer than wide.
+pub const SEARCH_VERTICES: usize = 4;
+
+/// The pairs of one ICP iteration, cloud → surface.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AnchoredPairs {
+    /// Where each kept pair acts on the model surface.
+    pub anchors: Vec<SurfaceAnchor>,
+    /// The anchor's corner with the largest weight (what convergence and the factorisation's
+    /// spring set track).
+    pub dominant: Vec<usize>,
+    /// Unit outward normal of the surface at each anchor (interpolated vertex normals).
+    pub normals: Vec<Vector3<f64>>,
+    /// Imposed motion of each anchor along its normal, m: `n · (q − a)` with `q` the cloud
+    /// point and `a` the anchor's current position.
+    pub offsets: Vec<f64>,
+    /// Index of each kept pair's cloud point.
+    pub cloud_index: Vec<usize>,
+    /// RMS distance of the kept pairs, m.
+    pub rms: f64,
+}
+
+impl AnchoredPairs {
+    /// The pairs whose dominant vertex is flagged in `mask`; all of them when fewer than 3
+    /// would remain.
+    pub fn restricted_to(self, mask: &[bool]) -> Self {
+        let keep: Vec<usize> = (0..self.anchors.len())
+            .filter(|&s| mask.get(self.dominant[s]).copied().unwrap_or(false))
+            .collect();
+        if keep.len() < 3 || keep.len() == self.anchors.len() {
+            return self;
+        }
+        let pick = |v: &[usize]| keep.iter().map(|&s| v[s]).collect::<Vec<_>>();
+        Self {
+            anchors: keep.iter().map(|&s| self.anchors[s]).collect(),
+            dominant: pick(&self.dominant),
+            normals: keep.iter().map(|&s| self.normals[s]).collect(),
+            offsets: keep.iter().map(|&s| self.offsets[s]).collect(),
+            cloud_index: pick(&self.cloud_index),
+            rms: self.rms,
+        }
+    }
+}
+
+/// Pairs every point of `cloud` with its closest point on the surface (`x`: current vertex
+/// positions, `triangles`, `incident`: [`incident_triangles`], `vertex_normals`: unit outward
+/// normals at `x`), looking only at triangles with a corner flagged in `allowed` when given
+/// (the vertices the camera sees). Pairs farther than the rule's threshold (mean + kσ, or
+/// median + k·1.4826 MAD, of the pair distances, and `max_pair_distance`) are dropped. `None`
+/// when fewer than 3 pairs remain.
+pub fn pair_cloud_to_surface(
+    x: &[Point3<f64>],
+    triangles: &[[usize; 3]],
+    incident: &[Vec<usize>],
+    vertex_normals: &[Vector3<f64>],
+    allowed: Option<&[bool]>,
+    cloud: &IndexedPoints,
+    rule: &PairingRule,
+) -> Option<AnchoredPairs> {
+    let searchable: Vec<usize> = (0..x.len())
+        .filter(|&v| allowed.is_none_or(|a| a[v]) && !incident[v].is_empty())
+        .collect();
+    let index = IndexedPoints::new(searchable.iter().map(|&v| x[v]).collect())?;
+    let mut found: Vec<(usize, SurfaceAnchor, f64)> = Vec::with_capacity(cloud.len());
+    for (j, q) in cloud.points.iter().enumerate() {
+        let mut best: Option<(SurfaceAnchor, f64)> = None;
+        for (k, _) in index.nearest_k(q, SEARCH_VERTICES) {
+            for &t in &incident[searchable[k]] {
+                let tri = triangles[t];
+                let corners = [x[tri[0]], x[tri[1]], x[tri[2]]];
+                let (w, _) = closest_barycentric(q, &corners);
+                if !w.iter().all(|v| v.is_finite()) {
+                    continue;
+                }
+                let a = SurfaceAnchor {
+                    triangle: t,
+                    weights: w,
+                };
+                let d2 = (q - a.position(x, triangles)).norm_squared();
+                if best.is_none_or(|(_, b)| d2 < b) {
+                    best = Some((a, d2));
+                }
+            }
+        }
+        if let Some((a, d2)) = best {
+            found.push((j, a, d2.sqrt()));
+        }
+    }
+    let dists: Vec<f64> = found.iter().map(|f| f.2).collect();
+    let limit = if rule.robust {
+        robust_threshold(&dists, rule.outlier_sigma)
+    } else {
+        rejection_threshold(&dists, rule.outlier_sigma)
+    }
+    .min(rule.max_pair_distance.unwrap_or(f64::INFINITY));
+    let mut out = AnchoredPairs {
+        anchors: Vec::new(),
+        dominant: Vec::new(),
+        normals: Vec::new(),
+        offsets: Vec::new(),
+        cloud_index: Vec::new(),
+        rms: 0.0,
+    };
+    let mut sum2 = 0.0;
+    for (j, a, d) in found {
+        if d > limit {
+            continue;
+        }
+        let tri = triangles[a.triangle];
+        let n = vertex_normals[tri[0]] * a.weights[0]
+            + vertex_normals[tri[1]] * a.weights[1]
+            + vertex_normals[tri[2]] * a.weights[2];
+        let Some(n) = n.try_normalize(1e-12) else {
+            continue;
+        };
+        out.offsets
+            .push(n.dot(&(cloud.points[j] - a.position(x, triangles))));
+        out.normals.push(n);
+        out.dominant.push(a.dominant_vertex(triangles));
+        out.anchors.push(a);
+        out.cloud_index.push(j);
+        sum2 += d * d;
+    }
+    if out.anchors.len() < 3 {
+        return None;
+    }
+    out.rms = (sum2 / out.anchors.len() as f64).sqrt();
+    Some(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::primitives::icosphere;
+    use crate::mesh::TriSurface;
+
+    fn loose() -> PairingRule {
+        PairingRule {
+            alpha: 1.0,
+            outlier_sigma: 1e3,
+            robust: false,
+            max_pair_distance: None,
+        }
+    }
+
+    /// On a sphere of radius R, a point at radius r pairs with the surface point on its ray:
+    /// the anchor lies (within the chordal error of the triangulation) at radius R in the
+    /// point's direction, and the imposed offset along the outward normal is r − R.
+    #[test]
+    fn points_off_a_sphere_pair_with_the_point_on_their_ray() {
+        let r0 = 0.1;
+        let s: TriSurface = icosphere(Point3::origin(), r0, 3);
+        let normals = s.vertex_normals();
+        let incident = incident_triangles(s.vertices.len(), &s.triangles);
+        let dirs: Vec<Vector3<f64>> = (0..40)
+            .map(|k| {
+                let t = k as f64 * 0.7;
+                Vector3::new(t.cos() * (1.3 * t).sin(), (1.3 * t).cos(), t.sin()).normalize()
+            })
+            .collect();
+        let radii: Vec<f64> = (0..40)
+            .map(|k| r0 + 0.01 * ((k % 5) as f64 - 2.0))
+            .collect();
+        let cloud = IndexedPoints::new(
+            dirs.iter()
+                .zip(&radii)
+                .map(|(d, r)| Point3::from(d * *r))
+                .collect(),
+        )
+        .unwrap();
+        let p = pair_cloud_to_surface(
+            &s.vertices,
+            &s.triangles,
+            &incident,
+            &normals,
+            None,
+            &cloud,
+            &loose(),
+        )
+        .unwrap();
+        assert_eq!(p.anchors.len(), 40);
+        // Chordal error of a level-3 icosphere of radius 0.1: under 1 mm.
+        for (s_i, &j) in p.cloud_index.iter().enumerate() {
+            let a = p.anchors[s_i].position(&s.vertices, &s.triangles);
+            assert!((a.coords.normalize() - dirs[j]).norm() < 0.02, "direction");
+            assert!((p.offsets[s_i] - (radii[j] - r0)).abs() < 1.2e-3, "offset");
+            assert!((p.weights_sum(s_i) - 1.0).abs() < 1e-12);
+        }
+    }
+
+    impl AnchoredPairs {
+        fn weights_sum(&self, s: usize) -> f64 {
+            self.anchors[s].weights.iter().sum()
+        }
+    }
+
+    /// Only triangles with an allowed corner are searched, and the distance cap drops pairs.
+    #[test]
+    fn allowed_vertices_and_the_cap_restrict_the_pairs() {
+        let s: TriSurface = icosphere(Point3::origin(), 0.1, 2);
+        let normals = s.vertex_normals();
+        let incident = incident_triangles(s.vertices.len(), &s.triangles);
+        // Cloud: points just outside the +z cap.
+        let cloud = IndexedPoints::new(
+            s.vertices
+                .iter()
+                .filter(|v| v.z > 0.07)
+                .map(|v| Point3::from(v.coords * 1.05))
+                .collect(),
+        )
+        .unwrap();
+        // Allow only the −z half: every anchor must lie on a triangle touching it.
+        let allowed: Vec<bool> = s.vertices.iter().map(|v| v.z < 0.0).collect();
+        let p = pair_cloud_to_surface(
+            &s.vertices,
+            &s.triangles,
+            &incident,
+            &normals,
+            Some(&allowed),
+            &cloud,
+            &loose(),
+        )
+        .unwrap();
+        for a in &p.anchors {
+            assert!(s.triangles[a.triangle].iter().any(|&v| allowed[v]));
+        }
+        let capped = PairingRule {
+            max_pair_distance: Some(0.001),
+            ..loose()
+        };
+        assert!(pair_cloud_to_surface(
+            &s.vertices,
+            &s.triangles,
+            &incident,
+            &normals,
+            None,
+            &cloud,
+            &capped
+        )
+        .is_none());
+    }
+}
