@@ -84,6 +84,12 @@ pub struct IndentationFrameMetrics {
     pub wall_ms: f64,
     /// Whether the frame failed.
     pub failed: bool,
+    /// Magnitude of the truth's tool force and of the registration's estimate, N.
+    pub force_true_n: f64,
+    /// See `force_true_n` (`None`: no estimate).
+    pub force_estimate_n: Option<f64>,
+    /// |estimate − truth| / |truth| of the force vector (`None`: no estimate).
+    pub force_relative_error: Option<f64>,
 }
 
 /// What an indentation run gave, mm and ms.
@@ -107,6 +113,10 @@ pub struct IndentationMetrics {
     pub frames_worse_than_none: usize,
     /// Failed frames.
     pub failed_frames: usize,
+    /// Median over frames of the contact force's relative error |F̂ − F| / |F|, for the
+    /// frames whose true force exceeds a quarter of the sequence's largest (`None`: no
+    /// estimate).
+    pub force_relative_error_median: Option<f64>,
     /// Median and 95th percentile wall time of the warm frames, ms.
     pub warm_ms_p50: f64,
     /// See `warm_ms_p50`.
@@ -117,20 +127,26 @@ pub struct IndentationMetrics {
 
 /// Grades `samples` (from [`super::run_workload`] on the workload of `truth` and `frames`,
 /// whose only structure is [`NODES_STRUCTURE`]) against the truth and against no registration.
-/// `rest_nodes` are the nodes' rest positions in the clouds' frame (m).
+/// `rest_nodes` are the nodes' rest positions in the clouds' frame (m), `offset` the model →
+/// cloud transform of the clouds.
 pub fn indentation_metrics(
     name: &str,
     truth: &IndentationTruth,
     frames: &[IndentationFrame],
     rest_nodes: &[Point3<f64>],
+    offset: &RigidTransform,
     samples: &[FrameSample],
 ) -> IndentationMetrics {
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let rotation = offset.rotation;
     let mut all = Vec::new();
     let mut none_all = Vec::new();
     let mut per_frame = Vec::new();
     for (k, (f, s)) in frames.iter().zip(samples).enumerate() {
         let region = truth.indented_region(k);
+        // The truth's force in the clouds' frame: rotated like the clouds.
+        let truth_force = rotation * truth.frames[k].force;
+        let estimate = s.contact_force_n.map(Vector3::from);
         let none: Vec<f64> = f
             .truth_nodes
             .iter()
@@ -151,6 +167,10 @@ pub fn indentation_metrics(
             none_region_mean_mm: mean(&in_region(&none)),
             wall_ms: s.wall_ms,
             failed: s.failed(),
+            force_true_n: truth_force.norm(),
+            force_estimate_n: estimate.map(|e| e.norm()),
+            force_relative_error: estimate
+                .map(|e| (e - truth_force).norm() / truth_force.norm().max(1e-12)),
         });
         all.extend_from_slice(&s.tre_mm);
         none_all.extend(none);
@@ -191,6 +211,16 @@ pub fn indentation_metrics(
             .filter(|f| f.mean_mm > WORSE_THAN_NONE_FACTOR * f.none_mean_mm)
             .count(),
         failed_frames: per_frame.iter().filter(|f| f.failed).count(),
+        force_relative_error_median: {
+            let largest = per_frame.iter().map(|f| f.force_true_n).fold(0.0, f64::max);
+            let mut e: Vec<f64> = per_frame
+                .iter()
+                .filter(|f| f.force_true_n > 0.25 * largest)
+                .filter_map(|f| f.force_relative_error)
+                .collect();
+            e.sort_by(f64::total_cmp);
+            (!e.is_empty()).then(|| percentile(&e, 0.5))
+        },
         warm_ms_p50: q(0.5),
         warm_ms_p95: q(0.95),
         frames: per_frame,
@@ -353,6 +383,10 @@ pub fn run_indentation(
             &case.truth,
             &case.frames,
             &case.rest_nodes,
+            &case
+                .variant
+                .offset()
+                .unwrap_or_else(RigidTransform::identity),
             &samples,
         ));
     }
@@ -362,11 +396,11 @@ pub fn run_indentation(
 /// A table of indentation metrics (mm, ms).
 pub fn indentation_table(rows: &[IndentationMetrics]) -> String {
     let mut s = String::from(
-        "| case | none mean / p95 | mean | p95 | region none / reg. | worse than none | failed | warm p50 / p95 ms |\n|---|---|---|---|---|---|---|---|\n",
+        "| case | none mean / p95 | mean | p95 | region none / reg. | worse than none | failed | force error (median) | warm p50 / p95 ms |\n|---|---|---|---|---|---|---|---|---|\n",
     );
     for m in rows {
         s.push_str(&format!(
-            "| {} | {:.2} / {:.2} | {:.2} | {:.2} | {:.2} / {:.2} | {} | {} | {:.1} / {:.1} |\n",
+            "| {} | {:.2} / {:.2} | {:.2} | {:.2} | {:.2} / {:.2} | {} | {} | {} | {:.1} / {:.1} |\n",
             m.workload,
             m.none_mean_mm,
             m.none_p95_mm,
@@ -376,6 +410,8 @@ pub fn indentation_table(rows: &[IndentationMetrics]) -> String {
             m.region_mean_mm,
             m.frames_worse_than_none,
             m.failed_frames,
+            m.force_relative_error_median
+                .map_or("–".to_string(), |e| format!("{:.0} %", 100.0 * e)),
             m.warm_ms_p50,
             m.warm_ms_p95
         ));

@@ -82,6 +82,8 @@ pub struct FrameSample {
     /// Causes of a first attempt that a recovery then rescued (see
     /// [`crate::session::SessionSettings::recovery`]).
     pub recovered_causes: Vec<Cause>,
+    /// The contact force the registration estimated (N, cloud frame).
+    pub contact_force_n: Option<[f64; 3]>,
 }
 
 impl FrameSample {
@@ -171,6 +173,9 @@ pub fn run_workload(session: &mut Session, w: &Workload, scale: f64) -> Vec<Fram
             causes,
             flags: r.flags.clone(),
             recovered_causes: recovered_causes_of(&r),
+            contact_force_n: r
+                .contact_force
+                .map(|c| [c.resultant.x, c.resultant.y, c.resultant.z]),
         });
     }
     out
@@ -470,6 +475,7 @@ mod tests {
             causes: Vec::new(),
             flags: Vec::new(),
             recovered_causes: Vec::new(),
+            contact_force_n: None,
         }
     }
 
