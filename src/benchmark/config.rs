@@ -459,7 +459,9 @@ mod tests {
         assert!(!settings.rigid.robust_pruning);
         let default = crate::session::SessionSettings::from_scene(&scene.scene, 1e-3);
         assert!(default.rigid.robust_pruning);
-        assert!(!settings.warm.robust_pruning && !settings.cold.robust_pruning);
+        // The rigid key leaves the non-rigid stage alone: with the default cloud → surface
+        // term warm frames prune at median/MAD, a cold frame at mean + 2σ.
+        assert!(settings.warm.robust_pruning && !settings.cold.robust_pruning);
         let bad = ModelConfig {
             name: "bad alpha".into(),
             min_fraction: Some(0.5),

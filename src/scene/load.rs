@@ -2,6 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
+use super::derived_cell_size::derived_cell_size;
 use super::error::{
     json_key_at, line_column, missing_field, offset_of, one_line, toml_key_at,
     toml_value_with_span, Problem,
@@ -135,6 +136,20 @@ fn load_scene_str_impl(
     let mut problems = validate_scene(&scene);
     resolve_paths(&mut scene, &dir);
     check_files(&scene, &mut problems);
+    if scene.grid.cell_size_omitted() && problems.is_empty() {
+        let derived = crate::mesh::read_surface(&scene.model.surface)
+            .map_err(|e| e.to_string())
+            .and_then(|s| {
+                derived_cell_size(&s).ok_or_else(|| "the surface encloses no volume".to_string())
+            });
+        match derived {
+            Ok(h) => scene.grid.cell_size = h,
+            Err(e) => problems.push(Problem {
+                key: "grid.cell_size".into(),
+                message: format!("omitted, and it cannot be derived from the surface: {e}"),
+            }),
+        }
+    }
     if !problems.is_empty() {
         return Err(SceneError::Invalid {
             file: path.to_path_buf(),

@@ -9,6 +9,7 @@
 //! tractions, gravity and spring stiffnesses are SI (Pa, kg/m³, m/s², N/m). See
 //! [`LoadedScene::length_scale`]. The full reference is `docs/scene.md`.
 
+pub mod derived_cell_size;
 mod error;
 mod load;
 mod output;

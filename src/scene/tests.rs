@@ -18,7 +18,7 @@ name = "nodes"
 points = "targets.xyz"           # a point file (format below); or: mesh = "tumour.obj"
 
 [grid]
-cell_size = 0.01                 # edge of a cubic cell, in scene units
+cell_size = 0.01                 # edge of a cubic cell, in scene units; optional: omitted, a default derived from the surface
 subdivisions = 4                 # octree levels used on cut cells
 integration = "weighted-cell"    # "weighted-cell" | "finite-cell" | "full-cell" (cut cells counted as full)
 
@@ -441,11 +441,32 @@ fn wrong_type_names_line_and_key() {
     );
 }
 
+/// Without `grid.cell_size` the cell size is derived from the enclosed volume: a cube of edge
+/// 0.09 m encloses 7.29e-4 m³, whose cube root over 9 is 0.01 m.
+#[test]
+fn omitted_cell_size_is_derived_from_the_surface() {
+    let dir = TempDir::with_model();
+    let cube = crate::mesh::primitives::box_surface(
+        nalgebra::Point3::new(0.0, 0.0, 0.0),
+        nalgebra::Point3::new(0.09, 0.09, 0.09),
+        2,
+    );
+    crate::mesh::write_obj(&dir.0.join("liver.obj"), &cube).unwrap();
+    let loaded = load_toml(&dir, &MINIMAL.replace("cell_size = 0.01", "")).unwrap();
+    assert!((loaded.scene.grid.cell_size - 0.01).abs() < 1e-12);
+}
+
 #[test]
 fn missing_required_keys() {
+    // An omitted cell size is derived from the surface; an empty surface file cannot give one.
     toml_error(
         &MINIMAL.replace("cell_size = 0.01", ""),
-        &["missing field `cell_size`", "grid.cell_size"],
+        &[
+            "grid.cell_size",
+            "omitted",
+            "cannot be derived",
+            "liver.obj",
+        ],
     );
     toml_error(
         &MINIMAL.replace("surface = \"liver.obj\"", ""),

@@ -120,7 +120,9 @@ pub struct Scene {
     pub units: Units,
     /// The pre-operative model: surface and internal structures (required).
     pub model: ModelSpec,
-    /// The immersed-boundary grid (required: `cell_size` has no default).
+    /// The immersed-boundary grid (optional: every key has a default; the cell size is
+    /// derived from the surface when omitted).
+    #[serde(default)]
     pub grid: GridSpec,
     /// The hyperelastic material (required: `young_modulus` and `poisson_ratio`).
     pub material: MaterialSpec,
@@ -173,7 +175,10 @@ pub struct StructureSpec {
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct GridSpec {
-    /// Edge of a cubic cell, in scene units. Required; finite and > 0.
+    /// Edge of a cubic cell, in scene units; finite and > 0. Optional: when omitted it is
+    /// derived from the surface when the scene is loaded
+    /// ([`derived_cell_size`](super::derived_cell_size::derived_cell_size)).
+    #[serde(default = "defaults::cell_size_derived")]
     pub cell_size: f64,
     /// Octree levels used on cut cells to compute inside volume fractions (finite-cell:
     /// integration leaves). Default 3; at most 6, since a cut cell has up to 8^L sub-cells.
@@ -193,7 +198,20 @@ pub struct GridSpec {
     pub origin_offset: Vec3,
 }
 
+impl Default for GridSpec {
+    /// Every key at its default: the cell size to be derived from the surface.
+    fn default() -> Self {
+        Self::with_cell_size(defaults::cell_size_derived())
+    }
+}
+
 impl GridSpec {
+    /// Whether `cell_size` was omitted and is still to be derived from the surface (only before
+    /// the scene is loaded: a loaded scene always has one).
+    pub fn cell_size_omitted(&self) -> bool {
+        self.cell_size.to_bits() == defaults::CELL_SIZE_OMITTED_BITS
+    }
+
     /// A grid with the given cell size (scene units), other keys at their defaults.
     pub fn with_cell_size(cell_size: f64) -> Self {
         GridSpec {
@@ -577,6 +595,15 @@ impl Default for RegistrationSpec {
 
 /// Documented default values, shared by serde and the `Default` impls.
 pub mod defaults {
+    /// `grid.cell_size` when omitted: a NaN with its own payload (an explicit `nan` in a scene
+    /// is another NaN, and an error) until the scene is loaded, which derives it from the
+    /// surface ([`super::GridSpec::cell_size_omitted`]).
+    pub fn cell_size_derived() -> f64 {
+        f64::from_bits(CELL_SIZE_OMITTED_BITS)
+    }
+
+    /// Bits of [`cell_size_derived`]'s marker.
+    pub const CELL_SIZE_OMITTED_BITS: u64 = 0x7ff8_0000_1818_0018;
     /// `grid.subdivisions`.
     pub fn subdivisions() -> u32 {
         3

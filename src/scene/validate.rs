@@ -181,7 +181,10 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
 
     // grid
     let g = &scene.grid;
-    c.positive("grid.cell_size", g.cell_size, " (scene units)");
+    // Omitted: derived from the surface at load time.
+    if !g.cell_size_omitted() {
+        c.positive("grid.cell_size", g.cell_size, " (scene units)");
+    }
     if g.subdivisions > MAX_SUBDIVISIONS {
         c.fail(
             "grid.subdivisions",
