@@ -161,7 +161,7 @@ pub fn write_chart(
 /// PNG encoder picks the format from the extension), then renames it to `path`: any
 /// name works for `path`, and a reader never sees half a chart. Errors name `path`;
 /// the temporary file is removed on failure.
-fn write_via_temporary(
+pub(crate) fn write_via_temporary(
     path: &Path,
     ext: &str,
     write: impl FnOnce(&Path) -> Result<(), String>,
@@ -189,7 +189,7 @@ fn write_via_temporary(
 }
 
 /// Registers the bundled DejaVu Sans as plotters' `sans-serif` (once per process).
-fn register_bundled_font() -> Result<(), &'static str> {
+pub(crate) fn register_bundled_font() -> Result<(), &'static str> {
     static REGISTERED: OnceLock<bool> = OnceLock::new();
     let ok = *REGISTERED
         .get_or_init(|| plotters::style::register_font(FAMILY, FontStyle::Normal, FONT).is_ok());

@@ -13,7 +13,10 @@ use super::register::{
     FrameObserver,
 };
 use super::RerunArgs;
+use crate::charts::per_frame::{write_per_frame_chart, Series};
+use crate::charts::surface_view::{write_surface_view, SurfaceView};
 use crate::evaluation::{evaluate, read_truth, DiagnosticsRecord, ResultRecord, RigidRecord};
+use crate::mesh::TriSurface;
 use crate::registration::RigidTransform;
 use crate::scene::load_scene;
 use crate::synthetic::{generate_sequence, write_sequence, ScenarioKind, SequenceSpec};
@@ -63,7 +66,17 @@ pub fn run_with(
     if frames == 0 {
         return Err("--frames must be >= 1".into());
     }
-    let kinds = ScenarioKind::parse_list(only)?;
+    let indentation = only.is_empty() || only.iter().any(|n| n == INDENTATION_SCENARIO);
+    let phantom_only: Vec<String> = only
+        .iter()
+        .filter(|n| n.as_str() != INDENTATION_SCENARIO)
+        .cloned()
+        .collect();
+    let kinds = if !only.is_empty() && phantom_only.is_empty() {
+        Vec::new()
+    } else {
+        ScenarioKind::parse_list(&phantom_only)?
+    };
     let phantom_dir = out.join("phantom");
     crate::phantom::write_phantom(&phantom_dir).map_err(|e| e.to_string())?;
     let loaded = load_scene(&phantom_dir.join("scene.toml")).map_err(|e| e.to_string())?;
@@ -143,6 +156,50 @@ pub fn run_with(
         let e_rigid = eval(&records(&rigid))?;
         let e_full = eval(&records(&full))?;
         let s = summarize(&full, &path);
+        let per_frame = |e: &crate::evaluation::EvalReport| -> Vec<f64> {
+            e.frames.iter().map(|f| f.mean).collect()
+        };
+        write_per_frame_chart(
+            &[
+                Series {
+                    name: "no registration".into(),
+                    values: per_frame(&e_none),
+                },
+                Series {
+                    name: "rigid".into(),
+                    values: per_frame(&e_rigid),
+                },
+                Series {
+                    name: "non-rigid".into(),
+                    values: per_frame(&e_full),
+                },
+            ],
+            &format!("{}: mean target error per frame", kind.name()),
+            Some(&dir.join("error_per_frame.png")),
+            Some(&dir.join("error_per_frame.svg")),
+        )?;
+        if let (Some(last), Some(k)) = (full.last(), seq.frames.len().checked_sub(1)) {
+            let truth_surface = {
+                let mut t = seq.truth_surface(k);
+                t.scale(1.0 / scale);
+                t
+            };
+            let registered = TriSurface::new(last.surface.clone(), truth_surface.triangles.clone());
+            let error: Vec<f64> = registered
+                .vertices
+                .iter()
+                .zip(&truth_surface.vertices)
+                .map(|(a, b)| (a - b).norm() * scale * 1e3)
+                .collect();
+            write_view(
+                &dir,
+                kind.name(),
+                &registered,
+                &error,
+                &truth_surface,
+                seq.camera.view_direction().into_inner(),
+            )?;
+        }
         let summary = ScenarioSummary {
             scenario: kind.name().into(),
             frames,
@@ -163,12 +220,188 @@ pub fn run_with(
         };
         summaries.push(summary);
     }
+    if indentation {
+        summaries.extend(run_indentation_demo(out)?);
+    }
     println!("{}", table(&summaries));
     let json = serde_json::to_string_pretty(&summaries).map_err(|e| e.to_string())?;
     let summary_path: PathBuf = out.join("summary.json");
     std::fs::write(&summary_path, json).map_err(|e| format!("{}: {e}", summary_path.display()))?;
     println!("artefacts in {}", out.display());
     Ok(summaries)
+}
+
+/// Name of the tool-indentation scenario in `demo --scenarios`.
+pub const INDENTATION_SCENARIO: &str = "tool-indentation";
+
+/// The registered surface coloured by error beside the truth, `DIR/surface_view.{png,svg}`.
+fn write_view(
+    dir: &Path,
+    name: &str,
+    registered: &TriSurface,
+    error_mm: &[f64],
+    truth: &TriSurface,
+    view: nalgebra::Vector3<f64>,
+) -> Result<(), String> {
+    let mut sorted = error_mm.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let scale_mm = crate::evaluation::percentile(&sorted, 0.99).max(1.0);
+    write_surface_view(
+        &SurfaceView {
+            registered,
+            error_mm,
+            truth,
+            view,
+            scale_mm,
+        },
+        &format!("{name}: last frame"),
+        Some(&dir.join("surface_view.png")),
+        Some(&dir.join("surface_view.svg")),
+    )
+}
+
+/// The tool-indentation class (issue 18) in the demo: each sequence of the bundled
+/// tet-FE truth (linear law), clouds without a camera pose, registered with the fixture's
+/// scene (every default) and rigidly only (rigid ICP tracking); the per-frame chart and the
+/// deepest frame's view go to `DIR/tool-indentation/<sequence>/`.
+fn run_indentation_demo(out: &Path) -> Result<Vec<ScenarioSummary>, String> {
+    use crate::benchmark::indentation::{
+        indentation_cases, indentation_workload, scene_for, IndentationVariant,
+    };
+    use crate::benchmark::run_workload;
+    use crate::synthetic::indentation::{bundled_fixture_dir, INDENTATION_SEQUENCES};
+    let fixture = bundled_fixture_dir();
+    let scene = load_scene(&fixture.join("scene.toml")).map_err(|e| e.to_string())?;
+    let scale = scene.length_scale();
+    let cases = indentation_cases(
+        &fixture,
+        &INDENTATION_SEQUENCES,
+        &["linear"],
+        &[IndentationVariant::NoCamera],
+        None,
+    )?;
+    let mut rows = Vec::new();
+    for case in &cases {
+        let name = format!("{INDENTATION_SCENARIO}/{}", case.truth.sequence);
+        eprintln!("{name}: registering {} frames…", case.frames.len());
+        let dir = out.join(&name);
+        std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        let workload = indentation_workload(&case.truth, &case.frames, scale, false);
+        let mut full = crate::session::Session::from_scene(&scene_for(&scene, case.variant))
+            .map_err(|e| e.to_string())?;
+        let mut rigid =
+            crate::session::Session::from_scene(&scene_for(&scene, IndentationVariant::RigidIcp))
+                .map_err(|e| e.to_string())?;
+        rigid.settings.non_rigid = false;
+        let rigid_samples = run_workload(&mut rigid, &workload, scale);
+        let mut results = Vec::new();
+        let mut samples = Vec::new();
+        for (frame, truth) in workload.frames.iter().zip(&workload.truth) {
+            let one = crate::benchmark::Workload {
+                frames: vec![frame.clone()],
+                truth: vec![truth.clone()],
+                ..workload.clone()
+            };
+            samples.extend(run_workload(&mut full, &one, scale));
+            results.push(full.displacement().to_vec());
+        }
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+        let none: Vec<f64> = case
+            .frames
+            .iter()
+            .map(|f| {
+                mean(
+                    &f.truth_nodes
+                        .iter()
+                        .zip(&case.rest_nodes)
+                        .map(|(t, r)| (t - r).norm() * 1e3)
+                        .collect::<Vec<_>>(),
+                )
+            })
+            .collect();
+        let per = |s: &[crate::benchmark::FrameSample]| -> Vec<f64> {
+            s.iter().map(|x| mean(&x.tre_mm)).collect()
+        };
+        write_per_frame_chart(
+            &[
+                Series {
+                    name: "no registration".into(),
+                    values: none.clone(),
+                },
+                Series {
+                    name: "rigid".into(),
+                    values: per(&rigid_samples),
+                },
+                Series {
+                    name: "non-rigid".into(),
+                    values: per(&samples),
+                },
+            ],
+            &format!("{name}: mean node error per frame (tet-FE truth, linear)"),
+            Some(&dir.join("error_per_frame.png")),
+            Some(&dir.join("error_per_frame.svg")),
+        )?;
+        // The view of the deepest frame.
+        let deepest = (0..case.truth.len())
+            .max_by(|&a, &b| {
+                case.truth.frames[a]
+                    .depth
+                    .total_cmp(&case.truth.frames[b].depth)
+            })
+            .unwrap_or(0);
+        let n_surface = case.truth.surface.vertices.len();
+        let registered = TriSurface::new(
+            full.model
+                .surface_embedding
+                .positions(&results[deepest])
+                .iter()
+                .map(|p| p / scale)
+                .collect(),
+            case.truth.surface.triangles.clone(),
+        );
+        let mut truth = case.truth.deformed_surface(deepest);
+        truth.scale(1.0 / scale);
+        let error: Vec<f64> = samples[deepest].tre_mm[..n_surface].to_vec();
+        write_view(
+            &dir,
+            &name,
+            &registered,
+            &error,
+            &truth,
+            case.truth.frames[deepest].tool_direction,
+        )?;
+        let all: Vec<f64> = samples.iter().flat_map(|s| s.tre_mm.clone()).collect();
+        let mut sorted = all.clone();
+        sorted.sort_by(f64::total_cmp);
+        let mut times: Vec<f64> = samples.iter().map(|s| s.wall_ms).collect();
+        times.sort_by(f64::total_cmp);
+        rows.push(ScenarioSummary {
+            scenario: name,
+            frames: case.frames.len(),
+            max_displacement_mm: workload.max_displacement_mm.unwrap_or(0.0),
+            tre_none_mm: mean(&none),
+            tre_rigid_mm: mean(&per(&rigid_samples)),
+            tre_non_rigid_mm: mean(&all),
+            tre_non_rigid_p95_mm: if sorted.is_empty() {
+                0.0
+            } else {
+                crate::evaluation::percentile(&sorted, 0.95)
+            },
+            ms_p50: if times.is_empty() {
+                0.0
+            } else {
+                crate::evaluation::percentile(&times, 0.5)
+            },
+            ms_p95: if times.is_empty() {
+                0.0
+            } else {
+                crate::evaluation::percentile(&times, 0.95)
+            },
+            failed: samples.iter().filter(|s| s.failed()).count(),
+            truth_ms: 0.0,
+        });
+    }
+    Ok(rows)
 }
 
 /// The demo's table: one row per scenario, TRE in mm and ms per frame.

@@ -1,0 +1,142 @@
+//! Error per frame of a sequence, one line per method (no registration, rigid, non-rigid):
+//! where along a sequence a registration helps, drifts or fails. PNG and SVG.
+
+use std::path::Path;
+
+use plotters::prelude::*;
+
+use super::pareto::{register_bundled_font, write_via_temporary};
+
+const WIDTH: u32 = 900;
+const HEIGHT: u32 = 520;
+const COLOURS: [RGBColor; 4] = [
+    RGBColor(120, 120, 120),
+    RGBColor(30, 110, 200),
+    RGBColor(210, 60, 40),
+    RGBColor(40, 160, 80),
+];
+
+/// One line: a name and a value (mm) per frame (non-finite values are left out).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Series {
+    /// Legend text.
+    pub name: String,
+    /// Mean error per frame, mm.
+    pub values: Vec<f64>,
+}
+
+/// Draws `series` (error in mm against the frame index) to `png` and/or `svg` with `title`.
+/// Errors name the file.
+pub fn write_per_frame_chart(
+    series: &[Series],
+    title: &str,
+    png: Option<&Path>,
+    svg: Option<&Path>,
+) -> Result<(), String> {
+    if let Some(path) = png {
+        write_via_temporary(path, "png", |tmp| {
+            register_bundled_font()?;
+            let root = BitMapBackend::new(tmp, (WIDTH, HEIGHT)).into_drawing_area();
+            render(&root, series, title).map_err(|e| e.to_string())?;
+            root.present().map_err(|e| e.to_string())
+        })?;
+    }
+    if let Some(path) = svg {
+        write_via_temporary(path, "svg", |tmp| {
+            register_bundled_font()?;
+            let mut text = String::new();
+            {
+                let root = SVGBackend::with_string(&mut text, (WIDTH, HEIGHT)).into_drawing_area();
+                render(&root, series, title).map_err(|e| e.to_string())?;
+                root.present().map_err(|e| e.to_string())?;
+            }
+            std::fs::write(tmp, text).map_err(|e| e.to_string())
+        })?;
+    }
+    Ok(())
+}
+
+fn render<DB: DrawingBackend>(
+    root: &DrawingArea<DB, plotters::coord::Shift>,
+    series: &[Series],
+    title: &str,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    root.fill(&WHITE)?;
+    let frames = series
+        .iter()
+        .map(|s| s.values.len())
+        .max()
+        .unwrap_or(1)
+        .max(2);
+    let top = series
+        .iter()
+        .flat_map(|s| s.values.iter().copied().filter(|v| v.is_finite()))
+        .fold(0.0, f64::max)
+        .max(0.1)
+        * 1.1;
+    let mut chart = ChartBuilder::on(root)
+        .caption(title, ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0f64..(frames - 1) as f64, 0f64..top)?;
+    chart
+        .configure_mesh()
+        .x_desc("frame")
+        .y_desc("mean error, mm")
+        .label_style(("sans-serif", 14))
+        .draw()?;
+    for (i, s) in series.iter().enumerate() {
+        let colour = COLOURS[i % COLOURS.len()];
+        let points: Vec<(f64, f64)> = s
+            .values
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| v.is_finite())
+            .map(|(k, v)| (k as f64, *v))
+            .collect();
+        chart
+            .draw_series(LineSeries::new(points, colour.stroke_width(2)))?
+            .label(s.name.clone())
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
+            });
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 14))
+        .position(SeriesLabelPosition::UpperLeft)
+        .draw()?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Both files are written, the PNG is a PNG, and the SVG names every series.
+    #[test]
+    fn writes_png_and_svg_with_every_series() {
+        let dir = std::env::temp_dir().join(format!("livereg-per-frame-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let series = vec![
+            Series {
+                name: "none".into(),
+                values: (0..20).map(|k| k as f64 * 0.5).collect(),
+            },
+            Series {
+                name: "non-rigid".into(),
+                values: (0..20).map(|k| 0.3 + 0.01 * k as f64).collect(),
+            },
+        ];
+        let (png, svg) = (dir.join("a.png"), dir.join("a.svg"));
+        write_per_frame_chart(&series, "test", Some(&png), Some(&svg)).unwrap();
+        let bytes = std::fs::read(&png).unwrap();
+        assert_eq!(&bytes[1..4], b"PNG");
+        let text = std::fs::read_to_string(&svg).unwrap();
+        assert!(text.contains("none") && text.contains("non-rigid"));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
