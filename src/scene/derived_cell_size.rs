@@ -3,9 +3,9 @@
 //! file unit.
 //!
 //! Rule: `h = V^(1/3) / CELLS_PER_CUBE_ROOT`, with `V` the volume the surface encloses (scene
-//! units³). A liver of 1.1–1.2 L gets 11.5–11.8 mm cells (about 2,000 active nodes): on the
-//! tool-indentation class 12 mm cells gave 1.28 / 0.83 mm mean node error at 21 ms warm
-//! p50 / 27 ms p95 where 8 mm cells gave 1.19 / 0.76 mm at 89 / 115 ms (issue 18's goal:
+//! units³). A liver of 1.1–1.2 L gets 11.5–11.8 mm cells (about 1,500 active nodes): on the
+//! tool-indentation class they give 1.32 / 0.82 mm mean node error at 23 ms warm p50 / 35 ms
+//! p95, where 8 mm cells with 4 levels gave 7–9 % less error at 89 / 115 ms (issue 18's goal:
 //! p50 ≤ 30 ms, p95 ≤ 60 ms); see docs/registration.md.
 
 use crate::mesh::TriSurface;

@@ -360,3 +360,45 @@ fn a_coarse_start_prolongates_the_coarse_field_and_agrees_with_the_fine_registra
     let d = coarse.register(&cloud);
     assert!(d.flags.contains(&"coarse_start".to_string()));
 }
+
+/// The contact force is what holds the registered shape: at equilibrium the data term's
+/// resultant and the clamp's reaction cancel (the elastic forces of a body sum to zero, a
+/// conservation law independent of how the estimate is computed). The bend
+/// `dz = a ((x + 35)/85)²` has constant curvature, a pure end moment, so the resultant itself
+/// is small (measured 0.15 N); its size is tested against the tet-FE truth's tool force
+/// in tests/tool_indentation.rs.
+#[test]
+fn contact_force_balances_the_clamp() {
+    let (path, rest) = scene("force", "none");
+    let mut s = session(&path);
+    // Several frames on the same cloud: the warm frames converge the equilibrium.
+    let mut r = s.register(&frame(bent(&rest, 8.0), "0"));
+    for k in 1..6 {
+        r = s.register(&frame(bent(&rest, 8.0), &k.to_string()));
+    }
+    assert!(r.error.is_none(), "{:?}", r.error);
+    let f = r
+        .contact_force
+        .expect("a non-rigid frame estimates the loads");
+    let u = s.displacement().to_vec();
+    let clamp = s
+        .model
+        .problem
+        .springs
+        .iter()
+        .filter_map(|sp| crate::registration::ContactForce::of(sp, &u))
+        .map(|c| c.resultant)
+        .sum::<Vector3<f64>>();
+    let imbalance = (f.resultant + clamp).norm();
+    println!(
+        "data term {:?} N, clamp {:?} N, imbalance {imbalance:.2e} N, centre {:?} mm",
+        f.resultant, clamp, f.centre
+    );
+    assert!(f.resultant.norm() > 0.0);
+    assert!(
+        imbalance <= 0.05 * f.resultant.norm(),
+        "not in equilibrium: {imbalance:.3e} N of {:.3e} N",
+        f.resultant.norm()
+    );
+    assert!(f.centre.coords.iter().all(|c| c.is_finite()));
+}
