@@ -388,7 +388,7 @@ impl Session {
                 self.reacquire_pose(&cloud, rms)?
             }
         } else {
-            self.track_pose(&cloud, self.good.model_to_cloud.inverse())?
+            self.track_pose(&cloud, self.good.model_to_cloud.inverse(), flags)?
         };
         times.rigid_ms = ms(t);
 
@@ -597,10 +597,16 @@ impl Session {
         &mut self,
         cloud: &[Point3<f64>],
         start: RigidTransform,
+        flags: &mut Vec<String>,
     ) -> Result<(RigidTransform, usize), FrameError> {
         // Frame to frame (rigid-only or tracked pose): the start is the last pose.
         let tracking = self.good.registered;
         let r = self.rigid_fit(cloud, start, tracking)?;
+        // A fit stopped by its iteration cap says so (issue 18: rigid ICP on a partial patch
+        // ended 43–88° off while reporting convergence).
+        if r.iterations > 0 && !r.converged {
+            flags.push("rigid_not_converged".into());
+        }
         let limit = if self.settings.non_rigid {
             self.settings.max_unregistered_rms
         } else {
