@@ -318,6 +318,10 @@ impl Session {
         result
     }
 
+    /// One frame through the named stages: [`Session::prepare_cloud`] (checks, thinning,
+    /// isolated points), [`Session::rigid_stage`] (the pose), [`Session::non_rigid_stage`]
+    /// (coarse start, the registration, the recovery ladder), then the gate on the registered
+    /// fit.
     fn try_register(
         &mut self,
         frame: &Frame,
@@ -326,6 +330,89 @@ impl Session {
         flags: &mut Vec<String>,
     ) -> Result<Done, FrameError> {
         let t = Instant::now();
+        let scale = self.model.length_scale;
+        let cloud = self.prepare_cloud(frame, flags)?;
+        times.prepare_ms = ms(t);
+
+        let t = Instant::now();
+        let (model_to_cloud, rigid_iterations) = self.rigid_stage(&cloud, flags)?;
+        times.rigid_ms = ms(t);
+
+        if !self.settings.non_rigid {
+            return Ok(Done {
+                u: self.good.u.clone(),
+                model_to_cloud,
+                converged: true,
+                rigid_iterations,
+                icp_iterations: 0,
+                newton_iterations: 0,
+                factorizations: 0,
+                surface_rms: 0.0,
+                used_points: cloud.len(),
+                cloud,
+                sources: 0,
+                warnings: Vec::new(),
+                contact_force: None,
+            });
+        }
+
+        // Non-rigid stage in the model frame.
+        let cloud_to_model = model_to_cloud.inverse();
+        let aligned: Vec<Point3<f64>> = cloud.iter().map(|p| cloud_to_model.apply(p)).collect();
+        let camera = match &frame.camera {
+            Some(c) => Some(camera_to_model(c, scale, &cloud_to_model)?),
+            None => self.scene_camera,
+        };
+        let deadline = self
+            .settings
+            .time_budget_ms
+            .map(|b| start + Duration::from_secs_f64(b.max(0.0) * 1e-3));
+        let (u, report, spent) =
+            self.non_rigid_stage(&aligned, camera.as_ref(), deadline, flags)?;
+        times.visibility_ms = spent.visibility_ms;
+        times.pairing_ms = spent.pairing_ms;
+        times.newton_ms = spent.newton_ms;
+        if !all_finite(&u) {
+            self.non_rigid_cold.invalidate();
+            self.non_rigid_warm.invalidate();
+            return Err(FrameError::NonFiniteState);
+        }
+        if report.deadline_reached {
+            flags.push("time_budget".into());
+        }
+        // The gate on what the frame is: does the cloud lie on the registered surface?
+        let fit = self.fit_rms(&aligned, &u);
+        if fit > self.settings.max_rigid_rms {
+            return Err(FrameError::NoFit {
+                rms_mm: fit * 1e3,
+                limit_mm: self.settings.max_rigid_rms * 1e3,
+            });
+        }
+        Ok(Done {
+            u,
+            model_to_cloud,
+            converged: report.converged,
+            rigid_iterations,
+            icp_iterations: report.icp_iterations,
+            newton_iterations: report.newton_iterations,
+            factorizations: report.factorizations,
+            surface_rms: report.surface_rms,
+            used_points: cloud.len(),
+            cloud,
+            sources: report.sources,
+            warnings: report.warnings,
+            contact_force: report.contact_force,
+        })
+    }
+
+    /// Input checks (empty, non-finite: rejected), thinning to `max_cloud_points` (flag
+    /// `decimated`) and isolated-point removal (flag `isolated_removed`): the cloud in metres,
+    /// cloud frame.
+    fn prepare_cloud(
+        &self,
+        frame: &Frame,
+        flags: &mut Vec<String>,
+    ) -> Result<Vec<Point3<f64>>, FrameError> {
         let scale = self.model.length_scale;
         if frame.points.is_empty() {
             return Err(FrameError::Empty);
@@ -371,56 +458,46 @@ impl Session {
                 cloud.len()
             )));
         }
-        times.prepare_ms = ms(t);
+        Ok(cloud)
+    }
 
+    /// The pose: held (checked, and searched again when it no longer fits) or tracked against
+    /// the current deformed surface; the model → cloud transform and rigid ICP iterations.
+    fn rigid_stage(
+        &mut self,
+        cloud: &[Point3<f64>],
+        flags: &mut Vec<String>,
+    ) -> Result<(RigidTransform, usize), FrameError> {
         // Rigid stage: hold the pose, or track it against the current deformed surface.
-        let t = Instant::now();
         let hold = self.settings.non_rigid
             && self.settings.pose_update == PoseUpdate::Hold
             && self.settings.rigid_mode == RigidMode::Icp
             && self.good.registered;
         let (model_to_cloud, rigid_iterations) = if hold {
-            let rms = self.held_pose_rms(&cloud);
+            let rms = self.held_pose_rms(cloud);
             if rms <= self.settings.pose_reacquire_rms {
                 (self.good.model_to_cloud, 0)
             } else {
                 flags.push("pose_reacquired".into());
-                self.reacquire_pose(&cloud, rms)?
+                self.reacquire_pose(cloud, rms)?
             }
         } else {
-            self.track_pose(&cloud, self.good.model_to_cloud.inverse(), flags)?
+            self.track_pose(cloud, self.good.model_to_cloud.inverse(), flags)?
         };
-        times.rigid_ms = ms(t);
+        Ok((model_to_cloud, rigid_iterations))
+    }
 
-        if !self.settings.non_rigid {
-            return Ok(Done {
-                u: self.good.u.clone(),
-                model_to_cloud,
-                converged: true,
-                rigid_iterations,
-                icp_iterations: 0,
-                newton_iterations: 0,
-                factorizations: 0,
-                surface_rms: 0.0,
-                used_points: cloud.len(),
-                cloud,
-                sources: 0,
-                warnings: Vec::new(),
-                contact_force: None,
-            });
-        }
-
-        // Non-rigid stage in the model frame.
-        let cloud_to_model = model_to_cloud.inverse();
-        let aligned: Vec<Point3<f64>> = cloud.iter().map(|p| cloud_to_model.apply(p)).collect();
-        let camera = match &frame.camera {
-            Some(c) => Some(camera_to_model(c, scale, &cloud_to_model)?),
-            None => self.scene_camera,
-        };
-        let deadline = self
-            .settings
-            .time_budget_ms
-            .map(|b| start + Duration::from_secs_f64(b.max(0.0) * 1e-3));
+    /// The non-rigid stage of a frame (`aligned`: the cloud in the model frame, metres): the
+    /// coarse-to-fine start of a cold frame, the registration from the last good state, and
+    /// the recovery ladder when the solver failed (flags `coarse_start`, `recovered:…`,
+    /// `recovery_failed`). Returns the displacement, the report and the time spent by stage.
+    fn non_rigid_stage(
+        &mut self,
+        aligned: &[Point3<f64>],
+        camera: Option<&Camera>,
+        deadline: Option<Instant>,
+        flags: &mut Vec<String>,
+    ) -> Result<(Vec<f64>, NonRigidReport, NonRigidTimings), FrameError> {
         let warm = self.good.registered;
         let settings = if warm {
             self.settings.warm
@@ -437,9 +514,9 @@ impl Session {
             if let Some(c) = &mut self.coarse {
                 let mut uc = vec![0.0; c.model.problem.dofs()];
                 c.icp.settings = self.settings.cold;
-                if let Ok(r) =
-                    c.icp
-                        .register(&mut c.model, &aligned, camera.as_ref(), &mut uc, deadline)
+                if let Ok(r) = c
+                    .icp
+                    .register(&mut c.model, aligned, camera, &mut uc, deadline)
                 {
                     add_timings(&mut spent, &r.timings);
                     if r.warnings.is_empty() && all_finite(&uc) {
@@ -453,15 +530,8 @@ impl Session {
                 }
             }
         }
-        let (mut u, mut report) = self.non_rigid_attempt(
-            warm,
-            settings,
-            None,
-            start_u,
-            &aligned,
-            camera.as_ref(),
-            deadline,
-        )?;
+        let (mut u, mut report) =
+            self.non_rigid_attempt(warm, settings, None, start_u, aligned, camera, deadline)?;
         report.icp_iterations += coarse_counts.0;
         report.newton_iterations += coarse_counts.1;
         report.factorizations += coarse_counts.2;
@@ -477,15 +547,8 @@ impl Session {
                 if deadline.is_some_and(|d| Instant::now() >= d) {
                     break;
                 }
-                let (u2, r2) = self.non_rigid_attempt(
-                    true,
-                    smaller,
-                    law,
-                    None,
-                    &aligned,
-                    camera.as_ref(),
-                    deadline,
-                )?;
+                let (u2, r2) =
+                    self.non_rigid_attempt(true, smaller, law, None, aligned, camera, deadline)?;
                 add_timings(&mut spent, &r2.timings);
                 if !solver_failed(&r2) && all_finite(&u2) {
                     flags.push(format!("recovered:{name}"));
@@ -508,40 +571,7 @@ impl Session {
                 flags.push("recovery_failed".into());
             }
         }
-        times.visibility_ms = spent.visibility_ms;
-        times.pairing_ms = spent.pairing_ms;
-        times.newton_ms = spent.newton_ms;
-        if !all_finite(&u) {
-            self.non_rigid_cold.invalidate();
-            self.non_rigid_warm.invalidate();
-            return Err(FrameError::NonFiniteState);
-        }
-        if report.deadline_reached {
-            flags.push("time_budget".into());
-        }
-        // The gate on what the frame is: does the cloud lie on the registered surface?
-        let fit = self.fit_rms(&aligned, &u);
-        if fit > self.settings.max_rigid_rms {
-            return Err(FrameError::NoFit {
-                rms_mm: fit * 1e3,
-                limit_mm: self.settings.max_rigid_rms * 1e3,
-            });
-        }
-        Ok(Done {
-            u,
-            model_to_cloud,
-            converged: report.converged,
-            rigid_iterations,
-            icp_iterations: report.icp_iterations,
-            newton_iterations: report.newton_iterations,
-            factorizations: report.factorizations,
-            surface_rms: report.surface_rms,
-            used_points: cloud.len(),
-            cloud,
-            sources: report.sources,
-            warnings: report.warnings,
-            contact_force: report.contact_force,
-        })
+        Ok((u, report, spent))
     }
 }
 
