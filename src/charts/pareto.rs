@@ -2,19 +2,17 @@
 //! against computation time per frame (ms), one marker per configuration, and the Pareto
 //! front of the configurations that no other one beats on both.
 //!
-//! Text is drawn with the bundled DejaVu Sans (`assets/fonts/DejaVuSans.ttf`, licence in
-//! `assets/fonts/LICENSE-DejaVu.txt`), so the PNG does not depend on the fonts installed
-//! on the machine. The SVG names the `sans-serif` family and lets the viewer pick a font.
+//! Text, font and file writing: `charts/output.rs`.
 
 use std::ops::Range;
 use std::path::Path;
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::OnceLock;
 
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
+
+use super::output::{write_png_svg, Figure, FAMILY};
 
 /// Width of the chart (pixels, PNG and SVG).
 const WIDTH: u32 = 1024;
@@ -22,13 +20,6 @@ const WIDTH: u32 = 1024;
 const HEIGHT: u32 = 768;
 /// Height of the strip under the plot holding the note on points not shown (pixels).
 const NOTE_HEIGHT: u32 = 30;
-/// The family every text of the chart uses; the bundled font is registered under it.
-const FAMILY: &str = "sans-serif";
-/// DejaVu Sans, bundled into the binary.
-static FONT: &[u8] = include_bytes!(concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/assets/fonts/DejaVuSans.ttf"
-));
 
 /// Marker of an ordinary configuration.
 const POINT_COLOUR: RGBColor = RGBColor(31, 119, 180);
@@ -134,69 +125,26 @@ pub fn write_chart(
         return Ok(());
     }
     let plan = Plan::new(points);
-    if let Some(path) = png {
-        write_via_temporary(path, "png", |tmp| {
-            register_bundled_font()?;
-            let root = BitMapBackend::new(tmp, (WIDTH, HEIGHT)).into_drawing_area();
-            render(&root, &plan, title).map_err(|e| e.to_string())?;
-            root.present().map_err(|e| e.to_string())
-        })?;
-    }
-    if let Some(path) = svg {
-        write_via_temporary(path, "svg", |tmp| {
-            register_bundled_font()?;
-            let mut text = String::new();
-            {
-                let root = SVGBackend::with_string(&mut text, (WIDTH, HEIGHT)).into_drawing_area();
-                render(&root, &plan, title).map_err(|e| e.to_string())?;
-                root.present().map_err(|e| e.to_string())?;
-            }
-            std::fs::write(tmp, text).map_err(|e| e.to_string())
-        })?;
-    }
-    Ok(())
+    write_png_svg(
+        &ParetoFigure { plan: &plan, title },
+        (WIDTH, HEIGHT),
+        png,
+        svg,
+    )
 }
 
-/// Runs `write` on a temporary file next to `path`, named with the extension `ext` (the
-/// PNG encoder picks the format from the extension), then renames it to `path`: any
-/// name works for `path`, and a reader never sees half a chart. Errors name `path`;
-/// the temporary file is removed on failure.
-pub(crate) fn write_via_temporary(
-    path: &Path,
-    ext: &str,
-    write: impl FnOnce(&Path) -> Result<(), String>,
-) -> Result<(), String> {
-    static COUNTER: AtomicUsize = AtomicUsize::new(0);
-    let fail = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = path.with_file_name(format!(
-        ".{name}.{}-{}.tmp.{ext}",
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    ));
-    // Creating it first turns a missing or read-only directory into a plain I/O error.
-    let written = std::fs::File::create(&tmp)
-        .map_err(|e| e.to_string())
-        .and_then(|_| write(&tmp))
-        .and_then(|()| std::fs::rename(&tmp, path).map_err(|e| e.to_string()));
-    if written.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    written.map_err(|e| fail(&e))
+/// The chart of a [`Plan`] with its title.
+struct ParetoFigure<'a> {
+    plan: &'a Plan<'a>,
+    title: &'a str,
 }
 
-/// Registers the bundled DejaVu Sans as plotters' `sans-serif` (once per process).
-pub(crate) fn register_bundled_font() -> Result<(), &'static str> {
-    static REGISTERED: OnceLock<bool> = OnceLock::new();
-    let ok = *REGISTERED
-        .get_or_init(|| plotters::style::register_font(FAMILY, FontStyle::Normal, FONT).is_ok());
-    if ok {
-        Ok(())
-    } else {
-        Err("the bundled font assets/fonts/DejaVuSans.ttf could not be loaded")
+impl Figure for ParetoFigure<'_> {
+    fn draw<DB: DrawingBackend>(
+        &self,
+        root: &DrawingArea<DB, Shift>,
+    ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+        render(root, self.plan, self.title)
     }
 }
 

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use super::pareto::{register_bundled_font, write_via_temporary};
+use super::output::{write_png_svg, Figure};
 
 const WIDTH: u32 = 900;
 const HEIGHT: u32 = 520;
@@ -33,27 +33,21 @@ pub fn write_per_frame_chart(
     png: Option<&Path>,
     svg: Option<&Path>,
 ) -> Result<(), String> {
-    if let Some(path) = png {
-        write_via_temporary(path, "png", |tmp| {
-            register_bundled_font()?;
-            let root = BitMapBackend::new(tmp, (WIDTH, HEIGHT)).into_drawing_area();
-            render(&root, series, title).map_err(|e| e.to_string())?;
-            root.present().map_err(|e| e.to_string())
-        })?;
+    write_png_svg(&PerFrameFigure { series, title }, (WIDTH, HEIGHT), png, svg)
+}
+
+struct PerFrameFigure<'a> {
+    series: &'a [Series],
+    title: &'a str,
+}
+
+impl Figure for PerFrameFigure<'_> {
+    fn draw<DB: DrawingBackend>(
+        &self,
+        root: &DrawingArea<DB, plotters::coord::Shift>,
+    ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+        render(root, self.series, self.title)
     }
-    if let Some(path) = svg {
-        write_via_temporary(path, "svg", |tmp| {
-            register_bundled_font()?;
-            let mut text = String::new();
-            {
-                let root = SVGBackend::with_string(&mut text, (WIDTH, HEIGHT)).into_drawing_area();
-                render(&root, series, title).map_err(|e| e.to_string())?;
-                root.present().map_err(|e| e.to_string())?;
-            }
-            std::fs::write(tmp, text).map_err(|e| e.to_string())
-        })?;
-    }
-    Ok(())
 }
 
 fn render<DB: DrawingBackend>(

@@ -9,7 +9,7 @@ use std::path::Path;
 use nalgebra::{Point3, Vector3};
 use plotters::prelude::*;
 
-use super::pareto::{register_bundled_font, write_via_temporary};
+use super::output::{write_png_svg, Figure};
 use crate::mesh::TriSurface;
 
 const WIDTH: u32 = 1100;
@@ -60,27 +60,21 @@ pub fn write_surface_view(
             v.registered.vertices.len()
         ));
     }
-    if let Some(path) = png {
-        write_via_temporary(path, "png", |tmp| {
-            register_bundled_font()?;
-            let root = BitMapBackend::new(tmp, (WIDTH, HEIGHT)).into_drawing_area();
-            render(&root, v, title).map_err(|e| e.to_string())?;
-            root.present().map_err(|e| e.to_string())
-        })?;
+    write_png_svg(&ViewFigure { v, title }, (WIDTH, HEIGHT), png, svg)
+}
+
+struct ViewFigure<'a, 'b> {
+    v: &'a SurfaceView<'b>,
+    title: &'a str,
+}
+
+impl Figure for ViewFigure<'_, '_> {
+    fn draw<DB: DrawingBackend>(
+        &self,
+        root: &DrawingArea<DB, plotters::coord::Shift>,
+    ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+        render(root, self.v, self.title)
     }
-    if let Some(path) = svg {
-        write_via_temporary(path, "svg", |tmp| {
-            register_bundled_font()?;
-            let mut text = String::new();
-            {
-                let root = SVGBackend::with_string(&mut text, (WIDTH, HEIGHT)).into_drawing_area();
-                render(&root, v, title).map_err(|e| e.to_string())?;
-                root.present().map_err(|e| e.to_string())?;
-            }
-            std::fs::write(tmp, text).map_err(|e| e.to_string())
-        })?;
-    }
-    Ok(())
 }
 
 /// An orthonormal screen basis (right, up) for looking along `view`.
