@@ -447,7 +447,7 @@ impl NonRigidIcp {
                     }
                     let candidates = &self.visible.as_ref().expect("set above").0;
                     let t = Instant::now();
-                    let pulled = match settings.data_term {
+                    let paired = match settings.data_term {
                         DataTerm::SurfaceToCloud => {
                             let normals = settings.point_to_plane.then(|| {
                                 TriSurface::vertex_normals_at(&x, &model.surface.triangles)
@@ -461,7 +461,7 @@ impl NonRigidIcp {
                                 &rule,
                             )
                             .ok_or(NonRigidError::NoCorrespondence)?;
-                            Pulled::from_vertices(pairs, emb, k)
+                            Paired::Vertices(pairs)
                         }
                         DataTerm::CloudToSurface => {
                             let triangles = &model.surface.triangles;
@@ -485,34 +485,36 @@ impl NonRigidIcp {
                                 &rule,
                             )
                             .ok_or(NonRigidError::NoCorrespondence)?;
-                            Pulled::from_anchors(
-                                pairs,
-                                &x,
-                                triangles,
-                                &cloud,
-                                &model.problem.grid,
-                                emb,
-                                u,
-                                k,
-                                settings.point_to_plane,
+                            Paired::Anchors(
+                                Pulled::from_anchors(
+                                    pairs,
+                                    &x,
+                                    triangles,
+                                    &cloud,
+                                    &model.problem.grid,
+                                    emb,
+                                    u,
+                                    k,
+                                    settings.point_to_plane,
+                                )
+                                .ok_or(NonRigidError::NoCorrespondence)?,
                             )
-                            .ok_or(NonRigidError::NoCorrespondence)?
                         }
                     };
-                    report.sources = pulled.sources.len();
-                    report.surface_rms = pulled.rms;
+                    let (sources, rms) = paired.sources_and_rms();
+                    report.sources = sources.len();
+                    report.surface_rms = rms;
                     // Convergence: the pulled surface stopped moving during the last iteration
                     // (RMS and largest motion of the pulled points). A solver that only made
                     // shortened steps has not moved the surface because it could not, not
                     // because it is done.
                     let converged = solver_settled
                         && previous.as_ref().is_some_and(|prev| {
-                            let n = pulled.sources.len().max(1) as f64;
-                            let (sum, max) =
-                                pulled.sources.iter().fold((0.0, 0.0f64), |(s, m), &i| {
-                                    let d2 = (x[i] - prev[i]).norm_squared();
-                                    (s + d2, m.max(d2))
-                                });
+                            let n = sources.len().max(1) as f64;
+                            let (sum, max) = sources.iter().fold((0.0, 0.0f64), |(s, m), &i| {
+                                let d2 = (x[i] - prev[i]).norm_squared();
+                                (s + d2, m.max(d2))
+                            });
                             (sum / n).sqrt() <= settings.tolerance
                                 && max.sqrt() <= LOCAL_MOTION_FACTOR * settings.tolerance
                         });
@@ -532,31 +534,38 @@ impl NonRigidIcp {
                     // each frame's noise, the restriction dropped a changing part of them, and
                     // a still scene drifted (tests/session_stability.rs: targets 1.40 mm from
                     // frame 25 to 49 with it, 0.31 mm without; phantom TRE 0.69 → 0.67 mm).
-                    let pulled = match &self.factored {
+                    let restriction = match &self.factored {
                         Some(mask)
-                            if self.newton.reuses_factorization()
-                                && mask.len() == x.len()
-                                && settings.data_term == DataTerm::SurfaceToCloud =>
+                            if self.newton.reuses_factorization() && mask.len() == x.len() =>
                         {
-                            pulled.restricted_to(mask)
+                            Some(mask.as_slice())
                         }
-                        _ => pulled,
+                        _ => None,
                     };
-                    let pulled_mask = {
+                    let (sources, springs) = match paired {
+                        Paired::Vertices(pairs) => {
+                            let pairs = match restriction {
+                                Some(mask) => pairs.restricted_to(mask),
+                                None => pairs,
+                            };
+                            (pairs.sources.clone(), vertex_springs(pairs, emb, k))
+                        }
+                        Paired::Anchors(pulled) => (pulled.sources, pulled.springs),
+                    };
+                    let mask = || {
                         let mut m = vec![false; x.len()];
-                        for &i in &pulled.sources {
+                        for &i in &sources {
                             m[i] = true;
                         }
                         m
                     };
-                    let mask = || pulled_mask.clone();
                     let (own_before, helper_before, pending_before) = (
                         self.newton.factorizations() - self.newton.background_factorizations(),
                         self.newton.background_factorizations(),
                         self.newton.background_pending(),
                     );
                     model.problem.springs.truncate(fixed_sets);
-                    model.problem.springs.push(pulled.springs);
+                    model.problem.springs.push(springs);
                     let r = self
                         .newton
                         .improve(&mut model.problem, u, settings.newton_iterations);
@@ -607,8 +616,46 @@ pub fn register_non_rigid(
     NonRigidIcp::new(*settings, model.newton).register(model, cloud, camera, u, None)
 }
 
-/// The springs of one ICP iteration and what they pull: the surface vertices whose motion
-/// decides convergence (sources, or the anchors' dominant corners) and the pairs' RMS (m).
+/// The pairs of one ICP iteration, by data term: the thesis's vertex pairs (turned into springs
+/// after the factorisation's spring set has restricted them, [`vertex_springs`]) or the cloud →
+/// surface anchors' springs.
+enum Paired {
+    Vertices(Correspondences),
+    Anchors(Pulled),
+}
+
+impl Paired {
+    /// The surface vertices whose motion decides convergence, and the pairs' RMS (m).
+    fn sources_and_rms(&self) -> (Vec<usize>, f64) {
+        match self {
+            Paired::Vertices(p) => (p.sources.clone(), p.rms),
+            Paired::Anchors(p) => (p.sources.clone(), p.rms),
+        }
+    }
+}
+
+/// Springs of stiffness `k` (N/m) at the paired surface vertices (`emb`: the surface vertices'
+/// embedding), towards their targets.
+fn vertex_springs(pairs: Correspondences, emb: &Embedding, k: f64) -> PenaltySprings {
+    PenaltySprings {
+        embedding: Embedding {
+            points: pairs.sources.iter().map(|&i| emb.points[i]).collect(),
+            rest: pairs.sources.iter().map(|&i| emb.rest[i]).collect(),
+        },
+        target: pairs
+            .sources
+            .iter()
+            .zip(&pairs.targets)
+            .map(|(&i, p)| p - emb.rest[i])
+            .collect(),
+        stiffness: vec![k; pairs.sources.len()],
+        follows_load: false,
+        normals: pairs.normals,
+    }
+}
+
+/// The cloud → surface term's springs of one ICP iteration and what they pull: the anchors'
+/// dominant surface vertices (their motion decides convergence) and the pairs' RMS (m).
 struct Pulled {
     sources: Vec<usize>,
     springs: PenaltySprings,
@@ -616,31 +663,6 @@ struct Pulled {
 }
 
 impl Pulled {
-    /// Springs of stiffness `k` (N/m) at the paired surface vertices (`emb`: the surface
-    /// vertices' embedding), towards their targets.
-    fn from_vertices(pairs: Correspondences, emb: &Embedding, k: f64) -> Self {
-        let springs = PenaltySprings {
-            embedding: Embedding {
-                points: pairs.sources.iter().map(|&i| emb.points[i]).collect(),
-                rest: pairs.sources.iter().map(|&i| emb.rest[i]).collect(),
-            },
-            target: pairs
-                .sources
-                .iter()
-                .zip(&pairs.targets)
-                .map(|(&i, p)| p - emb.rest[i])
-                .collect(),
-            stiffness: vec![k; pairs.sources.len()],
-            follows_load: false,
-            normals: pairs.normals,
-        };
-        Self {
-            sources: pairs.sources,
-            springs,
-            rms: pairs.rms,
-        }
-    }
-
     /// Springs of stiffness `k` (N/m) at the anchors of `pairs` (surface points at `x`, of
     /// `triangles`; their rest positions from `emb`, the surface vertices' embedding, embedded
     /// in `grid`): each moves the anchor's grid point by its normal offset (point-to-plane),
@@ -692,36 +714,6 @@ impl Pulled {
             springs,
             rms: pairs.rms,
         })
-    }
-
-    /// The springs whose source is flagged in `mask` (indexed by surface vertex); all of them
-    /// when fewer than 3 would remain.
-    fn restricted_to(self, mask: &[bool]) -> Self {
-        let keep: Vec<usize> = (0..self.sources.len())
-            .filter(|&s| mask[self.sources[s]])
-            .collect();
-        if keep.len() < 3 || keep.len() == self.sources.len() {
-            return self;
-        }
-        let s = &self.springs;
-        let springs = PenaltySprings {
-            embedding: Embedding {
-                points: keep.iter().map(|&i| s.embedding.points[i]).collect(),
-                rest: keep.iter().map(|&i| s.embedding.rest[i]).collect(),
-            },
-            target: keep.iter().map(|&i| s.target[i]).collect(),
-            stiffness: keep.iter().map(|&i| s.stiffness[i]).collect(),
-            follows_load: s.follows_load,
-            normals: s
-                .normals
-                .as_ref()
-                .map(|n| keep.iter().map(|&i| n[i]).collect()),
-        };
-        Self {
-            sources: keep.iter().map(|&i| self.sources[i]).collect(),
-            springs,
-            rms: self.rms,
-        }
     }
 }
 

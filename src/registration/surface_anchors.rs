@@ -77,28 +77,6 @@ pub struct AnchoredPairs {
     pub rms: f64,
 }
 
-impl AnchoredPairs {
-    /// The pairs whose dominant vertex is flagged in `mask`; all of them when fewer than 3
-    /// would remain.
-    pub fn restricted_to(self, mask: &[bool]) -> Self {
-        let keep: Vec<usize> = (0..self.anchors.len())
-            .filter(|&s| mask.get(self.dominant[s]).copied().unwrap_or(false))
-            .collect();
-        if keep.len() < 3 || keep.len() == self.anchors.len() {
-            return self;
-        }
-        let pick = |v: &[usize]| keep.iter().map(|&s| v[s]).collect::<Vec<_>>();
-        Self {
-            anchors: keep.iter().map(|&s| self.anchors[s]).collect(),
-            dominant: pick(&self.dominant),
-            normals: keep.iter().map(|&s| self.normals[s]).collect(),
-            offsets: keep.iter().map(|&s| self.offsets[s]).collect(),
-            cloud_index: pick(&self.cloud_index),
-            rms: self.rms,
-        }
-    }
-}
-
 /// Pairs every point of `cloud` with its closest point on the surface (`x`: current vertex
 /// positions, `triangles`, `incident`: [`incident_triangles`], `vertex_normals`: unit outward
 /// normals at `x`), looking only at triangles with a corner flagged in `allowed` when given
