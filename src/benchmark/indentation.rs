@@ -127,18 +127,17 @@ pub struct IndentationMetrics {
 
 /// Grades `samples` (from [`super::run_workload`] on the workload of `truth` and `frames`,
 /// whose only structure is [`NODES_STRUCTURE`]) against the truth and against no registration.
-/// `rest_nodes` are the nodes' rest positions in the clouds' frame (m), `offset` the model →
-/// cloud transform of the clouds.
+/// `offset` is the model → cloud transform of the clouds.
 pub fn indentation_metrics(
     name: &str,
     truth: &IndentationTruth,
     frames: &[IndentationFrame],
-    rest_nodes: &[Point3<f64>],
     offset: &RigidTransform,
     samples: &[FrameSample],
 ) -> IndentationMetrics {
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
     let rotation = offset.rotation;
+    let rest_nodes = offset.apply_all(&truth.nodes);
     let mut all = Vec::new();
     let mut none_all = Vec::new();
     let mut per_frame = Vec::new();
@@ -150,7 +149,7 @@ pub fn indentation_metrics(
         let none: Vec<f64> = f
             .truth_nodes
             .iter()
-            .zip(rest_nodes)
+            .zip(&rest_nodes)
             .map(|(t, r)| (t - r).norm() * 1e3)
             .collect();
         let in_region = |v: &[f64]| -> Vec<f64> {
@@ -286,8 +285,6 @@ pub struct IndentationCase {
     pub frames: Vec<IndentationFrame>,
     /// How they are registered.
     pub variant: IndentationVariant,
-    /// The nodes' rest positions in the clouds' frame, m.
-    pub rest_nodes: Vec<Point3<f64>>,
 }
 
 impl IndentationCase {
@@ -326,9 +323,7 @@ pub fn indentation_cases(
                 };
                 let clouds =
                     indentation_sequence(&truth, &spec).map_err(|e| format!("{seq}/{law}: {e}"))?;
-                let offset = variant.offset().unwrap_or_else(RigidTransform::identity);
                 out.push(IndentationCase {
-                    rest_nodes: offset.apply_all(&truth.nodes),
                     truth: truth.clone(),
                     frames: clouds,
                     variant,
@@ -382,7 +377,6 @@ pub fn run_indentation(
             &case.name(),
             &case.truth,
             &case.frames,
-            &case.rest_nodes,
             &case
                 .variant
                 .offset()

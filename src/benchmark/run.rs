@@ -139,46 +139,56 @@ fn solver_cause(w: &str) -> Option<Cause> {
 /// truth; `scale` is metres per scene unit. Output positions that are not finite count as
 /// [`Cause::NonFinite`] (and infinite TRE).
 pub fn run_workload(session: &mut Session, w: &Workload, scale: f64) -> Vec<FrameSample> {
-    let mut out = Vec::with_capacity(w.frames.len());
-    for (frame, truth) in w.frames.iter().zip(&w.truth) {
-        let r = session.register(frame);
-        let mut causes = causes_of(&r);
-        let mut tre_mm = Vec::new();
-        for (name, pts) in &r.structures {
-            let Some((_, t)) = truth.iter().find(|(n, _)| n == name) else {
-                continue;
-            };
-            for (p, q) in pts.iter().zip(t) {
-                let d = (p - q).norm() * scale * 1e3;
-                tre_mm.push(if d.is_finite() { d } else { f64::INFINITY });
-            }
+    w.frames
+        .iter()
+        .zip(&w.truth)
+        .map(|(frame, truth)| sample_of(&session.register(frame), truth, scale))
+        .collect()
+}
+
+/// What one frame's result `r` gave against `truth` (each structure's name and true points,
+/// scene units); `scale` is metres per scene unit. Output positions that are not finite count
+/// as [`Cause::NonFinite`] (and infinite TRE).
+pub fn sample_of(
+    r: &FrameResult,
+    truth: &[(String, Vec<nalgebra::Point3<f64>>)],
+    scale: f64,
+) -> FrameSample {
+    let mut causes = causes_of(r);
+    let mut tre_mm = Vec::new();
+    for (name, pts) in &r.structures {
+        let Some((_, t)) = truth.iter().find(|(n, _)| n == name) else {
+            continue;
+        };
+        for (p, q) in pts.iter().zip(t) {
+            let d = (p - q).norm() * scale * 1e3;
+            tre_mm.push(if d.is_finite() { d } else { f64::INFINITY });
         }
-        let finite = r
-            .structures
-            .iter()
-            .flat_map(|(_, p)| p)
-            .chain(&r.surface)
-            .all(|p| p.coords.iter().all(|c| c.is_finite()))
-            && r.surface_rms.is_finite();
-        if !finite {
-            causes.push(Cause::NonFinite);
-        }
-        out.push(FrameSample {
-            tre_mm,
-            wall_ms: r.wall_ms,
-            warm: r.warm,
-            newton_iterations: r.newton_iterations,
-            icp_iterations: r.icp_iterations,
-            surface_rms_mm: r.surface_rms * scale * 1e3,
-            causes,
-            flags: r.flags.clone(),
-            recovered_causes: recovered_causes_of(&r),
-            contact_force_n: r
-                .contact_force
-                .map(|c| [c.resultant.x, c.resultant.y, c.resultant.z]),
-        });
     }
-    out
+    let finite = r
+        .structures
+        .iter()
+        .flat_map(|(_, p)| p)
+        .chain(&r.surface)
+        .all(|p| p.coords.iter().all(|c| c.is_finite()))
+        && r.surface_rms.is_finite();
+    if !finite {
+        causes.push(Cause::NonFinite);
+    }
+    FrameSample {
+        tre_mm,
+        wall_ms: r.wall_ms,
+        warm: r.warm,
+        newton_iterations: r.newton_iterations,
+        icp_iterations: r.icp_iterations,
+        surface_rms_mm: r.surface_rms * scale * 1e3,
+        causes,
+        flags: r.flags.clone(),
+        recovered_causes: recovered_causes_of(r),
+        contact_force_n: r
+            .contact_force
+            .map(|c| [c.resultant.x, c.resultant.y, c.resultant.z]),
+    }
 }
 
 /// The one-sided normal quantile (95 %) of [`Metrics::tre_upper_mm`].

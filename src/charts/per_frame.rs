@@ -25,6 +25,21 @@ pub struct Series {
     pub values: Vec<f64>,
 }
 
+/// The three lines of a registration's chart: no registration, rigid, non-rigid (mm per frame).
+pub fn none_rigid_non_rigid(none: Vec<f64>, rigid: Vec<f64>, non_rigid: Vec<f64>) -> Vec<Series> {
+    [
+        ("no registration", none),
+        ("rigid", rigid),
+        ("non-rigid", non_rigid),
+    ]
+    .into_iter()
+    .map(|(name, values)| Series {
+        name: name.into(),
+        values,
+    })
+    .collect()
+}
+
 /// Draws `series` (error in mm against the frame index) to `png` and/or `svg` with `title`.
 /// Errors name the file.
 pub fn write_per_frame_chart(

@@ -13,7 +13,8 @@ use super::register::{
     FrameObserver,
 };
 use super::RerunArgs;
-use crate::charts::per_frame::{write_per_frame_chart, Series};
+use crate::benchmark::indentation::{IndentationFrameMetrics, IndentationMetrics};
+use crate::charts::per_frame::{none_rigid_non_rigid, write_per_frame_chart};
 use crate::charts::surface_view::{write_surface_view, SurfaceView};
 use crate::evaluation::{evaluate, read_truth, DiagnosticsRecord, ResultRecord, RigidRecord};
 use crate::mesh::TriSurface;
@@ -160,20 +161,7 @@ pub fn run_with(
             e.frames.iter().map(|f| f.mean).collect()
         };
         write_per_frame_chart(
-            &[
-                Series {
-                    name: "no registration".into(),
-                    values: per_frame(&e_none),
-                },
-                Series {
-                    name: "rigid".into(),
-                    values: per_frame(&e_rigid),
-                },
-                Series {
-                    name: "non-rigid".into(),
-                    values: per_frame(&e_full),
-                },
-            ],
+            &none_rigid_non_rigid(per_frame(&e_none), per_frame(&e_rigid), per_frame(&e_full)),
             &format!("{}: mean target error per frame", kind.name()),
             Some(&dir.join("error_per_frame.png")),
             Some(&dir.join("error_per_frame.svg")),
@@ -266,9 +254,11 @@ fn write_view(
 /// deepest frame's view go to `DIR/tool-indentation/<sequence>/`.
 fn run_indentation_demo(out: &Path) -> Result<Vec<ScenarioSummary>, String> {
     use crate::benchmark::indentation::{
-        indentation_cases, indentation_workload, scene_for, IndentationVariant,
+        indentation_cases, indentation_metrics, indentation_workload, scene_for, IndentationVariant,
     };
+    use crate::benchmark::run::sample_of;
     use crate::benchmark::run_workload;
+    use crate::evaluation::Summary;
     use crate::synthetic::indentation::{bundled_fixture_dir, INDENTATION_SEQUENCES};
     let fixture = bundled_fixture_dir();
     let scene = load_scene(&fixture.join("scene.toml")).map_err(|e| e.to_string())?;
@@ -287,61 +277,6 @@ fn run_indentation_demo(out: &Path) -> Result<Vec<ScenarioSummary>, String> {
         let dir = out.join(&name);
         std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
         let workload = indentation_workload(&case.truth, &case.frames, scale, false);
-        let mut full = crate::session::Session::from_scene(&scene_for(&scene, case.variant))
-            .map_err(|e| e.to_string())?;
-        let mut rigid =
-            crate::session::Session::from_scene(&scene_for(&scene, IndentationVariant::RigidIcp))
-                .map_err(|e| e.to_string())?;
-        rigid.settings.non_rigid = false;
-        let rigid_samples = run_workload(&mut rigid, &workload, scale);
-        let mut results = Vec::new();
-        let mut samples = Vec::new();
-        for (frame, truth) in workload.frames.iter().zip(&workload.truth) {
-            let one = crate::benchmark::Workload {
-                frames: vec![frame.clone()],
-                truth: vec![truth.clone()],
-                ..workload.clone()
-            };
-            samples.extend(run_workload(&mut full, &one, scale));
-            results.push(full.displacement().to_vec());
-        }
-        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-        let none: Vec<f64> = case
-            .frames
-            .iter()
-            .map(|f| {
-                mean(
-                    &f.truth_nodes
-                        .iter()
-                        .zip(&case.rest_nodes)
-                        .map(|(t, r)| (t - r).norm() * 1e3)
-                        .collect::<Vec<_>>(),
-                )
-            })
-            .collect();
-        let per = |s: &[crate::benchmark::FrameSample]| -> Vec<f64> {
-            s.iter().map(|x| mean(&x.tre_mm)).collect()
-        };
-        write_per_frame_chart(
-            &[
-                Series {
-                    name: "no registration".into(),
-                    values: none.clone(),
-                },
-                Series {
-                    name: "rigid".into(),
-                    values: per(&rigid_samples),
-                },
-                Series {
-                    name: "non-rigid".into(),
-                    values: per(&samples),
-                },
-            ],
-            &format!("{name}: mean node error per frame (tet-FE truth, linear)"),
-            Some(&dir.join("error_per_frame.png")),
-            Some(&dir.join("error_per_frame.svg")),
-        )?;
-        // The view of the deepest frame.
         let deepest = (0..case.truth.len())
             .max_by(|&a, &b| {
                 case.truth.frames[a]
@@ -349,55 +284,68 @@ fn run_indentation_demo(out: &Path) -> Result<Vec<ScenarioSummary>, String> {
                     .total_cmp(&case.truth.frames[b].depth)
             })
             .unwrap_or(0);
-        let n_surface = case.truth.surface.vertices.len();
-        let registered = TriSurface::new(
-            full.model
-                .surface_embedding
-                .positions(&results[deepest])
-                .iter()
-                .map(|p| p / scale)
-                .collect(),
-            case.truth.surface.triangles.clone(),
-        );
+        let mut rigid =
+            crate::session::Session::from_scene(&scene_for(&scene, IndentationVariant::RigidIcp))
+                .map_err(|e| e.to_string())?;
+        rigid.settings.non_rigid = false;
+        let rigid_samples = run_workload(&mut rigid, &workload, scale);
+        // The full pipeline frame by frame, keeping the deepest frame's registered surface.
+        let mut full = crate::session::Session::from_scene(&scene_for(&scene, case.variant))
+            .map_err(|e| e.to_string())?;
+        let mut samples = Vec::new();
+        let mut deepest_surface = Vec::new();
+        for (k, (frame, truth)) in workload.frames.iter().zip(&workload.truth).enumerate() {
+            let r = full.register(frame);
+            samples.push(sample_of(&r, truth, scale));
+            if k == deepest {
+                deepest_surface = r.surface;
+            }
+        }
+        let offset = case
+            .variant
+            .offset()
+            .unwrap_or_else(RigidTransform::identity);
+        let grade = |s| indentation_metrics(&name, &case.truth, &case.frames, &offset, s);
+        let (m, m_rigid) = (grade(&samples), grade(&rigid_samples));
+        let per_frame = |m: &IndentationMetrics,
+                         f: fn(&IndentationFrameMetrics) -> f64|
+         -> Vec<f64> { m.frames.iter().map(f).collect() };
+        write_per_frame_chart(
+            &none_rigid_non_rigid(
+                per_frame(&m, |f| f.none_mean_mm),
+                per_frame(&m_rigid, |f| f.mean_mm),
+                per_frame(&m, |f| f.mean_mm),
+            ),
+            &format!("{name}: mean node error per frame (tet-FE truth, linear)"),
+            Some(&dir.join("error_per_frame.png")),
+            Some(&dir.join("error_per_frame.svg")),
+        )?;
+        // The view of the deepest frame (surface vertex i is truth node i).
+        let registered = TriSurface::new(deepest_surface, case.truth.surface.triangles.clone());
         let mut truth = case.truth.deformed_surface(deepest);
         truth.scale(1.0 / scale);
-        let error: Vec<f64> = samples[deepest].tre_mm[..n_surface].to_vec();
+        let error = &samples[deepest].tre_mm[..case.truth.surface.vertices.len()];
         write_view(
             &dir,
             &name,
             &registered,
-            &error,
+            error,
             &truth,
             case.truth.frames[deepest].tool_direction,
         )?;
-        let all: Vec<f64> = samples.iter().flat_map(|s| s.tre_mm.clone()).collect();
-        let mut sorted = all.clone();
-        sorted.sort_by(f64::total_cmp);
-        let mut times: Vec<f64> = samples.iter().map(|s| s.wall_ms).collect();
-        times.sort_by(f64::total_cmp);
+        let times: Vec<f64> = samples.iter().map(|s| s.wall_ms).collect();
+        let (ms_p50, ms_p95) = Summary::of(&times).map_or((0.0, 0.0), |t| (t.median, t.p95));
         rows.push(ScenarioSummary {
             scenario: name,
             frames: case.frames.len(),
             max_displacement_mm: workload.max_displacement_mm.unwrap_or(0.0),
-            tre_none_mm: mean(&none),
-            tre_rigid_mm: mean(&per(&rigid_samples)),
-            tre_non_rigid_mm: mean(&all),
-            tre_non_rigid_p95_mm: if sorted.is_empty() {
-                0.0
-            } else {
-                crate::evaluation::percentile(&sorted, 0.95)
-            },
-            ms_p50: if times.is_empty() {
-                0.0
-            } else {
-                crate::evaluation::percentile(&times, 0.5)
-            },
-            ms_p95: if times.is_empty() {
-                0.0
-            } else {
-                crate::evaluation::percentile(&times, 0.95)
-            },
-            failed: samples.iter().filter(|s| s.failed()).count(),
+            tre_none_mm: m.none_mean_mm,
+            tre_rigid_mm: m_rigid.mean_mm,
+            tre_non_rigid_mm: m.mean_mm,
+            tre_non_rigid_p95_mm: m.p95_mm,
+            ms_p50,
+            ms_p95,
+            failed: m.failed_frames,
             truth_ms: 0.0,
         });
     }

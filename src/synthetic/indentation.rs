@@ -247,11 +247,13 @@ impl IndentationTruth {
 
     /// Frame `k`'s deformed surface, m, model frame.
     pub fn deformed_surface(&self, k: usize) -> TriSurface {
+        self.surface_of(&self.deformed_nodes(k))
+    }
+
+    /// The surface whose vertices are the first nodes of `nodes` (positions of every node).
+    fn surface_of(&self, nodes: &[Point3<f64>]) -> TriSurface {
         let n = self.surface.vertices.len();
-        TriSurface::new(
-            self.deformed_nodes(k)[..n].to_vec(),
-            self.surface.triangles.clone(),
-        )
+        TriSurface::new(nodes[..n].to_vec(), self.surface.triangles.clone())
     }
 
     /// The nodes of the indented region at frame `k`: within [`INDENTED_REGION_RADIUS`] (rest
@@ -363,7 +365,8 @@ pub fn indentation_sequence(
                 rigid_offset: None,
                 seed: frame_seed(spec.seed, k),
             };
-            let cloud = synthesize_cloud(&truth.deformed_surface(k), &camera, &cloud_spec)
+            let nodes = truth.deformed_nodes(k);
+            let cloud = synthesize_cloud(&truth.surface_of(&nodes), &camera, &cloud_spec)
                 .map_err(|e| err(e.to_string()))?;
             let moved_camera = Camera::new(
                 offset.apply(&camera.position),
@@ -375,7 +378,7 @@ pub fn indentation_sequence(
             Ok(IndentationFrame {
                 cloud: offset.apply_all(&cloud.points),
                 camera: moved_camera,
-                truth_nodes: offset.apply_all(&truth.deformed_nodes(k)),
+                truth_nodes: offset.apply_all(&nodes),
             })
         })
         .collect()
