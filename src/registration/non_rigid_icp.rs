@@ -311,6 +311,9 @@ pub struct NonRigidIcp {
     /// background one asked for (indexed by surface vertex).
     factored: Option<Vec<bool>>,
     requested: Option<Vec<bool>>,
+    /// The model surface's triangles around each vertex (cloud → surface pairing), with the
+    /// vertex and triangle counts it was built for: the topology never changes between frames.
+    incident: Option<(usize, usize, Vec<Vec<usize>>)>,
 }
 
 impl NonRigidIcp {
@@ -323,6 +326,7 @@ impl NonRigidIcp {
             visible: None,
             factored: None,
             requested: None,
+            incident: None,
         }
     }
 
@@ -398,7 +402,6 @@ impl NonRigidIcp {
         };
         let emb = &model.surface_embedding;
         let interval = settings.visibility_interval.max(1);
-        let mut incident: Option<Vec<Vec<usize>>> = None;
         let result = (|| {
             'steps: for step in 0..steps {
                 let k = if steps == 1 {
@@ -465,8 +468,18 @@ impl NonRigidIcp {
                         }
                         DataTerm::CloudToSurface => {
                             let triangles = &model.surface.triangles;
-                            let incident = incident
-                                .get_or_insert_with(|| incident_triangles(x.len(), triangles));
+                            if self
+                                .incident
+                                .as_ref()
+                                .is_none_or(|(n, t, _)| (*n, *t) != (x.len(), triangles.len()))
+                            {
+                                self.incident = Some((
+                                    x.len(),
+                                    triangles.len(),
+                                    incident_triangles(x.len(), triangles),
+                                ));
+                            }
+                            let incident = &self.incident.as_ref().expect("set above").2;
                             let normals = TriSurface::vertex_normals_at(&x, triangles);
                             let allowed = camera.map(|_| {
                                 let mut m = vec![false; x.len()];
