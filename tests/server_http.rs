@@ -549,6 +549,19 @@ async fn bad_inputs_get_clear_errors_while_a_healthy_session_streams_on() {
     .unwrap();
     assert_error(&r, 404, "not_found");
     // Bad scenes: malformed, escaping the upload, missing files, unknown keys, huge grids.
+    let body_obj = String::from_utf8(scene.files["body.obj"].clone()).unwrap();
+    let targets_xyz = String::from_utf8(scene.files["targets.xyz"].clone()).unwrap();
+    // The body shrunk 10⁴ times: a closed surface with no grid cell inside.
+    let tiny_obj: String = body_obj
+        .lines()
+        .map(|l| match l.strip_prefix("v ") {
+            Some(xyz) => {
+                let c: Vec<f64> = xyz.split_whitespace().map(|t| t.parse().unwrap()).collect();
+                format!("v {} {} {}\n", c[0] * 1e-4, c[1] * 1e-4, c[2] * 1e-4)
+            }
+            None => format!("{l}\n"),
+        })
+        .collect();
     for (body, status, code, needle) in [
         (json!({"scene": 3}), 400, "bad_request", "scene"),
         (
@@ -585,12 +598,42 @@ async fn bad_inputs_get_clear_errors_while_a_healthy_session_streams_on() {
             "invalid_scene",
             "not allowed",
         ),
+        // Every way a model build can fail names the upload's file, never a server path.
+        (
+            json!({"scene": scene.scene.clone(),
+                "files": {"body.obj": body_obj.clone(), "targets.xyz": "nan 0 0\n"}}),
+            422,
+            "invalid_scene",
+            "targets.xyz:1",
+        ),
+        (
+            json!({"scene": scene.scene.clone(),
+                "files": {"body.obj": body_obj.clone(), "targets.xyz": ""}}),
+            422,
+            "invalid_scene",
+            "targets.xyz",
+        ),
+        (
+            json!({"scene": scene.scene.replace("cell_size = 25.0", "cell_size = 1e300"),
+                "files": {"body.obj": body_obj.clone(), "targets.xyz": targets_xyz.clone()}}),
+            422,
+            "invalid_scene",
+            "cell",
+        ),
+        (
+            json!({"scene": scene.scene.clone(),
+                "files": {"body.obj": tiny_obj, "targets.xyz": targets_xyz.clone()}}),
+            422,
+            "invalid_scene",
+            "cell",
+        ),
     ] {
         let r = post_json(addr, "/v1/sessions", TOKEN_A, &body).await;
         assert_error(&r, status, code);
         let msg = r.json()["error"]["message"].as_str().unwrap().to_string();
         assert!(msg.contains(needle), "{msg} lacks {needle}");
         assert!(!msg.contains("/tmp/"), "server paths leak: {msg}");
+        assert!(!msg.contains("sessions/"), "server paths leak: {msg}");
     }
     let r = http(
         addr,

@@ -2,7 +2,7 @@
 //! too large get an error message and the stream goes on; unknown sessions, missing and wrong
 //! tokens and other tokens' sessions are refused; a client that disconnects mid-stream leaves
 //! its session usable; newest-frame-wins skips and counts; shutdown finishes the frame in
-//! flight and closes streams with 1001.
+//! flight and closes streams with 1001; a message over the size limit closes with 1009.
 
 use std::time::Duration;
 
@@ -90,14 +90,15 @@ async fn websocket_bad_frames_get_errors_and_the_stream_goes_on() {
         }
         other => panic!("{other:?}"),
     }
-    // A message over the size limit ends the connection (protocol error), nothing else.
+    // A message over the size limit ends the stream with close code 1009 (message too big,
+    // RFC 6455 §7.4.1), nothing else.
     let huge = "x".repeat(300 * 1024);
     let _ = ws.send_raw(Message::Text(huge.into())).await;
     let end = tokio::time::timeout(Duration::from_secs(10), ws.next())
         .await
         .unwrap();
     assert!(
-        matches!(end, None | Some(WsEvent::Closed(_))),
+        matches!(end, Some(WsEvent::Closed(1009))),
         "oversized message: {end:?}"
     );
     // The session is fine: a new stream works.

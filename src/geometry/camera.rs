@@ -11,6 +11,10 @@ pub const DEFAULT_FOV_DEG: f64 = 70.0;
 /// Sine of the smallest angle allowed between `up` and the view direction.
 const MIN_UP_SINE: f64 = 1e-6;
 
+/// Largest coordinate magnitude of `position` and `look_at`, metres (1,000 km: far beyond any
+/// operating room, and small enough that every distance computed from them is finite).
+pub const MAX_CAMERA_COORDINATE_M: f64 = 1e6;
+
 /// A pinhole depth camera with a circular field of view.
 ///
 /// The fields are public for convenience; [`Camera::validate`] checks them (the generator
@@ -78,6 +82,14 @@ impl Camera {
                 self.look_at.coords.as_slice(),
                 self.up.as_slice()
             ));
+        }
+        for (name, p) in [("position", &self.position), ("look_at", &self.look_at)] {
+            if p.iter().any(|c| c.abs() > MAX_CAMERA_COORDINATE_M) {
+                return bad(format!(
+                    "{name} {:?} is out of range: camera coordinates must be within ±{MAX_CAMERA_COORDINATE_M:e}",
+                    p.coords.as_slice()
+                ));
+            }
         }
         let d = self.look_at - self.position;
         let scale = self.position.coords.norm().max(self.look_at.coords.norm());
@@ -164,6 +176,11 @@ mod tests {
         assert!(
             err(Camera::new(p, o, Vector3::new(f64::NAN, 0.0, 0.0), 70.0)).contains("non-finite")
         );
+        let far = Point3::new(1e300, 0.0, 0.0);
+        let e = err(Camera::new(far, o, Vector3::z(), 70.0));
+        assert!(e.contains("position") && e.contains("out of range"), "{e}");
+        let e = err(Camera::new(o, far, Vector3::z(), 70.0));
+        assert!(e.contains("look_at") && e.contains("out of range"), "{e}");
         assert!(
             Camera::looking_at(p, o).is_ok(),
             "vertical view gets +y as up"

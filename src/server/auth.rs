@@ -76,13 +76,15 @@ impl Authenticator {
         };
         let text = std::str::from_utf8(raw)
             .map_err(|_| ApiError::unauthorized("the Authorization header is not valid text"))?;
+        // RFC 9110 §11.1: the scheme is case-insensitive (`Bearer`, `bearer`, `BEARER`).
         let token = text
-            .strip_prefix("Bearer ")
-            .or_else(|| text.strip_prefix("bearer "))
+            .trim_start()
+            .split_once([' ', '\t'])
+            .filter(|(scheme, _)| scheme.eq_ignore_ascii_case("bearer"))
+            .map(|(_, token)| token.trim())
             .ok_or_else(|| {
                 ApiError::unauthorized("the Authorization header must be `Bearer <token>`")
-            })?
-            .trim();
+            })?;
         let mut found: Option<&Owner> = None;
         for (owner, secret) in &self.tokens {
             if constant_time_eq(token.as_bytes(), secret) {
@@ -120,8 +122,18 @@ mod tests {
                 .name(),
             "or1"
         );
+        for scheme in ["bearer", "BEARER", "BeArEr"] {
+            let header = format!("{scheme} 0123456789abcdef");
+            assert_eq!(
+                a.authenticate(Some(header.as_bytes())).unwrap().name(),
+                "or1",
+                "{scheme}"
+            );
+        }
         for bad in [
             None,
+            Some(&b"Bearer0123456789abcdef"[..]),
+            Some(b"Bearers 0123456789abcdef"),
             Some(&b"Bearer 0123456789abcdeX"[..]),
             Some(b"Basic 0123456789abcdef"),
             Some(b"Bearer "),

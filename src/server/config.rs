@@ -172,8 +172,10 @@ where
         .map_err(|e| format!("{var}={v:?}: {e}"))
 }
 
-/// Tokens from `name:token` / `token` items (a bare token is named `token-<n>`).
-pub fn parse_token_list<'a>(items: impl Iterator<Item = &'a str>) -> Vec<TokenEntry> {
+/// Tokens from `name:token` / `token` items. A bare token is named after its source and
+/// position, `<source>-token-<n>` (`env-token-2`: the second item of `LIVEREG_TOKENS`), so
+/// that bare tokens of two sources never share a name (a name owns sessions and a quota).
+pub fn parse_token_list<'a>(items: impl Iterator<Item = &'a str>, source: &str) -> Vec<TokenEntry> {
     items
         .map(str::trim)
         .filter(|s| !s.is_empty() && !s.starts_with('#'))
@@ -184,11 +186,31 @@ pub fn parse_token_list<'a>(items: impl Iterator<Item = &'a str>) -> Vec<TokenEn
                 token: token.trim().to_string(),
             },
             _ => TokenEntry {
-                name: format!("token-{}", i + 1),
+                name: format!("{source}-token-{}", i + 1),
                 token: s.to_string(),
             },
         })
         .collect()
+}
+
+/// Refuses a token file that users other than its owner and group may read or write
+/// (`chmod 600`, or `640` for a service group; Kubernetes: the Secret volume's
+/// `defaultMode: 0440`). Unix only; elsewhere nothing is checked.
+fn check_token_file_mode(path: &Path) -> Result<(), String> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let meta = std::fs::metadata(path)
+            .map_err(|e| format!("{}: cannot read the token file: {e}", path.display()))?;
+        let mode = meta.permissions().mode() & 0o777;
+        if mode & 0o007 != 0 {
+            return Err(format!(
+                "{}: the token file is open to every user of the machine (mode {mode:04o}); restrict it with `chmod 600` (or 640 for a service group)",
+                path.display()
+            ));
+        }
+    }
+    Ok(())
 }
 
 impl ServerConfig {
@@ -225,7 +247,7 @@ impl ServerConfig {
             };
         }
         if let Some(v) = get("LIVEREG_TOKENS") {
-            self.tokens.extend(parse_token_list(v.split(',')));
+            self.tokens.extend(parse_token_list(v.split(','), "env"));
         }
         if let Some(v) = get("LIVEREG_TOKEN_FILE") {
             self.token_file = Some(PathBuf::from(v));
@@ -283,9 +305,10 @@ impl ServerConfig {
     pub fn all_tokens(&self) -> Result<Vec<TokenEntry>, String> {
         let mut tokens = self.tokens.clone();
         if let Some(f) = &self.token_file {
+            check_token_file_mode(f)?;
             let text = std::fs::read_to_string(f)
                 .map_err(|e| format!("{}: cannot read the token file: {e}", f.display()))?;
-            tokens.extend(parse_token_list(text.lines()));
+            tokens.extend(parse_token_list(text.lines(), "file"));
         }
         Ok(tokens)
     }
@@ -305,6 +328,15 @@ impl ServerConfig {
         for (i, a) in tokens.iter().enumerate() {
             if tokens[..i].iter().any(|b| b.token == a.token) {
                 return Err(format!("token `{}` is listed twice", a.name));
+            }
+            if tokens[..i].iter().any(|b| b.name == a.name) {
+                return Err(format!(
+                    "two tokens are named `{}` (across the configuration, LIVEREG_TOKENS and the token file): a name owns its sessions and quota, so names must be unique",
+                    a.name
+                ));
+            }
+            if a.name.trim().is_empty() {
+                return Err("a token has an empty name".into());
             }
         }
         if self.insecure_loopback_dev {
@@ -394,7 +426,7 @@ mod tests {
         assert_eq!(c.grpc_bind, None);
         assert_eq!(c.tokens.len(), 3);
         assert_eq!(c.tokens[1].name, "or2");
-        assert_eq!(c.tokens[2].name, "token-2");
+        assert_eq!(c.tokens[2].name, "env-token-2");
         c.validate().unwrap();
         let err = c
             .apply_env(|k| (k == "LIVEREG_MAX_FPS").then(|| "fast".to_string()))
@@ -431,8 +463,55 @@ mod tests {
         assert!(c.validate().unwrap_err().contains("loopback"));
         c.bind = "127.0.0.1:8080".parse().unwrap();
         c.insecure_loopback_dev = false;
-        c.tokens = parse_token_list(["short"].into_iter());
+        c.tokens = parse_token_list(["short"].into_iter(), "env");
         assert!(c.validate().unwrap_err().contains("shorter than 16"));
+    }
+
+    /// Token names are unique across every source (bare tokens of the environment and of the
+    /// token file are named apart), and a token file open to other users is refused.
+    #[test]
+    fn token_names_are_unique_and_the_token_file_private() {
+        let dir = std::env::temp_dir().join(format!("livereg-tokens-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("tokens.txt");
+        std::fs::write(
+            &file,
+            "# room tokens\nfile-bare-token-0123456789\nor1:0123456789abcdef-file\n",
+        )
+        .unwrap();
+        let mut c = ServerConfig {
+            token_file: Some(file.clone()),
+            ..Default::default()
+        };
+        c.apply_env(|k| (k == "LIVEREG_TOKENS").then(|| "env-bare-token-0123456789".to_string()))
+            .unwrap();
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            std::fs::set_permissions(&file, std::fs::Permissions::from_mode(0o644)).unwrap();
+            let e = c.validate().unwrap_err();
+            assert!(
+                e.contains("tokens.txt") && e.contains("0644") && e.contains("chmod 600"),
+                "{e}"
+            );
+            std::fs::set_permissions(&file, std::fs::Permissions::from_mode(0o640)).unwrap();
+        }
+        c.validate().unwrap();
+        let names: Vec<String> = c
+            .all_tokens()
+            .unwrap()
+            .into_iter()
+            .map(|t| t.name)
+            .collect();
+        assert_eq!(names, ["env-token-1", "file-token-1", "or1"]);
+        // The same name from two sources is refused, naming it.
+        c.tokens.push(TokenEntry {
+            name: "or1".into(),
+            token: "0123456789abcdef-config".into(),
+        });
+        let e = c.validate().unwrap_err();
+        assert!(e.contains("`or1`") && e.contains("unique"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     /// The configuration files shipped in `deploy/` parse (unknown keys are errors) and say

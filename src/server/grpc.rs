@@ -13,6 +13,7 @@ use tokio_stream::wrappers::ReceiverStream;
 use tonic::codec::{BufferSettings, DecodeBuf, Decoder, EncodeBuf, Encoder};
 use tonic::{Request, Response, Status, Streaming};
 
+use super::audit::{self, Action, Peer};
 use super::auth::Owner;
 use super::codec::{decode_proto_frame, ResultMessage};
 use super::error::ApiError;
@@ -108,14 +109,46 @@ impl GrpcService {
 
     fn owner<T>(&self, req: &Request<T>) -> Result<Owner, Status> {
         let header = req.metadata().get("authorization").map(|v| v.as_bytes());
-        self.state
-            .auth
-            .authenticate(header)
-            .map_err(|e| self.state.count(e).to_status())
+        self.state.auth.authenticate(header).map_err(|e| {
+            audit::event(
+                Action::Authenticate,
+                e.code,
+                Peer(req.remote_addr()),
+                None,
+                None,
+                &format!("grpc: {}", e.message),
+            );
+            self.state.count(e).to_status()
+        })
     }
 
     fn err(&self, e: ApiError) -> Status {
         self.state.count(e).to_status()
+    }
+
+    /// `CreateSession` after authentication: the upload, then the session.
+    async fn create_session_from(
+        &self,
+        owner: &Owner,
+        r: proto::CreateSessionRequest,
+    ) -> Result<SessionInfo, ApiError> {
+        let format = match r.scene_format.to_ascii_lowercase().as_str() {
+            "" | "toml" => SceneFormat::Toml,
+            "json" => SceneFormat::Json,
+            other => {
+                return Err(ApiError::bad_request(format!(
+                    "scene_format must be \"toml\" or \"json\", got {other:?}"
+                )))
+            }
+        };
+        let upload = SceneUpload {
+            scene: r.scene,
+            format: Some(format),
+            files: r.files.into_iter().collect(),
+            budget_ms: r.budget_ms,
+            rigid_only: r.rigid_only,
+        };
+        self.state.create_session(owner, upload).await
     }
 }
 
@@ -154,28 +187,17 @@ impl proto::registration_server::Registration for GrpcService {
         req: Request<proto::CreateSessionRequest>,
     ) -> Result<Response<proto::SessionInfo>, Status> {
         let owner = self.owner(&req)?;
-        let r = req.into_inner();
-        let format = match r.scene_format.to_ascii_lowercase().as_str() {
-            "" | "toml" => SceneFormat::Toml,
-            "json" => SceneFormat::Json,
-            other => {
-                return Err(self.err(ApiError::bad_request(format!(
-                    "scene_format must be \"toml\" or \"json\", got {other:?}"
-                ))))
-            }
-        };
-        let upload = SceneUpload {
-            scene: r.scene,
-            format: Some(format),
-            files: r.files.into_iter().collect(),
-            budget_ms: r.budget_ms,
-            rigid_only: r.rigid_only,
-        };
-        let info = self
-            .state
-            .create_session(&owner, upload)
-            .await
-            .map_err(|e| self.err(e))?;
+        let peer = Peer(req.remote_addr());
+        let r = self.create_session_from(&owner, req.into_inner()).await;
+        audit::event(
+            Action::CreateSession,
+            audit::outcome(&r),
+            peer,
+            Some(owner.name()),
+            r.as_ref().ok().map(|i| i.id.as_str()),
+            r.as_ref().err().map_or("grpc", |e| e.message.as_str()),
+        );
+        let info = r.map_err(|e| self.err(e))?;
         Ok(Response::new(info_proto(info)))
     }
 
@@ -196,10 +218,17 @@ impl proto::registration_server::Registration for GrpcService {
         req: Request<proto::SessionRef>,
     ) -> Result<Response<proto::CloseSessionResponse>, Status> {
         let owner = self.owner(&req)?;
-        let i = self
-            .state
-            .close_session(&owner, &req.get_ref().id)
-            .map_err(|e| self.err(e))?;
+        let id = &req.get_ref().id;
+        let r = self.state.close_session(&owner, id);
+        audit::event(
+            Action::CloseSession,
+            audit::outcome(&r),
+            Peer(req.remote_addr()),
+            Some(owner.name()),
+            Some(id),
+            "grpc",
+        );
+        let i = r.map_err(|e| self.err(e))?;
         Ok(Response::new(proto::CloseSessionResponse {
             id: i.id,
             frames_registered: i.frames_registered,
@@ -242,9 +271,10 @@ impl proto::registration_server::Registration for GrpcService {
         if self.state.is_draining() {
             return Err(self.err(ApiError::shutting_down()));
         }
+        let peer = Peer(req.remote_addr());
         let inbound = req.into_inner();
         let (out_tx, out_rx) = mpsc::channel(8);
-        tokio::spawn(run_stream(self.state.clone(), owner, inbound, out_tx));
+        tokio::spawn(run_stream(self.state.clone(), owner, peer, inbound, out_tx));
         Ok(Response::new(ReceiverStream::new(out_rx)))
     }
 }
@@ -262,6 +292,7 @@ fn error_response(seq: u64, e: &ApiError) -> proto::StreamResponse {
 async fn run_stream(
     state: Arc<AppState>,
     owner: Owner,
+    peer: Peer,
     mut inbound: Streaming<proto::StreamRequest>,
     out: mpsc::Sender<Result<proto::StreamResponse, Status>>,
 ) {
@@ -325,6 +356,14 @@ async fn run_stream(
             }
             None => match state.session(&owner, &req.session_id) {
                 Ok(h) => {
+                    audit::event(
+                        Action::OpenStream,
+                        "ok",
+                        peer,
+                        Some(owner.name()),
+                        Some(&h.id),
+                        "grpc",
+                    );
                     bound = Some(h.clone());
                     let _ = bound_tx.send(Some(h.clone()));
                     h
@@ -381,4 +420,14 @@ async fn run_stream(
     }
     drop(ev_tx);
     let _ = forward.await;
+    if let Some(h) = &bound {
+        audit::event(
+            Action::CloseStream,
+            "ok",
+            peer,
+            Some(owner.name()),
+            Some(&h.id),
+            "grpc",
+        );
+    }
 }

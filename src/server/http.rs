@@ -5,7 +5,9 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use axum::body::Bytes;
-use axum::extract::{DefaultBodyLimit, FromRequest, Multipart, Path, RawQuery, Request, State};
+use axum::extract::{
+    ConnectInfo, DefaultBodyLimit, FromRequest, Multipart, Path, RawQuery, Request, State,
+};
 use axum::http::{header, HeaderMap, Method, StatusCode};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
@@ -13,6 +15,7 @@ use axum::routing::{get, post};
 use axum::{Extension, Json, Router};
 use serde_json::json;
 
+use super::audit::{self, Action, Peer};
 use super::auth::Owner;
 use super::codec::{decode_binary_frame, decode_json_frame, ResultMessage};
 use super::error::ApiError;
@@ -93,13 +96,33 @@ async fn require_token(
         .headers()
         .get(header::AUTHORIZATION)
         .map(|v| v.as_bytes());
+    let peer = request_peer(&req);
     match state.auth.authenticate(header) {
         Ok(owner) => {
             req.extensions_mut().insert(owner);
+            req.extensions_mut().insert(peer);
             next.run(req).await
         }
-        Err(e) => state.count(e).into_response(),
+        Err(e) => {
+            audit::event(
+                Action::Authenticate,
+                e.code,
+                peer,
+                None,
+                None,
+                &format!("{} {}: {}", req.method(), req.uri().path(), e.message),
+            );
+            state.count(e).into_response()
+        }
     }
+}
+
+/// The client's address of `req` (axum's connection info; unknown when the router is served
+/// without it).
+fn request_peer(req: &Request) -> Peer {
+    req.extensions()
+        .get::<ConnectInfo<Peer>>()
+        .map_or(Peer(None), |c| c.0)
 }
 
 async fn healthz() -> Json<serde_json::Value> {
@@ -234,19 +257,37 @@ async fn read_multipart(mut mp: Multipart, limit: usize) -> ApiResult<SceneUploa
 async fn create_session(
     State(state): State<Arc<AppState>>,
     Extension(owner): Extension<Owner>,
+    Extension(peer): Extension<Peer>,
+    req: Request,
+) -> ApiResult<(StatusCode, Json<SessionInfo>)> {
+    let r = create_session_from(&state, &owner, req).await;
+    audit::event(
+        Action::CreateSession,
+        audit::outcome(&r),
+        peer,
+        Some(owner.name()),
+        r.as_ref().ok().map(|(_, i)| i.id.as_str()),
+        r.as_ref().err().map_or("http", |e| e.message.as_str()),
+    );
+    r
+}
+
+async fn create_session_from(
+    state: &Arc<AppState>,
+    owner: &Owner,
     req: Request,
 ) -> ApiResult<(StatusCode, Json<SessionInfo>)> {
     let limit = state.config.limits.max_body_bytes;
     let ctype = content_type(req.headers());
     let upload = if ctype.starts_with("multipart/form-data") {
-        let mp = Multipart::from_request(req, &state)
+        let mp = Multipart::from_request(req, state)
             .await
             .map_err(|e| state.count(ApiError::bad_request(format!("multipart: {e}"))))?;
         read_multipart(mp, limit)
             .await
             .map_err(|e| state.count(e))?
     } else if ctype.starts_with("application/json") || ctype.is_empty() {
-        let body = Bytes::from_request(req, &state)
+        let body = Bytes::from_request(req, state)
             .await
             .map_err(|e| state.count(body_error(e, limit)))?;
         let c: CreateSessionJson = serde_json::from_slice(&body).map_err(|e| {
@@ -263,7 +304,7 @@ async fn create_session(
         )));
     };
     let info = state
-        .create_session(&owner, upload)
+        .create_session(owner, upload)
         .await
         .map_err(|e| state.count(e))?;
     Ok((StatusCode::CREATED, Json(info)))
@@ -294,20 +335,37 @@ async fn get_session(
 async fn delete_session(
     State(state): State<Arc<AppState>>,
     Extension(owner): Extension<Owner>,
+    Extension(peer): Extension<Peer>,
     Path(id): Path<String>,
 ) -> ApiResult<Json<SessionInfo>> {
-    state
-        .close_session(&owner, &id)
-        .map(Json)
-        .map_err(|e| state.count(e))
+    let r = state.close_session(&owner, &id);
+    audit::event(
+        Action::CloseSession,
+        audit::outcome(&r),
+        peer,
+        Some(owner.name()),
+        Some(&id),
+        "http",
+    );
+    r.map(Json).map_err(|e| state.count(e))
 }
 
 async fn reset_session(
     State(state): State<Arc<AppState>>,
     Extension(owner): Extension<Owner>,
+    Extension(peer): Extension<Peer>,
     Path(id): Path<String>,
 ) -> ApiResult<Json<SessionInfo>> {
-    let h = state.session(&owner, &id).map_err(|e| state.count(e))?;
+    let r = state.session(&owner, &id);
+    audit::event(
+        Action::ResetSession,
+        audit::outcome(&r),
+        peer,
+        Some(owner.name()),
+        Some(&id),
+        "http",
+    );
+    let h = r.map_err(|e| state.count(e))?;
     h.request_reset();
     Ok(Json(SessionInfo::of(&h)))
 }

@@ -13,6 +13,7 @@
 //! The server uses the session, scene and evaluation layers (and the mesh reader to check
 //! uploaded meshes before building anything); nothing below it imports it.
 
+pub mod audit;
 pub mod auth;
 pub mod codec;
 pub mod config;
@@ -20,6 +21,7 @@ pub mod error;
 pub mod grpc;
 pub mod http;
 pub mod limits;
+pub mod listener;
 pub mod metrics;
 pub mod openapi;
 pub mod registry;
@@ -232,27 +234,29 @@ async fn serve_http(
     tls: Option<Arc<tokio_rustls::rustls::ServerConfig>>,
     signal: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> Result<(), String> {
-    use axum::serve::ListenerExt;
     let done = |r: std::io::Result<()>| r.map_err(|e| format!("HTTP server: {e}"));
     match tls {
         Some(config) => {
             let listener = tls::TlsListener::new(listener, config)
                 .map_err(|e| format!("HTTP server (TLS): {e}"))?;
             done(
-                axum::serve(listener, app)
-                    .with_graceful_shutdown(signal)
-                    .await,
+                axum::serve(
+                    listener,
+                    app.into_make_service_with_connect_info::<audit::Peer>(),
+                )
+                .with_graceful_shutdown(signal)
+                .await,
             )
         }
         None => {
-            // No Nagle delay: results are small writes that must leave at once.
-            let listener = listener.tap_io(|tcp| {
-                let _ = tcp.set_nodelay(true);
-            });
+            let listener = listener::NoDelayListener::new(listener);
             done(
-                axum::serve(listener, app)
-                    .with_graceful_shutdown(signal)
-                    .await,
+                axum::serve(
+                    listener,
+                    app.into_make_service_with_connect_info::<audit::Peer>(),
+                )
+                .with_graceful_shutdown(signal)
+                .await,
             )
         }
     }

@@ -17,7 +17,7 @@ use super::limits::check_frame;
 use super::metrics::Metrics;
 use super::registry::{new_session_id, Registry, SessionInfo};
 use super::slots::RegistrationSlots;
-use super::upload::{build_session, materialize, SceneUpload};
+use super::upload::{prepare_session, SceneUpload};
 use super::worker::{run_worker, Completed, Job, ModelInfo, Outcome, Reply, SessionHandle};
 
 /// Opens the recording of session `id` (scene `loaded`, uploaded as `upload`) at `path`.
@@ -196,8 +196,7 @@ impl AppState {
         let (sid, metrics) = (id.clone(), self.metrics.clone());
         let built = tokio::task::spawn_blocking(move || {
             std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                let loaded = materialize(&upload, &d, &limits)?;
-                let session = build_session(&loaded, &upload)?;
+                let (loaded, session) = prepare_session(&upload, &d, &limits)?;
                 let recorder = record_to.and_then(|path| {
                     open_recording(&path, &loaded, &upload, &sid)
                         .inspect_err(|e| {
@@ -288,7 +287,16 @@ impl AppState {
         h.close();
         self.metrics.sessions.fetch_sub(1, Ordering::Relaxed);
         self.metrics.inc("livereg_sessions_closed_total", reason, 1);
-        tracing::info!(session = %h.id, owner = h.owner.name(), reason, "session closed");
+        if reason != "client" {
+            super::audit::event(
+                super::audit::Action::RetireSession,
+                "ok",
+                super::audit::Peer(None),
+                Some(h.owner.name()),
+                Some(&h.id),
+                reason,
+            );
+        }
     }
 
     /// Checks a decoded frame for `h` (validity, points, rate): refusals are counted.

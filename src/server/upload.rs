@@ -201,10 +201,7 @@ pub fn materialize(
         SceneFormat::Toml => "scene.toml",
         SceneFormat::Json => "scene.json",
     };
-    let hide = |m: String| {
-        m.replace(&format!("{}/", dir.display()), "")
-            .replace(&dir.display().to_string(), ".")
-    };
+    let hide = |m: String| hide_server_paths(&m, dir);
     let scene = parse_scene(&upload.scene, format, Path::new(scene_name))
         .map_err(|e| ApiError::invalid_scene(e.to_string()))?;
     for name in upload.files.keys() {
@@ -278,7 +275,50 @@ pub fn materialize(
     load_scene(&scene_path).map_err(|e| ApiError::invalid_scene(hide(e.to_string())))
 }
 
-/// A session for a loaded scene with the upload's overrides (budget, rigid only).
+/// `message` with the session directory `dir` (as given and canonicalised) removed from
+/// every path, so that a file shows as the name it was uploaded under: the client learns
+/// which of its files is wrong, never where the server keeps it.
+pub fn hide_server_paths(message: &str, dir: &Path) -> String {
+    let mut forms = vec![dir.to_path_buf()];
+    if let Ok(c) = dir.canonicalize() {
+        forms.push(c);
+    }
+    if let Ok(abs) = std::path::absolute(dir) {
+        forms.push(abs);
+    }
+    // Longest first: an absolute form contains the relative one.
+    forms.sort_by_key(|f| std::cmp::Reverse(f.as_os_str().len()));
+    let mut out = message.to_string();
+    for f in forms {
+        let shown = f.display().to_string();
+        if shown.is_empty() {
+            continue;
+        }
+        out = out
+            .replace(&format!("{shown}/"), "")
+            .replace(&shown, "the upload");
+    }
+    out
+}
+
+/// The uploaded scene loaded from `dir` and its session built ([`materialize`] then
+/// [`build_session`]); every error's message names the upload's files, never a server path.
+pub fn prepare_session(
+    upload: &SceneUpload,
+    dir: &Path,
+    limits: &LimitsConfig,
+) -> Result<(LoadedScene, Session), ApiError> {
+    let hide = |mut e: ApiError| {
+        e.message = hide_server_paths(&e.message, dir);
+        e
+    };
+    let loaded = materialize(upload, dir, limits).map_err(hide)?;
+    let session = build_session(&loaded, upload).map_err(hide)?;
+    Ok((loaded, session))
+}
+
+/// A session for a loaded scene with the upload's overrides (budget, rigid only). Its errors
+/// may name the files where the scene was loaded from: [`prepare_session`] hides them.
 pub fn build_session(loaded: &LoadedScene, upload: &SceneUpload) -> Result<Session, ApiError> {
     let mut session = Session::from_scene(loaded)
         .map_err(|e| ApiError::invalid_scene(format!("the model cannot be built: {e}")))?;

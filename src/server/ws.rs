@@ -3,12 +3,13 @@
 //! `{"type": "result", ...}` as frames finish (newest wins; `skipped` counts the frames of this
 //! stream dropped since the previous result) and `{"type": "error", "seq": n, "error": {code,
 //! message}}` for a frame it refuses — the stream goes on. On shutdown the server stops reading,
-//! finishes the frame in flight, sends its result and closes with code 1001.
+//! finishes the frame in flight, sends its result and closes with code 1001. A message over
+//! `limits.max_body_bytes` closes the stream with code 1009 (message too big).
 //!
 //! Results are JSON text messages by default; `?results=binary` on the URL asks for them as
 //! binary messages in the encoding of [`super::result_codec`] (errors stay JSON text).
 
-use std::sync::atomic::AtomicU64;
+use std::sync::atomic::{AtomicU16, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -20,6 +21,7 @@ use futures_util::{SinkExt, StreamExt};
 use serde::Serialize;
 use tokio::sync::mpsc;
 
+use super::audit::{self, Action, Peer};
 use super::auth::Owner;
 use super::codec::{decode_binary_frame, decode_json_frame, ResultMessage};
 use super::error::{ApiError, ErrorBody};
@@ -43,6 +45,20 @@ pub enum ServerMessage<'a> {
     },
 }
 
+/// Close code of a stream the client or the server ended normally (RFC 6455 §7.4.1).
+const CLOSE_NORMAL: u16 = 1000;
+/// Close code when the server shuts down ("going away").
+const CLOSE_GOING_AWAY: u16 = 1001;
+/// Close code for a message larger than `limits.max_body_bytes` ("message too big").
+const CLOSE_TOO_BIG: u16 = 1009;
+
+/// Whether a read error is a message or frame over the size limit (tungstenite's capacity
+/// error, which axum passes on only as text: "Space limit exceeded: Message too long …").
+fn is_too_big(e: &axum::Error) -> bool {
+    let text = e.to_string();
+    text.contains("Space limit exceeded") || text.contains("too long")
+}
+
 /// Results waiting to be written per stream (beyond this a client that does not read loses
 /// results, counted as skipped).
 const STREAM_BUFFER: usize = 8;
@@ -52,6 +68,7 @@ const STREAM_BUFFER: usize = 8;
 pub async fn stream(
     State(state): State<Arc<AppState>>,
     Extension(owner): Extension<Owner>,
+    Extension(peer): Extension<Peer>,
     Path(id): Path<String>,
     RawQuery(query): RawQuery,
     ws: Result<WebSocketUpgrade, axum::extract::ws::rejection::WebSocketUpgradeRejection>,
@@ -82,7 +99,7 @@ pub async fn stream(
     let limit = state.config.limits.max_body_bytes;
     ws.max_message_size(limit)
         .max_frame_size(limit)
-        .on_upgrade(move |socket| run(socket, state, owner, handle, format))
+        .on_upgrade(move |socket| run(socket, state, owner, peer, handle, format))
 }
 
 fn error_text(e: impl std::fmt::Display) -> String {
@@ -123,6 +140,7 @@ async fn run(
     socket: WebSocket,
     state: Arc<AppState>,
     owner: Owner,
+    peer: Peer,
     handle: Arc<SessionHandle>,
     format: ResultFormat,
 ) {
@@ -132,43 +150,59 @@ async fn run(
     let skipped = Arc::new(AtomicU64::new(0));
     let scale = handle.info.length_scale;
     let mut shutdown = state.shutdown.clone();
-    let going_away = Arc::new(std::sync::atomic::AtomicBool::new(false));
-    let ga = going_away.clone();
+    let close_code = Arc::new(AtomicU16::new(CLOSE_NORMAL));
+    let cc = close_code.clone();
+    let limit = state.config.limits.max_body_bytes;
     let writer = tokio::spawn(async move {
         while let Some(ev) = rx.recv().await {
             if sink.send(encode(&ev, scale, format)).await.is_err() {
                 return;
             }
         }
-        let code = if ga.load(std::sync::atomic::Ordering::Relaxed) {
-            1001
-        } else {
-            1000
+        let code = cc.load(Ordering::Relaxed);
+        let reason = match code {
+            CLOSE_GOING_AWAY => "server shutting down".to_string(),
+            CLOSE_TOO_BIG => format!("message larger than the limit of {limit} bytes"),
+            _ => String::new(),
         };
         let _ = sink
             .send(Message::Close(Some(CloseFrame {
                 code,
-                reason: if code == 1001 {
-                    "server shutting down".into()
-                } else {
-                    "".into()
-                },
+                reason: reason.into(),
             })))
             .await;
     });
-    tracing::info!(session = %handle.id, owner = owner.name(), results = ?format, "stream opened");
+    audit::event(
+        Action::OpenStream,
+        "ok",
+        peer,
+        Some(owner.name()),
+        Some(&handle.id),
+        "websocket",
+    );
     let id = handle.id.clone();
     loop {
         let msg = tokio::select! {
             m = incoming.next() => m,
             _ = shutdown.wait_for(|s| *s) => {
-                going_away.store(true, std::sync::atomic::Ordering::Relaxed);
+                close_code.store(CLOSE_GOING_AWAY, Ordering::Relaxed);
                 break;
             }
         };
         let received = Instant::now();
         let decoded = match msg {
-            None | Some(Err(_)) | Some(Ok(Message::Close(_))) => break,
+            None | Some(Ok(Message::Close(_))) => break,
+            Some(Err(e)) => {
+                if is_too_big(&e) {
+                    close_code.store(CLOSE_TOO_BIG, Ordering::Relaxed);
+                    state.reject(
+                        &handle,
+                        &ApiError::too_large("payload_too_large", e.to_string()),
+                    );
+                    tracing::info!(session = %handle.id, error = %e, "stream closed: message too big");
+                }
+                break;
+            }
             Some(Ok(Message::Ping(_) | Message::Pong(_))) => continue,
             Some(Ok(Message::Text(t))) => decode_json_frame(t.as_bytes()),
             Some(Ok(Message::Binary(b))) => {
@@ -222,5 +256,15 @@ async fn run(
     // Frames in flight still hold senders: the writer ends after their results.
     drop(tx);
     let _ = writer.await;
-    tracing::info!(session = %handle.id, owner = owner.name(), "stream closed");
+    audit::event(
+        Action::CloseStream,
+        "ok",
+        peer,
+        Some(owner.name()),
+        Some(&handle.id),
+        &format!(
+            "websocket, close code {}",
+            close_code.load(Ordering::Relaxed)
+        ),
+    );
 }
