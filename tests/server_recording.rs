@@ -1,7 +1,8 @@
 //! Every served session writes one MCAP recording (issue 6): a WebSocket session on the
 //! phantom is read back frame for frame and replays with zero difference; a `livereg serve`
 //! killed (SIGKILL) in the middle of a stream leaves a recording holding every frame whose
-//! result the client had received.
+//! result the client had received; a `livereg serve` whose disk fills up mid-stream goes on
+//! unrecorded, says so, and leaves every frame answered before the disk filled readable.
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -91,6 +92,11 @@ async fn a_served_session_is_recorded_and_replays_identically() {
     assert_eq!(rec.results.len(), N);
     assert_eq!(rec.session.command, "serve");
     assert_eq!(rec.session.notes.get("session"), Some(&id));
+    // The owner is the token's name (never the token).
+    assert_eq!(
+        rec.session.notes.get("owner").map(String::as_str),
+        Some("room-a")
+    );
     for (k, v) in got.iter().enumerate() {
         assert_recorded(&rec, k, v);
         assert_eq!(rec.frames[k].points.len(), 3 * frames[k].len());
@@ -229,5 +235,193 @@ async fn a_killed_server_leaves_every_frame_whose_result_was_sent() {
         rec.describe()
     );
     let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_dir_all(&case);
+}
+
+/// Starts `livereg serve --config config` whose files may not grow past `max_file_bytes`
+/// (RLIMIT_FSIZE, with SIGXFSZ ignored: a write past the limit fails with EFBIG, as a full
+/// disk fails with ENOSPC), set by Python's `resource` module before it execs the server; the
+/// `http_addr` of its `listening` line.
+fn serve_with_file_limit(
+    config: &Path,
+    max_file_bytes: u64,
+) -> (std::process::Child, std::net::SocketAddr) {
+    let mut child = Command::new("python3")
+        .args([
+            "-c",
+            "import os, resource, signal, sys\n\
+             signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n\
+             n = int(sys.argv[1])\n\
+             resource.setrlimit(resource.RLIMIT_FSIZE, (n, n))\n\
+             os.execv(sys.argv[2], sys.argv[2:])",
+            &max_file_bytes.to_string(),
+            env!("CARGO_BIN_EXE_livereg"),
+            "serve",
+            "--config",
+            s(config),
+            "--grpc-bind",
+            "off",
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("python3 runs");
+    let stderr = child.stderr.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut sent = false;
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            if !sent {
+                if let Some(a) = listening_addr(&line) {
+                    let _ = tx.send(a);
+                    sent = true;
+                }
+            }
+        }
+    });
+    let addr = rx
+        .recv_timeout(Duration::from_secs(60))
+        .expect("livereg serve logs its address");
+    (child, addr)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_disk_stops_the_recording_not_the_session() {
+    const FRAMES: usize = 10;
+    let case = small_case("rec-full", FRAMES);
+    let frames = read_frames(&case.join("frames")).unwrap();
+    let scene = SceneFiles::read(&case.join("scene.toml")).unwrap();
+
+    // Calibration, in process and unlimited: the recording's size after creation and per
+    // frame, so that the limit below falls after the third frame whatever the encoding.
+    let cfg = test_config("rec-full-calibrate");
+    let cal_dir = cfg.data_dir.join("recordings");
+    let server = start(cfg).await;
+    let id = http_create_session(server.http_addr, TOKEN_A, &scene)
+        .await
+        .unwrap();
+    let path = cal_dir.join(format!("{id}.mcap"));
+    let created = std::fs::metadata(&path).unwrap().len();
+    let (_, _) = ws_lockstep(server.http_addr, &id, TOKEN_A, &frames[..2], false)
+        .await
+        .unwrap();
+    let per_frame = (std::fs::metadata(&path).unwrap().len() - created) / 2;
+    server.shutdown().await.unwrap();
+    let limit = created + 3 * per_frame + per_frame / 2;
+
+    let dir = temp_dir("rec-full-server");
+    let recordings = dir.join("recordings");
+    let config = dir.join("serve.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "bind = \"127.0.0.1:0\"\ndata_dir = {:?}\nrecordings_dir = {:?}\nrecordings_fsync_ms = 0\nworker_threads = 1\nlog_format = \"json\"\nlog_filter = \"info\"\n[[tokens]]\nname = \"room-a\"\ntoken = \"{TOKEN_A}\"\n[limits]\nmax_frames_per_second = 1000.0\n",
+            s(&dir.join("data")),
+            s(&recordings)
+        ),
+    )
+    .unwrap();
+    let (mut child, addr) = serve_with_file_limit(&config, limit);
+    let id = http_create_session(addr, TOKEN_A, &scene).await.unwrap();
+    let (got, _) = ws_lockstep(addr, &id, TOKEN_A, &frames, false)
+        .await
+        .unwrap();
+    // Every frame was answered and registered: the session went on.
+    assert_eq!(got.len(), FRAMES);
+    for v in &got {
+        assert!(
+            v["diagnostics"].get("error").is_none(),
+            "{}",
+            v["diagnostics"]
+        );
+    }
+    // Its description says the recording stopped, without the server's path.
+    let r = http(
+        addr,
+        "GET",
+        &format!("/v1/sessions/{id}"),
+        &[("Authorization", &format!("Bearer {TOKEN_A}"))],
+        b"",
+    )
+    .await
+    .unwrap();
+    let why = r.json()["recording_error"]
+        .as_str()
+        .expect("recording_error in the description")
+        .to_string();
+    assert!(why.contains("recording stopped"), "{why}");
+    assert!(!why.contains(s(&dir)), "server path in {why}");
+    let metrics =
+        String::from_utf8(http(addr, "GET", "/metrics", &[], b"").await.unwrap().body).unwrap();
+    assert!(
+        metrics.contains("livereg_recording_errors_total{stage=\"write\"} 1"),
+        "{metrics}"
+    );
+    child.kill().unwrap();
+    child.wait().unwrap();
+
+    // The recording holds the frames answered before the disk filled, each as answered.
+    let rec = Recording::open(&recordings.join(format!("{id}.mcap"))).unwrap();
+    let kept = rec.complete_frames();
+    assert!(
+        (3..FRAMES).contains(&kept),
+        "{kept} frames kept with room for 3.5: {}",
+        rec.describe()
+    );
+    for (k, v) in got.iter().enumerate().take(kept) {
+        assert_recorded(&rec, k, v);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_dir_all(&case);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_retention_policy_removes_old_recordings() {
+    let case = small_case("rec-retain", 1);
+    let mut cfg = test_config("rec-retain");
+    let recordings = cfg.data_dir.join("recordings");
+    std::fs::create_dir_all(&recordings).unwrap();
+    let now = std::time::SystemTime::now();
+    let aged = |name: &str, bytes: usize, age_h: u64| {
+        let p = recordings.join(name);
+        std::fs::write(&p, vec![0u8; bytes]).unwrap();
+        let f = std::fs::File::options().write(true).open(&p).unwrap();
+        f.set_modified(now - Duration::from_secs(age_h * 3600))
+            .unwrap();
+        p
+    };
+    let month_old = aged("old-session.mcap", 1000, 24 * 31);
+    let day_old = aged("recent-session.mcap", 1000, 24);
+    let not_a_recording = aged("operator-notes.txt", 1000, 24 * 365);
+    cfg.recordings_max_age_h = 24.0 * 30.0;
+    let server = start(cfg).await;
+    // The policy runs at start: the month-old recording goes, the rest stays.
+    let t0 = Instant::now();
+    while month_old.exists() && t0.elapsed() < Duration::from_secs(20) {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert!(
+        !month_old.exists(),
+        "a recording past recordings_max_age_h was kept"
+    );
+    assert!(day_old.exists() && not_a_recording.exists());
+    let m = String::from_utf8(
+        http(server.http_addr, "GET", "/metrics", &[], b"")
+            .await
+            .unwrap()
+            .body,
+    )
+    .unwrap();
+    assert!(
+        m.contains("livereg_recordings_removed_total{reason=\"age\"} 1"),
+        "{m}"
+    );
+    // Sessions go on recording beside the policy.
+    let scene = SceneFiles::read(&case.join("scene.toml")).unwrap();
+    let id = http_create_session(server.http_addr, TOKEN_A, &scene)
+        .await
+        .unwrap();
+    assert!(recordings.join(format!("{id}.mcap")).is_file());
+    server.shutdown().await.unwrap();
     let _ = std::fs::remove_dir_all(&case);
 }

@@ -21,6 +21,7 @@
 mod base64;
 pub mod messages;
 pub mod reader;
+pub mod retention;
 pub mod scene_files;
 pub mod schema;
 pub mod writer;

@@ -4,7 +4,7 @@ use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use mcap::records::MessageHeader;
 use mcap::{WriteOptions, Writer};
@@ -15,6 +15,10 @@ use super::scene_files::SceneFiles;
 use super::{schema, RecordingError};
 use super::{FORMAT_NAME, FORMAT_VERSION, TOPIC_FRAMES, TOPIC_RESULTS, TOPIC_SCENE, TOPIC_SESSION};
 use crate::session::{Frame, FrameResult};
+
+/// Longest time a recorded result stays in the operating system's cache before the recorder
+/// forces it to the disk, unless [`Recorder::set_fsync_interval`] says otherwise.
+pub const DEFAULT_FSYNC_INTERVAL: Duration = Duration::from_secs(1);
 
 /// What the recorder is told about the session besides the scene.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -49,11 +53,18 @@ pub struct RecorderStats {
 /// Chunks are built in memory and written whole (no compression), and each
 /// [`record_result`](Self::record_result) closes the chunk and flushes the file: a process
 /// killed at any moment leaves a readable file holding every frame whose result was recorded
-/// (its summary and index are written by [`finish`](Self::finish) only). Not thread-safe: one
-/// recorder per session.
+/// (its summary and index are written by [`finish`](Self::finish) only). A flushed chunk is in
+/// the operating system's cache; it reaches the disk (`fsync`) at most
+/// [`DEFAULT_FSYNC_INTERVAL`] (or [`Recorder::set_fsync_interval`]) after its result, and at
+/// [`finish`](Self::finish), so that a power loss or a kernel crash loses at most that much.
+/// Not thread-safe: one recorder per session.
 pub struct Recorder {
     path: PathBuf,
     writer: Option<Writer<BufWriter<File>>>,
+    /// The same open file as the writer's, for `fsync`.
+    sync_handle: File,
+    fsync_interval: Duration,
+    last_sync: Instant,
     frames_channel: u16,
     results_channel: u16,
     length_scale: f64,
@@ -80,6 +91,9 @@ impl Recorder {
             std::fs::create_dir_all(dir).map_err(|e| io(&format!("cannot create: {e}")))?;
         }
         let file = File::create(path).map_err(|e| io(&format!("cannot create: {e}")))?;
+        let sync_handle = file
+            .try_clone()
+            .map_err(|e| io(&format!("cannot open: {e}")))?;
         let options = WriteOptions::new()
             .compression(None)
             .profile("")
@@ -122,6 +136,9 @@ impl Recorder {
         let mut rec = Self {
             path: path.to_path_buf(),
             writer: Some(writer),
+            sync_handle,
+            fsync_interval: DEFAULT_FSYNC_INTERVAL,
+            last_sync: Instant::now(),
             frames_channel,
             results_channel,
             length_scale,
@@ -132,7 +149,20 @@ impl Recorder {
         rec.write(session_ch, 0, now, &session)?;
         rec.write(scene_ch, 0, now, &scene.to_message())?;
         rec.flush()?;
+        rec.sync()?;
+        // The new file's directory entry too, so that the recording itself survives a crash.
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            if let Ok(d) = File::open(dir) {
+                let _ = d.sync_all();
+            }
+        }
         Ok(rec)
+    }
+
+    /// Sets how long a recorded result may stay in the operating system's cache before it is
+    /// forced to the disk (`fsync`); zero syncs after every result.
+    pub fn set_fsync_interval(&mut self, interval: Duration) {
+        self.fsync_interval = interval;
     }
 
     /// The recording's path.
@@ -181,6 +211,9 @@ impl Recorder {
         self.write(self.results_channel, self.results as u32, now, &m)?;
         self.results += 1;
         self.flush()?;
+        if self.last_sync.elapsed() >= self.fsync_interval {
+            self.sync()?;
+        }
         self.write_ms += t.elapsed().as_secs_f64() * 1e3;
         Ok(())
     }
@@ -192,6 +225,7 @@ impl Recorder {
         let mut inner = writer.into_inner();
         std::io::Write::flush(&mut inner).map_err(|e| self.err(&e))?;
         drop(inner);
+        self.sync_handle.sync_all().map_err(|e| self.err(&e))?;
         let bytes = std::fs::metadata(&self.path).map(|m| m.len()).unwrap_or(0);
         Ok(RecorderStats {
             frames: self.frames,
@@ -225,6 +259,13 @@ impl Recorder {
         let w = self.writer.as_mut().expect("writer present until finish");
         let r = w.write_to_known_channel(&header, &data);
         r.map_err(|e| self.err(&e))
+    }
+
+    /// Forces what was written to the disk (`fsync` of the data).
+    fn sync(&mut self) -> Result<(), RecordingError> {
+        self.sync_handle.sync_data().map_err(|e| self.err(&e))?;
+        self.last_sync = Instant::now();
+        Ok(())
     }
 
     /// Closes the current chunk and flushes it to the file.

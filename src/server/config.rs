@@ -89,6 +89,15 @@ pub struct ServerConfig {
     pub record: bool,
     /// Where session recordings go (default `<data_dir>/recordings`; created if missing).
     pub recordings_dir: Option<PathBuf>,
+    /// Most bytes the recordings directory may hold; the oldest finished recordings are
+    /// removed above it (0: no limit).
+    pub recordings_max_bytes: u64,
+    /// Oldest a finished recording may be, hours, by its last change (0: no limit).
+    pub recordings_max_age_h: f64,
+    /// Longest a recorded result stays in the operating system's cache before it is forced
+    /// to the disk (`fsync`), ms (0: after every result). Recordings are also synced when
+    /// they finish.
+    pub recordings_fsync_ms: u64,
     /// Frames registered at the same time (CPU-bound; default: the number of cores).
     pub worker_threads: usize,
     /// Threads of the async runtime that handles the network (default 2).
@@ -120,6 +129,9 @@ impl Default for ServerConfig {
             data_dir: std::env::temp_dir().join("livereg-server"),
             record: true,
             recordings_dir: None,
+            recordings_max_bytes: 0,
+            recordings_max_age_h: 0.0,
+            recordings_fsync_ms: 1000,
             worker_threads: std::thread::available_parallelism()
                 .map(|n| n.get())
                 .unwrap_or(2),
@@ -214,6 +226,18 @@ fn check_token_file_mode(path: &Path) -> Result<(), String> {
 }
 
 impl ServerConfig {
+    /// The retention policy of the recordings directory (`recordings_max_bytes`,
+    /// `recordings_max_age_h`); recordings changed in the last two minutes are never
+    /// removed.
+    pub fn recordings_retention(&self) -> crate::recording::retention::RetentionPolicy {
+        crate::recording::retention::RetentionPolicy {
+            max_bytes: self.recordings_max_bytes,
+            max_age: (self.recordings_max_age_h > 0.0)
+                .then(|| std::time::Duration::from_secs_f64(self.recordings_max_age_h * 3600.0)),
+            min_age: std::time::Duration::from_secs(120),
+        }
+    }
+
     /// Where session recordings go: `recordings_dir`, or `<data_dir>/recordings`.
     pub fn recordings_path(&self) -> PathBuf {
         self.recordings_dir
@@ -387,6 +411,12 @@ impl ServerConfig {
             return Err(format!(
                 "log_format must be \"text\" or \"json\", got {:?}",
                 self.log_format
+            ));
+        }
+        if !(self.recordings_max_age_h.is_finite() && self.recordings_max_age_h >= 0.0) {
+            return Err(format!(
+                "recordings_max_age_h must be >= 0 (0: keep recordings of any age), got {}",
+                self.recordings_max_age_h
             ));
         }
         if let Some(d) = &self.recordings_dir {

@@ -96,6 +96,11 @@ const COUNTERS: &[(&str, &str, &str)] = &[
         "stage",
     ),
     (
+        "livereg_recordings_removed_total",
+        "Finished recordings removed by the retention policy, by reason (age, size).",
+        "reason",
+    ),
+    (
         "livereg_sessions_closed_total",
         "Sessions closed, by reason (client, idle, shutdown, failed).",
         "reason",

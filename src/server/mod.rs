@@ -199,6 +199,15 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
                 .map_err(|e| format!("gRPC server: {e}"))
         }));
     }
+    let policy = config.recordings_retention();
+    if config.record && policy.is_active() {
+        tokio::spawn(keep_recordings_within(
+            state.clone(),
+            config.recordings_path(),
+            policy,
+            rx.clone(),
+        ));
+    }
     let idle = config.limits.session_idle_timeout_s;
     if idle > 0 {
         let st = state.clone();
@@ -225,6 +234,55 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
         state,
         tasks,
     })
+}
+
+/// How often the recordings directory is checked against its retention policy.
+const RETENTION_PERIOD: Duration = Duration::from_secs(60);
+
+/// Applies the recordings' retention `policy` to `dir` now and every [`RETENTION_PERIOD`]
+/// until shutdown, sparing the recordings of open sessions; each removal is logged and
+/// counted (`livereg_recordings_removed_total{reason=age|size}`).
+async fn keep_recordings_within(
+    state: Arc<service::AppState>,
+    dir: std::path::PathBuf,
+    policy: crate::recording::retention::RetentionPolicy,
+    mut shutdown: watch::Receiver<bool>,
+) {
+    use crate::recording::retention::{enforce, RemovalReason};
+    let mut tick = tokio::time::interval(RETENTION_PERIOD);
+    loop {
+        tokio::select! {
+            _ = tick.tick() => {}
+            _ = shutdown.wait_for(|s| *s) => return,
+        }
+        let in_use = state.registry.recording_paths();
+        let d = dir.clone();
+        let report = tokio::task::spawn_blocking(move || {
+            enforce(&d, &policy, &in_use, std::time::SystemTime::now())
+        })
+        .await;
+        match report {
+            Ok(Ok(r)) => {
+                for (path, bytes, why) in &r.removed {
+                    let reason = match why {
+                        RemovalReason::Age => "age",
+                        RemovalReason::Size => "size",
+                    };
+                    state
+                        .metrics
+                        .inc("livereg_recordings_removed_total", reason, 1);
+                    tracing::info!(file = %path.display(), bytes, reason, "recording removed by the retention policy");
+                }
+                for (path, e) in &r.errors {
+                    tracing::warn!(file = %path.display(), error = %e, "retention could not remove a recording");
+                }
+            }
+            Ok(Err(e)) => {
+                tracing::warn!(dir = %dir.display(), error = %e, "retention could not read the recordings directory")
+            }
+            Err(e) => tracing::warn!(error = %e, "retention task failed"),
+        }
+    }
 }
 
 /// Serves `app` on `listener`, through TLS when `tls` is given, until `signal`.

@@ -58,6 +58,10 @@ pub struct SessionInfo {
     /// `record = false`, or the file could not be created).
     #[serde(default)]
     pub recording: Option<String>,
+    /// Why the recording stopped while the session went on (a full disk, an I/O error);
+    /// absent while it records.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recording_error: Option<String>,
 }
 
 impl SessionInfo {
@@ -78,6 +82,7 @@ impl SessionInfo {
             warm: h.is_warm(),
             stream: format!("/v1/sessions/{}/stream", h.id),
             recording: h.info.recording.as_ref().map(|p| p.display().to_string()),
+            recording_error: h.recording_failure(),
         }
     }
 }
@@ -234,6 +239,19 @@ impl Registry {
             .map(|h| h.id.clone())
             .collect();
         idle.iter().filter_map(|id| g.sessions.remove(id)).collect()
+    }
+
+    /// The recordings of the open sessions (files that retention must not remove).
+    pub fn recording_paths(&self) -> std::collections::HashSet<std::path::PathBuf> {
+        self.inner
+            .lock()
+            .map(|i| {
+                i.sessions
+                    .values()
+                    .filter_map(|h| h.info.recording.clone())
+                    .collect()
+            })
+            .unwrap_or_default()
     }
 
     /// Number of open sessions.

@@ -21,27 +21,36 @@ use super::upload::{prepare_session, SceneUpload};
 use super::worker::{run_worker, Completed, Job, ModelInfo, Outcome, Reply, SessionHandle};
 
 /// Opens the recording of session `id` (scene `loaded`, uploaded as `upload`) at `path`.
+/// The recording's notes name the session and its owner (the token's name, never the token).
 fn open_recording(
     path: &std::path::Path,
     loaded: &crate::scene::LoadedScene,
     upload: &SceneUpload,
     id: &str,
+    owner: &Owner,
+    fsync: std::time::Duration,
 ) -> Result<Recorder, String> {
     let files = SceneFiles::from_loaded(loaded).map_err(|e| e.to_string())?;
     let meta = RecordingMeta {
         command: "serve".into(),
         budget_ms: upload.budget_ms,
         rigid_only: upload.rigid_only,
-        notes: [("session".to_string(), id.to_string())].into(),
+        notes: [
+            ("session".to_string(), id.to_string()),
+            ("owner".to_string(), owner.name().to_string()),
+        ]
+        .into(),
     };
-    Recorder::create(
+    let mut rec = Recorder::create(
         path,
         &files,
         &meta,
         loaded.length_scale(),
         loaded.scene.units.as_str(),
     )
-    .map_err(|e| e.to_string())
+    .map_err(|e| e.to_string())?;
+    rec.set_fsync_interval(fsync);
+    Ok(rec)
 }
 
 /// Everything the front ends share.
@@ -194,11 +203,15 @@ impl AppState {
             .record
             .then(|| self.config.recordings_path().join(format!("{id}.mcap")));
         let (sid, metrics) = (id.clone(), self.metrics.clone());
+        let (rec_owner, fsync) = (
+            owner.clone(),
+            std::time::Duration::from_millis(self.config.recordings_fsync_ms),
+        );
         let built = tokio::task::spawn_blocking(move || {
             std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
                 let (loaded, session) = prepare_session(&upload, &d, &limits)?;
                 let recorder = record_to.and_then(|path| {
-                    open_recording(&path, &loaded, &upload, &sid)
+                    open_recording(&path, &loaded, &upload, &sid, &rec_owner, fsync)
                         .inspect_err(|e| {
                             metrics.inc("livereg_recording_errors_total", "create", 1);
                             tracing::error!(session = %sid, error = %e, "cannot record the session; it is served unrecorded");

@@ -156,6 +156,7 @@ pub struct SessionHandle {
     warm: AtomicBool,
     reset_requested: AtomicBool,
     skipped_since_result: AtomicU64,
+    recording_failure: Mutex<Option<String>>,
 }
 
 impl SessionHandle {
@@ -183,6 +184,19 @@ impl SessionHandle {
             warm: AtomicBool::new(false),
             reset_requested: AtomicBool::new(false),
             skipped_since_result: AtomicU64::new(0),
+            recording_failure: Mutex::new(None),
+        }
+    }
+
+    /// Why the session's recording stopped while the session went on (a full disk, an I/O
+    /// error), or `None` while it records (or was never recorded).
+    pub fn recording_failure(&self) -> Option<String> {
+        self.recording_failure.lock().ok().and_then(|f| f.clone())
+    }
+
+    fn set_recording_failure(&self, why: String) {
+        if let Ok(mut f) = self.recording_failure.lock() {
+            *f = Some(why);
         }
     }
 
@@ -371,14 +385,16 @@ pub async fn run_worker(
     finish(&handle);
 }
 
-/// Records `frame` (received at `received_ns`) and its `result`; on failure the recorder is
-/// dropped (its file keeps every frame recorded before) and the failure logged and counted.
+/// Records `frame` (received at `received_ns`) and its `result`; on failure (a full disk, an
+/// I/O error) the recorder is dropped (its file keeps every frame recorded before), the
+/// failure logged and counted, and the session's description says so
+/// ([`SessionHandle::recording_failure`]); the session goes on unrecorded.
 fn record(
     recorder: &mut Option<Recorder>,
     frame: &crate::session::Frame,
     received_ns: u64,
     result: &FrameResult,
-    session: &str,
+    handle: &SessionHandle,
     metrics: &Metrics,
 ) {
     let Some(rec) = recorder.as_mut() else {
@@ -389,7 +405,17 @@ fn record(
         .and_then(|()| rec.record_result(result));
     if let Err(e) = r {
         metrics.inc("livereg_recording_errors_total", "write", 1);
-        tracing::error!(session = %session, error = %e, "recording failed; the session goes on unrecorded");
+        tracing::error!(session = %handle.id, error = %e, "recording failed; the session goes on unrecorded");
+        let frames = handle.counters.registered.load(Ordering::Relaxed);
+        // The message without the server's path: the description goes to the client.
+        let what = match &e {
+            crate::recording::RecordingError::Io { message, .. }
+            | crate::recording::RecordingError::Invalid { message, .. } => message.clone(),
+            crate::recording::RecordingError::Scene(m) => m.clone(),
+        };
+        handle.set_recording_failure(format!(
+            "the recording stopped after {frames} registered frames ({what}); the session goes on unrecorded"
+        ));
         *recorder = None;
     }
 }
@@ -429,12 +455,12 @@ async fn serve_frames(
         }
         let frame = job.incoming.frame;
         let mut rec = recorder.take();
-        let (id, m) = (handle.id.clone(), metrics.clone());
+        let (h, m) = (handle.clone(), metrics.clone());
         let joined = tokio::task::spawn_blocking(move || {
             let r = std::panic::catch_unwind(AssertUnwindSafe(|| s.register(&frame)));
             if let Ok(result) = &r {
                 // Before the result is delivered: on disk once the client sees it.
-                record(&mut rec, &frame, received_ns, result, &id, &m);
+                record(&mut rec, &frame, received_ns, result, &h, &m);
             }
             (s, rec, r)
         })
