@@ -132,6 +132,17 @@ pub fn encode_binary_frame(seq: u64, points: &[[f32; 3]], cam: Option<[[f32; 3];
     out
 }
 
+/// The `seq` of a binary frame read from its header alone (0 when the message is too short
+/// or not a binary frame): refusals made before decoding still name the frame.
+pub fn peek_binary_seq(bytes: &[u8]) -> u64 {
+    match bytes.get(8..16) {
+        Some(b) if bytes.starts_with(&BINARY_MAGIC) => {
+            u64::from_le_bytes(b.try_into().unwrap_or([0; 8]))
+        }
+        _ => 0,
+    }
+}
+
 /// Decodes a binary frame (see the module docs); 400 naming what is wrong, 413 when it holds
 /// more than `max_points` points.
 pub fn decode_binary_frame(bytes: &[u8], max_points: usize) -> Result<Incoming, ApiError> {

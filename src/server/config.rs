@@ -50,6 +50,27 @@ pub struct LimitsConfig {
     pub max_frames_per_second: f64,
     /// Sessions without any request for this long are closed, seconds (0: never).
     pub session_idle_timeout_s: u64,
+    /// Longest registration of one frame, ms, whatever the uploaded scene or `budget_ms`
+    /// says: the session's time budget is at most this (the best state so far is answered,
+    /// flagged `time_budget`). A frame still running after [`super::worker::WATCHDOG_FACTOR`]
+    /// times this retires its session.
+    pub max_frame_ms: f64,
+    /// Most iterations or steps an uploaded scene may ask for in any one of
+    /// `solver.max_newton_iterations`, `solver.load_steps`, `registration.max_icp_iterations`
+    /// and `registration.penalty_steps`.
+    pub max_solver_iterations: u32,
+    /// Longest a client may take to send a request's headers, seconds (also the longest an
+    /// idle keep-alive connection waits for its next request).
+    pub header_read_timeout_s: f64,
+    /// Longest a client may take to send a request's body, seconds (408 `request_timeout`).
+    pub body_timeout_s: f64,
+    /// Most open HTTP/WebSocket connections (more are closed at once).
+    pub max_connections: usize,
+    /// Most open HTTP/WebSocket connections from one client IP address.
+    pub max_connections_per_address: usize,
+    /// A WebSocket or gRPC stream that receives nothing (no frame, no pong) for this long is
+    /// closed, seconds; the server pings WebSockets every third of it.
+    pub stream_idle_timeout_s: f64,
 }
 
 impl Default for LimitsConfig {
@@ -64,6 +85,13 @@ impl Default for LimitsConfig {
             max_sessions: 64,
             max_frames_per_second: 60.0,
             session_idle_timeout_s: 3600,
+            max_frame_ms: 1000.0,
+            max_solver_iterations: 100,
+            header_read_timeout_s: 10.0,
+            body_timeout_s: 30.0,
+            max_connections: 1024,
+            max_connections_per_address: 64,
+            stream_idle_timeout_s: 120.0,
         }
     }
 }
@@ -375,7 +403,7 @@ impl ServerConfig {
             return Err("no bearer tokens configured: set `tokens` in the configuration, LIVEREG_TOKENS or LIVEREG_TOKEN_FILE (or --insecure-loopback-dev for loopback-only development)".into());
         }
         let l = &self.limits;
-        let checks: [(bool, &str); 9] = [
+        let checks: [(bool, &str); 13] = [
             (self.worker_threads >= 1, "worker_threads must be >= 1"),
             (self.io_threads >= 1, "io_threads must be >= 1"),
             (
@@ -402,6 +430,24 @@ impl ServerConfig {
             (
                 l.max_frames_per_second.is_finite() && l.max_frames_per_second > 0.0,
                 "limits.max_frames_per_second must be > 0",
+            ),
+            (
+                l.max_frame_ms.is_finite() && l.max_frame_ms > 0.0,
+                "limits.max_frame_ms must be > 0",
+            ),
+            (
+                l.max_solver_iterations >= 1,
+                "limits.max_solver_iterations must be >= 1",
+            ),
+            (
+                [l.header_read_timeout_s, l.body_timeout_s, l.stream_idle_timeout_s]
+                    .iter()
+                    .all(|t| t.is_finite() && *t > 0.0 && *t <= 86_400.0),
+                "limits.header_read_timeout_s, body_timeout_s and stream_idle_timeout_s must be in (0, 86400] seconds",
+            ),
+            (
+                l.max_connections >= 1 && l.max_connections_per_address >= 1,
+                "limits.max_connections and max_connections_per_address must be >= 1",
             ),
         ];
         if let Some((_, m)) = checks.iter().find(|(ok, _)| !ok) {

@@ -248,6 +248,7 @@ impl proto::registration_server::Registration for GrpcService {
         let frame = r
             .frame
             .ok_or_else(|| self.err(ApiError::bad_request("the request has no `frame`")))?;
+        self.state.admit_rate(&h).map_err(|e| self.err(e))?;
         let incoming = decode_proto_frame(frame, self.state.config.limits.max_frame_points)
             .map_err(|e| {
                 self.state.reject(&h, &e);
@@ -320,10 +321,22 @@ async fn run_stream(
         }
     });
     let mut shutdown = state.shutdown.clone();
+    let idle = std::time::Duration::from_secs_f64(state.config.limits.stream_idle_timeout_s);
     loop {
         let msg = tokio::select! {
-            m = inbound.message() => m,
+            m = inbound.message() => Some(m),
             _ = shutdown.wait_for(|s| *s) => break,
+            _ = tokio::time::sleep(idle) => None,
+        };
+        let Some(msg) = msg else {
+            // Nothing received for the idle timeout: the stream ends with its reason.
+            let _ = out
+                .send(Err(Status::deadline_exceeded(format!(
+                    "idle: no message on this stream for {} s (limits.stream_idle_timeout_s)",
+                    state.config.limits.stream_idle_timeout_s
+                ))))
+                .await;
+            break;
         };
         let received = Instant::now();
         let req = match msg {
@@ -384,14 +397,17 @@ async fn run_stream(
         }
         let refused = match req.frame {
             None => Err((0, ApiError::bad_request("the message has no `frame`"))),
-            Some(f) => match decode_proto_frame(f, state.config.limits.max_frame_points) {
-                Err(e) => {
-                    state.reject(&handle, &e);
-                    Err((0, e))
-                }
-                Ok(inc) => match state.admit(&handle, &inc) {
-                    Ok(()) => Ok(inc),
-                    Err(e) => Err((inc.seq, e)),
+            Some(f) => match state.admit_rate(&handle) {
+                Err(e) => Err((f.seq, e)),
+                Ok(()) => match decode_proto_frame(f, state.config.limits.max_frame_points) {
+                    Err(e) => {
+                        state.reject(&handle, &e);
+                        Err((0, e))
+                    }
+                    Ok(inc) => match state.admit_decoded(&handle, &inc) {
+                        Ok(()) => Ok(inc),
+                        Err(e) => Err((inc.seq, e)),
+                    },
                 },
             },
         };

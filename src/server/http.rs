@@ -17,7 +17,7 @@ use serde_json::json;
 
 use super::audit::{self, Action, Peer};
 use super::auth::Owner;
-use super::codec::{decode_binary_frame, decode_json_frame, ResultMessage};
+use super::codec::ResultMessage;
 use super::error::ApiError;
 use super::registry::SessionInfo;
 use super::result_codec::{encode_binary_result, ResultFormat};
@@ -51,6 +51,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/v1/sessions/{id}/reset", post(reset_session))
         .route("/v1/sessions/{id}/frames", post(submit_frame))
         .route("/v1/sessions/{id}/stream", get(super::ws::stream))
+        .layer(middleware::from_fn_with_state(state.clone(), body_deadline))
         .layer(middleware::from_fn_with_state(state.clone(), require_token));
     let metrics = if state.config.metrics_require_token {
         Router::new()
@@ -85,6 +86,57 @@ async fn log_request(req: Request, next: Next) -> Response {
         tracing::debug!(%method, path, status, ms, "http");
     }
     r
+}
+
+/// Reads a request's whole body (at most `limits.max_body_bytes`) within
+/// `limits.body_timeout_s`: a client that sends its body too slowly gets 408
+/// `request_timeout` and holds nothing longer. Requests without a body pass untouched.
+async fn body_deadline(State(state): State<Arc<AppState>>, req: Request, next: Next) -> Response {
+    let has_body = req
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .is_some_and(|v| v.as_bytes() != b"0")
+        || req.headers().contains_key(header::TRANSFER_ENCODING);
+    if !has_body {
+        return next.run(req).await;
+    }
+    let limits = &state.config.limits;
+    let (parts, body) = req.into_parts();
+    let deadline = std::time::Duration::from_secs_f64(limits.body_timeout_s);
+    let read = axum::body::to_bytes(body, limits.max_body_bytes);
+    match tokio::time::timeout(deadline, read).await {
+        Ok(Ok(bytes)) => {
+            next.run(Request::from_parts(parts, axum::body::Body::from(bytes)))
+                .await
+        }
+        Ok(Err(e)) => {
+            // `to_bytes` fails on the length limit ("length limit exceeded") or a broken
+            // connection.
+            let too_large = e.to_string().contains("length limit");
+            let err = if too_large {
+                ApiError::too_large(
+                    "payload_too_large",
+                    format!(
+                        "the request body exceeds {} bytes (limits.max_body_bytes)",
+                        limits.max_body_bytes
+                    ),
+                )
+            } else {
+                ApiError::bad_request(format!("cannot read the request body: {e}"))
+            };
+            state.count(err).into_response()
+        }
+        Err(_) => state
+            .count(ApiError::new(
+                StatusCode::REQUEST_TIMEOUT,
+                "request_timeout",
+                format!(
+                    "the request body did not arrive within {} s (limits.body_timeout_s)",
+                    limits.body_timeout_s
+                ),
+            ))
+            .into_response(),
+    }
 }
 
 async fn require_token(
@@ -386,16 +438,13 @@ async fn submit_frame(
     let h = state.session(&owner, &id).map_err(|e| state.count(e))?;
     let format = ResultFormat::from_query(query.as_deref()).map_err(|e| state.count(e))?;
     let body = body.map_err(|e| state.count(body_error(e, limits.max_body_bytes)))?;
-    let ctype = content_type(&headers);
-    let incoming = if ctype.starts_with("application/octet-stream") {
-        decode_binary_frame(&body, limits.max_frame_points)
-    } else {
-        decode_json_frame(&body)
-    }
-    .map_err(|e| {
-        state.reject(&h, &e);
-        state.count(e)
-    })?;
+    let binary = content_type(&headers).starts_with("application/octet-stream");
+    // The rate before the decode: a flood costs a counter, never a decode.
+    state.admit_rate(&h).map_err(|e| state.count(e))?;
+    let incoming = state
+        .decode(&h, body, binary)
+        .await
+        .map_err(|e| state.count(e))?;
     let (h, done) = state
         .register_once(&owner, &id, incoming)
         .await

@@ -90,6 +90,39 @@ pub fn check_frame(frame: &Frame, limits: &LimitsConfig) -> Result<(), ApiError>
     Ok(())
 }
 
+/// Checks the work an uploaded scene asks for per frame: every iteration or step count of
+/// its solver and registration at most `limits.max_solver_iterations` (413 `work_too_large`
+/// naming the key).
+pub fn check_scene_work(
+    limits: &LimitsConfig,
+    scene: &crate::scene::Scene,
+) -> Result<(), ApiError> {
+    let mut counts = vec![
+        (
+            "solver.max_newton_iterations",
+            scene.solver.max_newton_iterations,
+        ),
+        ("solver.load_steps", scene.solver.load_steps),
+    ];
+    if let Some(r) = &scene.registration {
+        counts.push(("registration.max_icp_iterations", r.max_icp_iterations));
+        counts.push(("registration.penalty_steps", r.penalty_steps));
+    }
+    match counts
+        .into_iter()
+        .find(|(_, n)| *n > limits.max_solver_iterations)
+    {
+        Some((key, n)) => Err(ApiError::too_large(
+            "work_too_large",
+            format!(
+                "{key} = {n} exceeds the limit of {} (limits.max_solver_iterations)",
+                limits.max_solver_iterations
+            ),
+        )),
+        None => Ok(()),
+    }
+}
+
 /// Checks a scene's size before its grid is built: triangles of a mesh, octree levels, and the
 /// number of grid cells its bounding box (`min`, `max`, scene units) asks for at `cell_size`.
 pub fn check_scene_size(

@@ -96,6 +96,11 @@ const COUNTERS: &[(&str, &str, &str)] = &[
         "stage",
     ),
     (
+        "livereg_connections_refused_total",
+        "HTTP/WebSocket connections closed at once because too many were open, by limit (server, address).",
+        "limit",
+    ),
+    (
         "livereg_recordings_removed_total",
         "Finished recordings removed by the retention policy, by reason (age, size).",
         "reason",

@@ -17,11 +17,11 @@ pub mod audit;
 pub mod auth;
 pub mod codec;
 pub mod config;
+pub mod connections;
 pub mod error;
 pub mod grpc;
 pub mod http;
 pub mod limits;
-pub mod listener;
 pub mod metrics;
 pub mod openapi;
 pub mod registry;
@@ -166,8 +166,14 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
     let app = http::router(state.clone());
     let http_tls = tls.as_ref().map(|t| t.server_config.clone());
     let sig = signal(rx.clone());
+    let conn_limits = connections::ConnectionLimits {
+        max_connections: config.limits.max_connections,
+        max_per_address: config.limits.max_connections_per_address,
+        header_read_timeout: Duration::from_secs_f64(config.limits.header_read_timeout_s),
+    };
+    let m = state.metrics.clone();
     tasks.push(tokio::spawn(async move {
-        serve_http(listener, app, http_tls, sig).await
+        serve_http(listener, app, http_tls, conn_limits, m, sig).await
     }));
     let mut grpc_addr = None;
     if let Some(addr) = config.grpc_bind {
@@ -183,9 +189,16 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
         // `Server::tcp_nodelay` only applies to sockets tonic accepts itself: a listener
         // handed over must carry the setting, or Nagle's algorithm holds each small result
         // until the client's delayed ACK (measured: +43 ms per frame on loopback).
-        let incoming = tonic::transport::server::TcpIncoming::from(l).with_nodelay(Some(true));
+        // TCP keep-alive finds peers that vanished without a word (a pulled cable); HTTP/2
+        // pings (below) find connections that are open but dead above TCP.
+        let incoming = tonic::transport::server::TcpIncoming::from(l)
+            .with_nodelay(Some(true))
+            .with_keepalive(Some(Duration::from_secs(60)));
         let sig = signal(rx.clone());
-        let mut builder = tonic::transport::Server::builder();
+        let mut builder = tonic::transport::Server::builder()
+            .http2_keepalive_interval(Some(GRPC_KEEPALIVE))
+            .http2_keepalive_timeout(Some(GRPC_KEEPALIVE))
+            .max_concurrent_streams(Some(GRPC_MAX_STREAMS_PER_CONNECTION));
         if let Some(t) = &tls {
             builder = builder
                 .tls_config(t.grpc_config())
@@ -236,6 +249,13 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
     })
 }
 
+/// Interval of the gRPC server's HTTP/2 pings, and how long it waits for their answer before
+/// closing the connection.
+const GRPC_KEEPALIVE: Duration = Duration::from_secs(20);
+
+/// Most concurrent gRPC calls (streams) on one connection.
+const GRPC_MAX_STREAMS_PER_CONNECTION: u32 = 64;
+
 /// How often the recordings directory is checked against its retention policy.
 const RETENTION_PERIOD: Duration = Duration::from_secs(60);
 
@@ -285,37 +305,26 @@ async fn keep_recordings_within(
     }
 }
 
-/// Serves `app` on `listener`, through TLS when `tls` is given, until `signal`.
+/// Serves `app` on `listener`, through TLS when `tls` is given, until `signal`, with the
+/// connection limits of `limits` ([`connections::serve`]).
 async fn serve_http(
     listener: tokio::net::TcpListener,
     app: axum::Router,
     tls: Option<Arc<tokio_rustls::rustls::ServerConfig>>,
+    limits: connections::ConnectionLimits,
+    metrics: Arc<metrics::Metrics>,
     signal: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> Result<(), String> {
-    let done = |r: std::io::Result<()>| r.map_err(|e| format!("HTTP server: {e}"));
     match tls {
         Some(config) => {
             let listener = tls::TlsListener::new(listener, config)
                 .map_err(|e| format!("HTTP server (TLS): {e}"))?;
-            done(
-                axum::serve(
-                    listener,
-                    app.into_make_service_with_connect_info::<audit::Peer>(),
-                )
-                .with_graceful_shutdown(signal)
-                .await,
-            )
+            connections::serve(listener, app, limits, metrics, signal).await;
         }
         None => {
-            let listener = listener::NoDelayListener::new(listener);
-            done(
-                axum::serve(
-                    listener,
-                    app.into_make_service_with_connect_info::<audit::Peer>(),
-                )
-                .with_graceful_shutdown(signal)
-                .await,
-            )
+            let listener = connections::NoDelayListener::new(listener);
+            connections::serve(listener, app, limits, metrics, signal).await;
         }
     }
+    Ok(())
 }

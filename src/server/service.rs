@@ -10,7 +10,7 @@ use tokio::sync::{oneshot, watch, Notify, Semaphore};
 use crate::recording::{Recorder, RecordingMeta, SceneFiles};
 
 use super::auth::{Authenticator, Owner};
-use super::codec::Incoming;
+use super::codec::{decode_binary_frame, decode_json_frame, Incoming};
 use super::config::ServerConfig;
 use super::error::ApiError;
 use super::limits::check_frame;
@@ -18,7 +18,14 @@ use super::metrics::Metrics;
 use super::registry::{new_session_id, Registry, SessionInfo};
 use super::slots::RegistrationSlots;
 use super::upload::{prepare_session, SceneUpload};
-use super::worker::{run_worker, Completed, Job, ModelInfo, Outcome, Reply, SessionHandle};
+use super::worker::{
+    run_worker, Completed, Job, ModelInfo, Outcome, Reply, SessionHandle, WorkerGuardrails,
+    WATCHDOG_FACTOR,
+};
+
+/// Frame messages up to this size (bytes) are decoded on the network thread that received
+/// them (a few hundred µs at most); larger ones on the blocking pool.
+pub const INLINE_DECODE_BYTES: usize = 64 * 1024;
 
 /// Opens the recording of session `id` (scene `loaded`, uploaded as `upload`) at `path`.
 /// The recording's notes name the session and its owner (the token's name, never the token).
@@ -261,12 +268,34 @@ impl AppState {
         ));
         self.live_workers.enter();
         let guard = WorkerGuard(self.clone());
+        let state = Arc::downgrade(self);
+        let guard_rails = WorkerGuardrails {
+            watchdog: std::time::Duration::from_secs_f64(
+                WATCHDOG_FACTOR * self.config.limits.max_frame_ms / 1e3,
+            ),
+            on_failure: Arc::new(move |h: &SessionHandle| {
+                if let Some(st) = state.upgrade() {
+                    if st.registry.remove(&h.owner, &h.id).is_ok() {
+                        st.metrics.sessions.fetch_sub(1, Ordering::Relaxed);
+                        super::audit::event(
+                            super::audit::Action::RetireSession,
+                            "ok",
+                            super::audit::Peer(None),
+                            Some(h.owner.name()),
+                            Some(&h.id),
+                            "failed",
+                        );
+                    }
+                }
+            }),
+        };
         let worker = run_worker(
             handle.clone(),
             session,
             recorder,
             self.slots.clone(),
             self.metrics.clone(),
+            guard_rails,
         );
         tokio::spawn(async move {
             let _guard = guard;
@@ -312,18 +341,53 @@ impl AppState {
         }
     }
 
-    /// Checks a decoded frame for `h` (validity, points, rate): refusals are counted.
-    pub fn admit(&self, h: &SessionHandle, incoming: &Incoming) -> Result<(), ApiError> {
+    /// Admits one more frame of `h` before it is decoded: not draining, within the session's
+    /// frame rate (token bucket). A flood of frames costs a counter each, never a decode.
+    /// Refusals are counted.
+    pub fn admit_rate(&self, h: &SessionHandle) -> Result<(), ApiError> {
         if self.is_draining() {
             return Err(ApiError::shutting_down());
-        }
-        if let Err(e) = check_frame(&incoming.frame, &self.config.limits) {
-            self.reject(h, &e);
-            return Err(e);
         }
         // (the session counts its own rate refusals)
         h.admit(self.config.limits.max_frames_per_second)
             .inspect_err(|e| self.count_rejection(e))
+    }
+
+    /// Checks a decoded frame for `h` (not empty, finite, within `max_frame_points`):
+    /// refusals are counted.
+    pub fn admit_decoded(&self, h: &SessionHandle, incoming: &Incoming) -> Result<(), ApiError> {
+        if self.is_draining() {
+            return Err(ApiError::shutting_down());
+        }
+        check_frame(&incoming.frame, &self.config.limits).inspect_err(|e| self.reject(h, e))
+    }
+
+    /// Decodes a frame message (binary encoding or JSON) of `h`: on the blocking pool when it
+    /// is large (over [`INLINE_DECODE_BYTES`]), so that big clouds never stall the network
+    /// threads. Decoding failures are counted as rejections of `h`.
+    pub async fn decode(
+        &self,
+        h: &SessionHandle,
+        bytes: axum::body::Bytes,
+        binary: bool,
+    ) -> Result<Incoming, ApiError> {
+        let max_points = self.config.limits.max_frame_points;
+        let large = bytes.len() > INLINE_DECODE_BYTES;
+        let run = move || {
+            if binary {
+                decode_binary_frame(&bytes, max_points)
+            } else {
+                decode_json_frame(&bytes)
+            }
+        };
+        let decoded = if large {
+            tokio::task::spawn_blocking(run)
+                .await
+                .unwrap_or_else(|e| Err(ApiError::internal(format!("frame decoding task: {e}"))))
+        } else {
+            run()
+        };
+        decoded.inspect_err(|e| self.reject(h, e))
     }
 
     /// Counts a frame of `h` refused before registration (session counter and metrics).
@@ -347,7 +411,7 @@ impl AppState {
     ) -> Result<(Arc<SessionHandle>, Completed), ApiError> {
         let received = Instant::now();
         let h = self.session(owner, id)?;
-        self.admit(&h, &incoming)?;
+        self.admit_decoded(&h, &incoming)?;
         let (tx, rx) = oneshot::channel();
         h.submit(
             Job {

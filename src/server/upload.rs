@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 
 use super::config::LimitsConfig;
 use super::error::ApiError;
-use super::limits::check_scene_size;
+use super::limits::{check_scene_size, check_scene_work};
 use crate::scene::{load_scene, parse_scene, LoadedScene, PointSource, Scene, SceneFormat};
 use crate::session::Session;
 
@@ -204,6 +204,7 @@ pub fn materialize(
     let hide = |m: String| hide_server_paths(&m, dir);
     let scene = parse_scene(&upload.scene, format, Path::new(scene_name))
         .map_err(|e| ApiError::invalid_scene(e.to_string()))?;
+    check_scene_work(limits, &scene)?;
     for name in upload.files.keys() {
         check_file_name(name)?;
         if name == scene_name {
@@ -313,13 +314,18 @@ pub fn prepare_session(
         e
     };
     let loaded = materialize(upload, dir, limits).map_err(hide)?;
-    let session = build_session(&loaded, upload).map_err(hide)?;
+    let session = build_session(&loaded, upload, limits).map_err(hide)?;
     Ok((loaded, session))
 }
 
-/// A session for a loaded scene with the upload's overrides (budget, rigid only). Its errors
+/// A session for a loaded scene with the upload's overrides (budget, rigid only); its time
+/// budget is at most `limits.max_frame_ms` whatever the scene or the upload asks. Its errors
 /// may name the files where the scene was loaded from: [`prepare_session`] hides them.
-pub fn build_session(loaded: &LoadedScene, upload: &SceneUpload) -> Result<Session, ApiError> {
+pub fn build_session(
+    loaded: &LoadedScene,
+    upload: &SceneUpload,
+    limits: &LimitsConfig,
+) -> Result<Session, ApiError> {
     let mut session = Session::from_scene(loaded)
         .map_err(|e| ApiError::invalid_scene(format!("the model cannot be built: {e}")))?;
     if let Some(b) = upload.budget_ms {
@@ -330,6 +336,8 @@ pub fn build_session(loaded: &LoadedScene, upload: &SceneUpload) -> Result<Sessi
         }
         session.settings.time_budget_ms = Some(b);
     }
+    let budget = &mut session.settings.time_budget_ms;
+    *budget = Some(budget.map_or(limits.max_frame_ms, |b| b.min(limits.max_frame_ms)));
     session.settings.non_rigid = !upload.rigid_only;
     Ok(session)
 }

@@ -12,7 +12,7 @@
 use std::panic::AssertUnwindSafe;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use tokio::sync::{mpsc, oneshot, Notify};
 
@@ -352,15 +352,20 @@ fn ms_since(t: Instant) -> f64 {
 /// after every result, so a killed server leaves every frame whose result a client saw); the
 /// recording is finished when the worker ends. A recording failure is logged and counted
 /// (`livereg_recording_errors_total`) and ends the recording, never the session.
+///
+/// A frame still registering after `guard.watchdog` retires the session: its waiting frames
+/// are refused, `guard.on_failure` takes it out of the registry, and the registration
+/// thread, which cannot be stopped, keeps its slot until it returns.
 pub async fn run_worker(
     handle: Arc<SessionHandle>,
     session: Session,
     recorder: Option<Recorder>,
     slots: Arc<RegistrationSlots>,
     metrics: Arc<Metrics>,
+    guard: WorkerGuardrails,
 ) {
     let mut recorder = recorder;
-    serve_frames(&handle, session, &mut recorder, slots, &metrics).await;
+    serve_frames(&handle, session, &mut recorder, slots, &metrics, &guard).await;
     if let Some(rec) = recorder.take() {
         let id = handle.id.clone();
         let finished = tokio::task::spawn_blocking(move || rec.finish()).await;
@@ -426,6 +431,7 @@ async fn serve_frames(
     recorder: &mut Option<Recorder>,
     slots: Arc<RegistrationSlots>,
     metrics: &Arc<Metrics>,
+    guard: &WorkerGuardrails,
 ) {
     let mut session = Some(session);
     let mut last_registered = Instant::now();
@@ -456,15 +462,25 @@ async fn serve_frames(
         let frame = job.incoming.frame;
         let mut rec = recorder.take();
         let (h, m) = (handle.clone(), metrics.clone());
-        let joined = tokio::task::spawn_blocking(move || {
+        let mut task = tokio::task::spawn_blocking(move || {
             let r = std::panic::catch_unwind(AssertUnwindSafe(|| s.register(&frame)));
             if let Ok(result) = &r {
                 // Before the result is delivered: on disk once the client sees it.
                 record(&mut rec, &frame, received_ns, result, &h, &m);
             }
             (s, rec, r)
-        })
-        .await;
+        });
+        let joined = match tokio::time::timeout(guard.watchdog, &mut task).await {
+            Ok(joined) => joined,
+            Err(_) => {
+                // The thread cannot be stopped: it keeps its slot until it returns.
+                tokio::spawn(async move {
+                    let _ = task.await;
+                    drop(permit);
+                });
+                return fail_session(handle, job.reply, metrics, guard, Failure::Overran);
+            }
+        };
         drop(permit);
         last_registered = Instant::now();
         let (s, result) = match joined {
@@ -474,9 +490,9 @@ async fn serve_frames(
             }
             Ok((_, rec, Err(_))) => {
                 *recorder = rec;
-                return fail_session(handle, job.reply, metrics);
+                return fail_session(handle, job.reply, metrics, guard, Failure::Panicked);
             }
-            Err(_) => return fail_session(handle, job.reply, metrics),
+            Err(_) => return fail_session(handle, job.reply, metrics, guard, Failure::Panicked),
         };
         handle.warm.store(s.is_warm(), Ordering::Relaxed);
         session = Some(s);
@@ -521,18 +537,69 @@ async fn serve_frames(
     }
 }
 
-/// Registration panicked: the session is closed, this frame and any waiting one refused.
-fn fail_session(handle: &SessionHandle, reply: Reply, metrics: &Metrics) {
-    tracing::error!(session = %handle.id, "registration panicked; the session is closed");
-    metrics.inc("livereg_frame_failures_total", "panic", 1);
+/// How many times `limits.max_frame_ms` a frame may run before its session is retired.
+pub const WATCHDOG_FACTOR: f64 = 5.0;
+
+/// What a session's worker does when a frame goes wrong beyond the frame itself.
+#[derive(Clone)]
+pub struct WorkerGuardrails {
+    /// Longest a frame may register before the session is retired.
+    pub watchdog: Duration,
+    /// Called once when the session fails (takes it out of the registry at once).
+    pub on_failure: Arc<dyn Fn(&SessionHandle) + Send + Sync>,
+}
+
+impl std::fmt::Debug for WorkerGuardrails {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("WorkerGuardrails")
+            .field("watchdog", &self.watchdog)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Why a session failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Failure {
+    /// Registration panicked.
+    Panicked,
+    /// A frame ran past the watchdog.
+    Overran,
+}
+
+/// Registration panicked or overran the watchdog: the session is closed and leaves the
+/// registry at once, this frame and any waiting one refused.
+fn fail_session(
+    handle: &SessionHandle,
+    reply: Reply,
+    metrics: &Metrics,
+    guard: &WorkerGuardrails,
+    why: Failure,
+) {
+    let (cause, message) = match why {
+        Failure::Panicked => {
+            tracing::error!(session = %handle.id, "registration panicked; the session is closed");
+            (
+                "panic",
+                "registration failed unexpectedly; the session was closed (please report this frame)"
+                    .to_string(),
+            )
+        }
+        Failure::Overran => {
+            tracing::error!(session = %handle.id, watchdog_ms = guard.watchdog.as_secs_f64() * 1e3, "a frame overran the watchdog; the session is closed");
+            (
+                "watchdog",
+                format!(
+                    "the frame was still registering after {:.0} ms ({WATCHDOG_FACTOR} × limits.max_frame_ms); the session was closed",
+                    guard.watchdog.as_secs_f64() * 1e3
+                ),
+            )
+        }
+    };
+    metrics.inc("livereg_frame_failures_total", cause, 1);
     metrics.inc("livereg_sessions_closed_total", "failed", 1);
     handle.close();
-    fail(
-        reply,
-        ApiError::internal(
-            "registration failed unexpectedly; the session was closed (please report this frame)",
-        ),
-    );
+    (guard.on_failure)(handle);
+    fail(reply, ApiError::internal(message));
     // Refuse whatever else is waiting.
     while let Some(j) = handle.take() {
         fail(j.reply, ApiError::internal("the session was closed"));

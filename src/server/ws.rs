@@ -4,12 +4,14 @@
 //! stream dropped since the previous result) and `{"type": "error", "seq": n, "error": {code,
 //! message}}` for a frame it refuses — the stream goes on. On shutdown the server stops reading,
 //! finishes the frame in flight, sends its result and closes with code 1001. A message over
-//! `limits.max_body_bytes` closes the stream with code 1009 (message too big).
+//! `limits.max_body_bytes` closes the stream with code 1009 (message too big). The server pings
+//! every third of `limits.stream_idle_timeout_s`, and a stream that receives nothing (no
+//! frame, no pong) for that long closes with 1000, reason "idle: …".
 //!
 //! Results are JSON text messages by default; `?results=binary` on the URL asks for them as
 //! binary messages in the encoding of [`super::result_codec`] (errors stay JSON text).
 
-use std::sync::atomic::{AtomicU16, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -23,7 +25,7 @@ use tokio::sync::mpsc;
 
 use super::audit::{self, Action, Peer};
 use super::auth::Owner;
-use super::codec::{decode_binary_frame, decode_json_frame, ResultMessage};
+use super::codec::{peek_binary_seq, ResultMessage};
 use super::error::{ApiError, ErrorBody};
 use super::result_codec::{encode_binary_result, ResultFormat};
 use super::service::AppState;
@@ -45,12 +47,53 @@ pub enum ServerMessage<'a> {
     },
 }
 
-/// Close code of a stream the client or the server ended normally (RFC 6455 §7.4.1).
-const CLOSE_NORMAL: u16 = 1000;
-/// Close code when the server shuts down ("going away").
-const CLOSE_GOING_AWAY: u16 = 1001;
-/// Close code for a message larger than `limits.max_body_bytes` ("message too big").
-const CLOSE_TOO_BIG: u16 = 1009;
+/// Why the server ends a stream, and the close frame it sends (RFC 6455 §7.4.1 codes).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+enum CloseWhy {
+    /// The client closed, or its session went away: 1000.
+    Normal = 0,
+    /// The server shuts down: 1001 ("going away").
+    ShuttingDown = 1,
+    /// A message over `limits.max_body_bytes`: 1009 ("message too big").
+    TooBig = 2,
+    /// Nothing received (no frame, no pong) for `limits.stream_idle_timeout_s`: 1000 with
+    /// the reason "idle".
+    Idle = 3,
+}
+
+impl CloseWhy {
+    fn from_u8(v: u8) -> Self {
+        match v {
+            1 => CloseWhy::ShuttingDown,
+            2 => CloseWhy::TooBig,
+            3 => CloseWhy::Idle,
+            _ => CloseWhy::Normal,
+        }
+    }
+
+    /// The close code and reason; `limits` gives the numbers the reasons quote.
+    fn frame(self, limits: &super::config::LimitsConfig) -> (u16, String) {
+        match self {
+            CloseWhy::Normal => (1000, String::new()),
+            CloseWhy::ShuttingDown => (1001, "server shutting down".into()),
+            CloseWhy::TooBig => (
+                1009,
+                format!(
+                    "message larger than the limit of {} bytes",
+                    limits.max_body_bytes
+                ),
+            ),
+            CloseWhy::Idle => (
+                1000,
+                format!(
+                    "idle: nothing received for {} s",
+                    limits.stream_idle_timeout_s
+                ),
+            ),
+        }
+    }
+}
 
 /// Whether a read error is a message or frame over the size limit (tungstenite's capacity
 /// error, which axum passes on only as text: "Space limit exceeded: Message too long …").
@@ -150,21 +193,27 @@ async fn run(
     let skipped = Arc::new(AtomicU64::new(0));
     let scale = handle.info.length_scale;
     let mut shutdown = state.shutdown.clone();
-    let close_code = Arc::new(AtomicU16::new(CLOSE_NORMAL));
-    let cc = close_code.clone();
-    let limit = state.config.limits.max_body_bytes;
+    let close_why = Arc::new(AtomicU8::new(CloseWhy::Normal as u8));
+    let cw = close_why.clone();
+    let limits = state.config.limits.clone();
+    let idle = std::time::Duration::from_secs_f64(limits.stream_idle_timeout_s);
     let writer = tokio::spawn(async move {
-        while let Some(ev) = rx.recv().await {
-            if sink.send(encode(&ev, scale, format)).await.is_err() {
+        // Pings every third of the idle timeout: a live client's pongs keep the stream open
+        // (and NAT tables warm) while it sends no frame.
+        let mut ping = tokio::time::interval_at(tokio::time::Instant::now() + idle / 3, idle / 3);
+        loop {
+            let out = tokio::select! {
+                ev = rx.recv() => match ev {
+                    Some(ev) => encode(&ev, scale, format),
+                    None => break,
+                },
+                _ = ping.tick() => Message::Ping(axum::body::Bytes::new()),
+            };
+            if sink.send(out).await.is_err() {
                 return;
             }
         }
-        let code = cc.load(Ordering::Relaxed);
-        let reason = match code {
-            CLOSE_GOING_AWAY => "server shutting down".to_string(),
-            CLOSE_TOO_BIG => format!("message larger than the limit of {limit} bytes"),
-            _ => String::new(),
-        };
+        let (code, reason) = CloseWhy::from_u8(cw.load(Ordering::Relaxed)).frame(&limits);
         let _ = sink
             .send(Message::Close(Some(CloseFrame {
                 code,
@@ -181,20 +230,26 @@ async fn run(
         "websocket",
     );
     let id = handle.id.clone();
+    let mut last_seen = Instant::now();
     loop {
         let msg = tokio::select! {
             m = incoming.next() => m,
             _ = shutdown.wait_for(|s| *s) => {
-                close_code.store(CLOSE_GOING_AWAY, Ordering::Relaxed);
+                close_why.store(CloseWhy::ShuttingDown as u8, Ordering::Relaxed);
+                break;
+            }
+            _ = tokio::time::sleep_until((last_seen + idle).into()) => {
+                close_why.store(CloseWhy::Idle as u8, Ordering::Relaxed);
                 break;
             }
         };
         let received = Instant::now();
+        last_seen = received;
         let decoded = match msg {
             None | Some(Ok(Message::Close(_))) => break,
             Some(Err(e)) => {
                 if is_too_big(&e) {
-                    close_code.store(CLOSE_TOO_BIG, Ordering::Relaxed);
+                    close_why.store(CloseWhy::TooBig as u8, Ordering::Relaxed);
                     state.reject(
                         &handle,
                         &ApiError::too_large("payload_too_large", e.to_string()),
@@ -204,10 +259,8 @@ async fn run(
                 break;
             }
             Some(Ok(Message::Ping(_) | Message::Pong(_))) => continue,
-            Some(Ok(Message::Text(t))) => decode_json_frame(t.as_bytes()),
-            Some(Ok(Message::Binary(b))) => {
-                decode_binary_frame(&b, state.config.limits.max_frame_points)
-            }
+            Some(Ok(Message::Text(t))) => (axum::body::Bytes::from(t), false),
+            Some(Ok(Message::Binary(b))) => (b, true),
         };
         if state.registry.get(&owner, &id).is_err() {
             let _ = tx
@@ -218,14 +271,17 @@ async fn run(
                 .await;
             break;
         }
-        let refused = match decoded {
-            Err(e) => {
-                state.reject(&handle, &e);
-                Err((0, e))
-            }
-            Ok(f) => match state.admit(&handle, &f) {
-                Ok(()) => Ok(f),
-                Err(e) => Err((f.seq, e)),
+        // The rate first (a flood costs a counter, not a decode), then the decode (large
+        // frames off the network threads), then the frame's content.
+        let (bytes, binary) = decoded;
+        let refused = match state.admit_rate(&handle) {
+            Err(e) => Err((if binary { peek_binary_seq(&bytes) } else { 0 }, e)),
+            Ok(()) => match state.decode(&handle, bytes, binary).await {
+                Err(e) => Err((0, e)),
+                Ok(f) => match state.admit_decoded(&handle, &f) {
+                    Ok(()) => Ok(f),
+                    Err(e) => Err((f.seq, e)),
+                },
             },
         };
         let incoming_frame = match refused {
@@ -264,7 +320,9 @@ async fn run(
         Some(&handle.id),
         &format!(
             "websocket, close code {}",
-            close_code.load(Ordering::Relaxed)
+            CloseWhy::from_u8(close_why.load(Ordering::Relaxed))
+                .frame(&state.config.limits)
+                .0
         ),
     );
 }
