@@ -42,6 +42,32 @@ async fn tls_clients_get_register_results_and_others_are_refused() {
 
     // A client that connects and never starts its handshake holds no one up.
     let silent = tokio::net::TcpStream::connect(http_addr).await.unwrap();
+    // Nor do 20 from one address: 8 wait for their handshake (MAX_PENDING_HANDSHAKES_PER_ADDRESS),
+    // the other 12 are closed at once.
+    let mut flood = Vec::new();
+    for _ in 0..20 {
+        let sock = tokio::net::TcpSocket::new_v4().unwrap();
+        sock.bind("127.0.0.3:0".parse().unwrap()).unwrap();
+        flood.push(sock.connect(http_addr).await.unwrap());
+    }
+    let reads = flood.into_iter().map(|mut c| async move {
+        use tokio::io::AsyncReadExt;
+        let mut b = [0u8; 1];
+        let closed = matches!(
+            tokio::time::timeout(Duration::from_millis(1500), c.read(&mut b)).await,
+            Ok(Ok(0)) | Ok(Err(_))
+        );
+        (closed, c)
+    });
+    let (closed, _waiting): (Vec<_>, Vec<_>) = futures_util::future::join_all(reads)
+        .await
+        .into_iter()
+        .partition(|(closed, _)| *closed);
+    let closed_at_once = closed.len();
+    assert_eq!(
+        closed_at_once,
+        20 - livereg::server::tls::MAX_PENDING_HANDSHAKES_PER_ADDRESS
+    );
 
     // gRPC with TLS (Rust client): a session, every frame, close.
     let scene = SceneFiles::read(&case.join("scene.toml")).unwrap();

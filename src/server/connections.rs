@@ -1,6 +1,7 @@
 //! The HTTP/WebSocket accept loop: a connection cap for the server and per client address,
-//! a timer-driven header-read timeout (hyper's is off without a timer, which `axum::serve`
-//! does not give it), HTTP/2 keep-alive pings, the client's address for the handlers
+//! a deadline on a connection's opening bytes and a timer-driven header-read timeout
+//! (hyper's is off without a timer, which `axum::serve` does not give it, and its protocol
+//! detection has none at all), HTTP/2 keep-alive pings, the client's address for the handlers
 //! ([`Peer`]), and a graceful shutdown that lets every open connection finish.
 
 use std::collections::HashMap;
@@ -110,6 +111,95 @@ impl Drop for ConnectionPermit {
     }
 }
 
+/// Bytes a client must send before hyper's own timers take over: the length of the HTTP/2
+/// preface, which hyper's protocol detection waits for without any timeout.
+const OPENING_BYTES: usize = 24;
+
+/// A connection that must send its first [`OPENING_BYTES`] within a deadline: hyper's
+/// HTTP/1-or-2 detection reads them with no timer, so a client that connects and says
+/// nothing (or a few bytes) would hold the connection forever. Past them, hyper's
+/// header-read timeout and HTTP/2 keep-alive apply.
+struct OpeningDeadline<T> {
+    inner: T,
+    read: usize,
+    deadline: std::pin::Pin<Box<tokio::time::Sleep>>,
+}
+
+impl<T> OpeningDeadline<T> {
+    fn new(inner: T, within: Duration) -> Self {
+        Self {
+            inner,
+            read: 0,
+            deadline: Box::pin(tokio::time::sleep(within)),
+        }
+    }
+}
+
+impl<T: tokio::io::AsyncRead + Unpin> tokio::io::AsyncRead for OpeningDeadline<T> {
+    fn poll_read(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &mut tokio::io::ReadBuf<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        use std::task::Poll;
+        let before = buf.filled().len();
+        let this = &mut *self;
+        match std::pin::Pin::new(&mut this.inner).poll_read(cx, buf) {
+            Poll::Ready(r) => {
+                this.read += buf.filled().len() - before;
+                Poll::Ready(r)
+            }
+            Poll::Pending => {
+                if this.read < OPENING_BYTES
+                    && std::future::Future::poll(this.deadline.as_mut(), cx).is_ready()
+                {
+                    return Poll::Ready(Err(std::io::Error::new(
+                        std::io::ErrorKind::TimedOut,
+                        "the client sent no request in time",
+                    )));
+                }
+                Poll::Pending
+            }
+        }
+    }
+}
+
+impl<T: tokio::io::AsyncWrite + Unpin> tokio::io::AsyncWrite for OpeningDeadline<T> {
+    fn poll_write(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &[u8],
+    ) -> std::task::Poll<std::io::Result<usize>> {
+        std::pin::Pin::new(&mut self.inner).poll_write(cx, buf)
+    }
+
+    fn poll_flush(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.inner).poll_flush(cx)
+    }
+
+    fn poll_shutdown(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.inner).poll_shutdown(cx)
+    }
+
+    fn poll_write_vectored(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        bufs: &[std::io::IoSlice<'_>],
+    ) -> std::task::Poll<std::io::Result<usize>> {
+        std::pin::Pin::new(&mut self.inner).poll_write_vectored(cx, bufs)
+    }
+
+    fn is_write_vectored(&self) -> bool {
+        self.inner.is_write_vectored()
+    }
+}
+
 /// A TCP listener whose accepted sockets have `TCP_NODELAY` set: results are small writes
 /// that must leave at once, not wait for the client's delayed ACK (Nagle's algorithm).
 #[derive(Debug)]
@@ -148,6 +238,7 @@ pub async fn serve<L>(
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) where
     L: Listener<Addr = SocketAddr>,
+    L::Io: Unpin,
 {
     let limiter = ConnectionLimiter::new(limits);
     let graceful = GracefulShutdown::new();
@@ -187,6 +278,7 @@ pub async fn serve<L>(
                 req.extensions_mut().insert(ConnectInfo(Peer(Some(addr))));
                 tower::ServiceExt::oneshot(app.clone(), req)
             });
+        let io = OpeningDeadline::new(io, limits.header_read_timeout);
         let conn = builder
             .serve_connection_with_upgrades(TokioIo::new(io), service)
             .into_owned();

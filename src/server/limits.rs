@@ -50,8 +50,13 @@ pub fn rate_limited(limit: f64) -> ApiError {
     )
 }
 
-/// Checks a decoded frame before it reaches a session: not empty, every coordinate finite,
-/// at most `limits.max_frame_points` points.
+/// Largest coordinate magnitude a frame's point may have, scene units (1,000 km in a
+/// millimetre scene): beyond it squared distances lose all precision long before any real
+/// camera could produce such a point.
+pub const MAX_COORDINATE: f64 = 1e9;
+
+/// Checks a decoded frame before it reaches a session: not empty, every coordinate finite and
+/// within ±[`MAX_COORDINATE`], at most `limits.max_frame_points` points.
 pub fn check_frame(frame: &Frame, limits: &LimitsConfig) -> Result<(), ApiError> {
     if frame.points.is_empty() {
         return Err(ApiError::invalid_frame("the frame holds no points"));
@@ -74,6 +79,17 @@ pub fn check_frame(frame: &Frame, limits: &LimitsConfig) -> Result<(), ApiError>
     {
         return Err(ApiError::invalid_frame(format!(
             "point {i} has a non-finite coordinate ({}, {}, {})",
+            p.x, p.y, p.z
+        )));
+    }
+    if let Some((i, p)) = frame
+        .points
+        .iter()
+        .enumerate()
+        .find(|(_, p)| p.coords.iter().any(|c| c.abs() > MAX_COORDINATE))
+    {
+        return Err(ApiError::invalid_frame(format!(
+            "point {i} ({:e}, {:e}, {:e}) is out of range: coordinates must be within ±{MAX_COORDINATE:e} scene units",
             p.x, p.y, p.z
         )));
     }
@@ -208,6 +224,9 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.message.contains("point 1"), "{}", e.message);
+        let e = check_frame(&f(vec![Point3::new(1e300, 0.0, 0.0)]), &l).unwrap_err();
+        assert!(e.message.contains("out of range"), "{}", e.message);
+        check_frame(&f(vec![Point3::new(-0.99e9, 0.0, 0.0)]), &l).unwrap();
         let e = check_frame(&f(vec![Point3::origin(); 3]), &l).unwrap_err();
         assert_eq!(e.status.as_u16(), 413);
         check_frame(&f(vec![Point3::origin(); 2]), &l).unwrap();

@@ -32,6 +32,11 @@ pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 /// Handshakes in progress at once; further connections wait in the kernel's backlog.
 pub const MAX_PENDING_HANDSHAKES: usize = 256;
 
+/// Most TLS handshakes in progress from one client IP address: one address that opens
+/// connections and never completes them holds at most this many of the
+/// [`MAX_PENDING_HANDSHAKES`] places; its further connections are closed at once.
+pub const MAX_PENDING_HANDSHAKES_PER_ADDRESS: usize = 8;
+
 /// The certificate chain and key of [`TlsConfig`], read and checked.
 #[derive(Debug, Clone)]
 pub struct TlsFiles {
@@ -105,6 +110,27 @@ impl TlsFiles {
     }
 }
 
+/// Handshakes in progress per client address.
+type PendingPerAddress = Arc<std::sync::Mutex<std::collections::HashMap<std::net::IpAddr, usize>>>;
+
+/// One handshake's place in [`PendingPerAddress`], given back when dropped.
+struct PendingHandshake {
+    per_address: PendingPerAddress,
+    ip: std::net::IpAddr,
+}
+
+impl Drop for PendingHandshake {
+    fn drop(&mut self) {
+        let mut p = self.per_address.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(n) = p.get_mut(&self.ip) {
+            *n -= 1;
+            if *n == 0 {
+                p.remove(&self.ip);
+            }
+        }
+    }
+}
+
 /// A TCP listener that yields TLS streams whose handshake completed (see the module docs).
 /// Dropping it stops the accepting task.
 #[derive(Debug)]
@@ -122,6 +148,7 @@ impl TlsListener {
         let acceptor = TlsAcceptor::from(config);
         let (tx, ready) = mpsc::channel(64);
         let permits = Arc::new(Semaphore::new(MAX_PENDING_HANDSHAKES));
+        let per_address: PendingPerAddress = Arc::default();
         let accepting = tokio::spawn(async move {
             loop {
                 let Ok(permit) = permits.clone().acquire_owned().await else {
@@ -139,10 +166,22 @@ impl TlsListener {
                     },
                     _ = tx.closed() => return,
                 };
+                let ip = peer.ip();
+                {
+                    let mut p = per_address.lock().unwrap_or_else(|e| e.into_inner());
+                    let n = p.entry(ip).or_insert(0);
+                    if *n >= MAX_PENDING_HANDSHAKES_PER_ADDRESS {
+                        tracing::debug!(%peer, "TLS handshake refused: too many pending from this address");
+                        continue;
+                    }
+                    *n += 1;
+                }
                 let _ = tcp.set_nodelay(true);
                 let (acceptor, tx) = (acceptor.clone(), tx.clone());
+                let per_address = per_address.clone();
                 tokio::spawn(async move {
                     let _permit = permit;
+                    let _pending = PendingHandshake { per_address, ip };
                     match tokio::time::timeout(HANDSHAKE_TIMEOUT, acceptor.accept(tcp)).await {
                         Ok(Ok(tls)) => {
                             let _ = tx.send((tls, peer)).await;
