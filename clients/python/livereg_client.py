@@ -48,6 +48,20 @@ __all__ = ["Client", "LiveregError", "WebSocket", "decode_binary_result", "encod
 _WS_GUID = "258EAFA5-E914-47DA-95CA-C5AB0DC85B11"
 
 
+# The header naming a session: the id a create asks for, and the key a scaled-out
+# deployment's proxy routes every request of the session by (docs/server.md, "Scaling out").
+SESSION_HEADER = "X-Livereg-Session"
+
+# Answers that mean "this backend no longer has (or will not keep) the session": re-create
+# it, with the same id, wherever the proxy now routes that id.
+_MOVED_CODES = ("shutting_down", "not_found")
+
+
+def new_session_id():
+    """A session id chosen by the client: 128 random bits, 32 lowercase hex digits."""
+    return os.urandom(16).hex()
+
+
 class LiveregError(Exception):
     """An error answered by the server: HTTP status, code and message."""
 
@@ -175,10 +189,14 @@ class Client:
         # TLS: certificate and host name always checked (system roots, or ca_file's).
         self.tls = ssl.create_default_context(cafile=ca_file) if scheme == "https" else None
 
-    def _request(self, method, path, body=None, content_type=None, raw=False):
+    def _request(self, method, path, body=None, content_type=None, raw=False, session=None):
         """Sends a request; returns the parsed JSON body (or None), or with raw=True the
-        body's bytes. HTTP errors raise LiveregError with the server's code and message."""
+        body's bytes. HTTP errors raise LiveregError with the server's code and message.
+        session: the session id sent as X-Livereg-Session (the routing key of a scaled-out
+        deployment, and the id a create asks for)."""
         headers = {}
+        if session:
+            headers[SESSION_HEADER] = session
         if self.token:
             headers["Authorization"] = "Bearer " + self.token
         if content_type:
@@ -199,8 +217,10 @@ class Client:
                 raise LiveregError(e.code, "http", raw.decode("utf-8", "replace")) from None
 
     # Sessions.
-    def create_session_files(self, scene_path, budget_ms=None, rigid_only=False):
-        """Creates a session by uploading the scene file and the files it names (multipart)."""
+    def create_session_files(self, scene_path, budget_ms=None, rigid_only=False,
+                             session_id=None):
+        """Creates a session by uploading the scene file and the files it names (multipart);
+        session_id: the id to give it (new_session_id(); needed behind a routing proxy)."""
         scene, files = _scene_files(scene_path)
         ext = "json" if scene_path.lower().endswith(".json") else "toml"
         parts = [("scene", "scene." + ext, scene)]
@@ -210,7 +230,7 @@ class Client:
         if rigid_only:
             parts.append(("rigid_only", None, b"true"))
         ctype, body = _multipart(parts)
-        return self._request("POST", "/v1/sessions", body, ctype)
+        return self._request("POST", "/v1/sessions", body, ctype, session=session_id)
 
     def create_session_inline(self, scene, meshes=None, points=None, files=None, **options):
         """Creates a session from a scene (dict, or TOML text) and inline arrays:
@@ -221,16 +241,16 @@ class Client:
         return self._request("POST", "/v1/sessions", json.dumps(body).encode(), "application/json")
 
     def get_session(self, sid):
-        return self._request("GET", "/v1/sessions/" + sid)
+        return self._request("GET", "/v1/sessions/" + sid, session=sid)
 
     def list_sessions(self):
         return self._request("GET", "/v1/sessions")["sessions"]
 
     def reset_session(self, sid):
-        return self._request("POST", "/v1/sessions/%s/reset" % sid)
+        return self._request("POST", "/v1/sessions/%s/reset" % sid, session=sid)
 
     def close_session(self, sid):
-        return self._request("DELETE", "/v1/sessions/" + sid)
+        return self._request("DELETE", "/v1/sessions/" + sid, session=sid)
 
     # Frames.
     def register(self, sid, points, seq=0, source=None, camera=None, binary_results=False):
@@ -254,8 +274,9 @@ class Client:
     def _post_frame(self, sid, body, content_type, binary_results):
         path = "/v1/sessions/%s/frames" % sid
         if not binary_results:
-            return self._request("POST", path, body, content_type)
-        data = self._request("POST", path + "?results=binary", body, content_type, raw=True)
+            return self._request("POST", path, body, content_type, session=sid)
+        data = self._request("POST", path + "?results=binary", body, content_type, raw=True,
+                             session=sid)
         result = decode_binary_result(data)
         result.pop("type", None)  # a JSON POST result has no message type
         return result
@@ -267,7 +288,8 @@ class Client:
         path = "/v1/sessions/%s/stream" % sid
         if binary_results:
             path += "?results=binary"
-        return WebSocket(self.url, path, self.token, self.timeout, binary_results, self.tls)
+        return WebSocket(self.url, path, self.token, self.timeout, binary_results, self.tls,
+                         session=sid)
 
     def health(self):
         return self._request("GET", "/healthz")
@@ -278,7 +300,8 @@ class WebSocket:
     http URL and wss:// for an https URL (tls: the ssl.SSLContext that checks the server).
     binary_results: binary messages are binary results, decoded by recv()."""
 
-    def __init__(self, url, path, token, timeout=60.0, binary_results=False, tls=None):
+    def __init__(self, url, path, token, timeout=60.0, binary_results=False, tls=None,
+                 session=None):
         self.binary_results = binary_results
         u = urllib.parse.urlparse(url)
         if u.scheme not in ("http", "https"):
@@ -299,6 +322,8 @@ class WebSocket:
                  "Connection: Upgrade", "Sec-WebSocket-Key: " + key, "Sec-WebSocket-Version: 13"]
         if token:
             lines.append("Authorization: Bearer " + token)
+        if session:
+            lines.append("%s: %s" % (SESSION_HEADER, session))
         self.sock.sendall(("\r\n".join(lines) + "\r\n\r\n").encode())
         self._buf = b""
         head = self._read_until(b"\r\n\r\n").decode("latin-1")
@@ -439,7 +464,90 @@ def _read_points(path):
     return pts
 
 
+class MovingSession:
+    """A session that follows its id across backends (a drained or lost server): it holds
+    its scene, sends X-Livereg-Session on every request, and when a backend says the session
+    is gone or moving (503 shutting_down, 404 not_found, a closed stream, a refused or broken
+    connection) re-creates it with the same id wherever the proxy now routes that id, and
+    sends the unanswered frame again. `moves` counts the re-creations; the registration
+    restarts cold after each."""
+
+    def __init__(self, client, scene_path, give_up_s=60.0):
+        self.client, self.scene_path, self.give_up_s = client, scene_path, give_up_s
+        self.id = new_session_id()
+        self.moves = 0
+        self.client.create_session_files(scene_path, session_id=self.id)
+
+    def recreate(self):
+        deadline = time.time() + self.give_up_s
+        while True:
+            try:
+                self.client.create_session_files(self.scene_path, session_id=self.id)
+                self.moves += 1
+                return
+            except LiveregError as e:
+                if e.code == "session_exists":
+                    return  # still open where the id routes: nothing moved
+                if e.code not in _MOVED_CODES and e.status not in (502, 503, 504):
+                    raise
+            except (OSError, ConnectionError):
+                pass
+            if time.time() > deadline:
+                raise ConnectionError("session %s: no backend took it within %.0f s"
+                                      % (self.id, self.give_up_s))
+            time.sleep(0.1)
+
+    def stream(self, frames, binary=False, binary_results=False):
+        """Registers every (name, points) of frames in lock step over a WebSocket; returns
+        the results in order, each frame answered once."""
+        results, ws, k = [], None, 0
+        while k < len(frames):
+            name, pts = frames[k]
+            try:
+                if ws is None:
+                    ws = self.client.stream(self.id, binary_results=binary_results)
+                if binary:
+                    ws.send_frame_binary(pts, seq=k)
+                else:
+                    ws.send_frame(pts, seq=k, source=name)
+                msg = ws.recv()
+            except LiveregError as e:
+                if e.code not in _MOVED_CODES and e.status not in (502, 503, 504):
+                    raise
+                msg = {"type": "moved"}
+            except (OSError, ConnectionError):
+                msg = {"type": "moved"}
+            if msg.get("type") == "result":
+                results.append(msg)
+                k += 1
+                continue
+            if msg.get("type") == "error" and msg["error"]["code"] not in _MOVED_CODES:
+                raise LiveregError(0, msg["error"]["code"], msg["error"]["message"])
+            # Closed, moved or gone: the frame was not answered; follow the session.
+            if ws is not None:
+                try:
+                    ws.sock.close()
+                except OSError:
+                    pass
+                ws = None
+            self.recreate()
+        if ws is not None:
+            ws.close()
+        return results
+
+
 def _roundtrip(client, args):
+    if args.follow_moves:
+        names = sorted(n for n in os.listdir(args.frames) if n.endswith((".xyz", ".txt", ".csv")))
+        frames = [(n, _read_points(os.path.join(args.frames, n))) for n in names]
+        ms = MovingSession(client, args.scene)
+        results = ms.stream(frames, binary=args.transport == "ws-binary",
+                            binary_results=args.binary_results)
+        with open(args.out, "w") as f:
+            for r in results:
+                f.write(json.dumps(r) + "\n")
+        print(json.dumps({"session": ms.id, "frames": len(results), "moves": ms.moves}))
+        return
     session = client.create_session_files(args.scene)
     sid = session["id"]
     names = sorted(n for n in os.listdir(args.frames) if n.endswith((".xyz", ".txt", ".csv")))
@@ -483,6 +591,10 @@ def main(argv=None):
     r.add_argument("--transport", choices=["ws", "ws-binary", "http"], default="ws")
     r.add_argument("--binary-results", action="store_true",
                    help="results in the binary result encoding (f32 coordinates)")
+    r.add_argument("--follow-moves", action="store_true",
+                   help="choose the session id, send it on every request (X-Livereg-Session) "
+                        "and re-create the session where its id routes when a backend drains "
+                        "or goes away (WebSocket transports)")
     d = sub.add_parser("decode-result", help="decode a binary result message file to JSON")
     d.add_argument("file")
     sub.add_parser("health")

@@ -394,6 +394,9 @@ impl WsClient {
             "authorization",
             format!("Bearer {token}").parse().map_err(|_| "bad token")?,
         );
+        // The routing key of a scaled-out deployment (ignored by a single server).
+        req.headers_mut()
+            .insert(SESSION_HEADER, id.parse().map_err(|_| "bad session id")?);
         let io = ep.connect().await?;
         let (ws, _) = tokio_tungstenite::client_async(req, io)
             .await
@@ -548,6 +551,52 @@ impl GrpcClient {
             r.metadata_mut().insert("authorization", v);
         }
         r
+    }
+
+    /// A request carrying the token and the session's routing key (`x-livereg-session`).
+    pub fn req_for<T>(&self, session: &str, m: T) -> tonic::Request<T> {
+        let mut r = self.req(m);
+        if let Ok(v) = session.parse() {
+            r.metadata_mut().insert(SESSION_HEADER, v);
+        }
+        r
+    }
+
+    /// Creates a session with the id `id` chosen by the client (the routing key).
+    pub async fn create_session_with_id(
+        &mut self,
+        scene: &SceneFiles,
+        id: &str,
+    ) -> Result<proto::SessionInfo, tonic::Status> {
+        let req = self.req_for(
+            id,
+            proto::CreateSessionRequest {
+                scene: scene.scene.clone(),
+                scene_format: scene.format.clone(),
+                files: scene.files.clone().into_iter().collect(),
+                budget_ms: None,
+                rigid_only: false,
+            },
+        );
+        Ok(self.inner.create_session(req).await?.into_inner())
+    }
+
+    /// Registers one frame of `session`, with its routing key (full precision).
+    pub async fn register_routed(
+        &mut self,
+        session: &str,
+        seq: u64,
+        source: &str,
+        points: &[[f64; 3]],
+    ) -> Result<proto::FrameResult, tonic::Status> {
+        let req = self.req_for(
+            session,
+            proto::RegisterRequest {
+                session_id: session.to_string(),
+                frame: Some(frame_f64(seq, source, points)),
+            },
+        );
+        Ok(self.inner.register(req).await?.into_inner())
     }
 
     /// Creates a session from a scene and its files.
@@ -1029,4 +1078,209 @@ async fn one_session(
     run.sent = sent;
     let _ = tx.send(Message::Close(None)).await;
     Ok(run)
+}
+
+/// The header naming a session: the id a create asks for, and the key a scaled-out
+/// deployment's proxy routes every request of the session by (docs/server.md, "Scaling out").
+pub const SESSION_HEADER: &str = "x-livereg-session";
+
+/// A session id chosen by the client: 128 random bits, 32 lowercase hex digits.
+pub fn new_client_session_id() -> String {
+    let mut b = [0u8; 16];
+    getrandom::fill(&mut b).expect("randomness");
+    b.iter().map(|x| format!("{x:02x}")).collect()
+}
+
+/// Creates a session over HTTP with the id `id` (multipart upload, `X-Livereg-Session`): the
+/// raw response (201, or the refusal).
+pub async fn http_create_session_with_id(
+    addr: impl Into<Endpoint>,
+    token: &str,
+    scene: &SceneFiles,
+    id: &str,
+) -> Res<HttpResponse> {
+    let (boundary, body) = scene.multipart();
+    let ct = format!("multipart/form-data; boundary={boundary}");
+    let auth = format!("Bearer {token}");
+    http(
+        addr,
+        "POST",
+        "/v1/sessions",
+        &[
+            ("Content-Type", &ct),
+            ("Authorization", &auth),
+            (SESSION_HEADER, id),
+        ],
+        &body,
+    )
+    .await
+}
+
+/// Whether a refusal means "this backend no longer has, or will not keep, the session":
+/// follow it by re-creating the session where its id now routes.
+fn means_moved(code: &str) -> bool {
+    matches!(code, "shutting_down" | "not_found")
+}
+
+/// A session that follows its id across backends behind a routing proxy (a drained or lost
+/// server): it holds its scene, sends its id on every request, and when a backend says the
+/// session is gone or moving (`shutting_down`, `not_found`, a closed stream, a refused or
+/// broken connection, gRPC UNAVAILABLE) re-creates it with the same id wherever the proxy now
+/// routes the id, then sends the unanswered frame again. Every frame is answered once.
+pub struct MovingSession {
+    /// Where the proxy listens.
+    pub ep: Endpoint,
+    /// Bearer token.
+    pub token: String,
+    /// The scene the session is (re)created from.
+    pub scene: SceneFiles,
+    /// The client-chosen id (the routing key).
+    pub id: String,
+    /// Re-creations so far (the registration restarts cold after each).
+    pub moves: usize,
+    /// Longest a re-creation may keep failing before the client gives up.
+    pub give_up: Duration,
+}
+
+impl MovingSession {
+    /// Creates the session over HTTP with a new client-chosen id.
+    pub async fn create(ep: impl Into<Endpoint>, token: &str, scene: &SceneFiles) -> Res<Self> {
+        let mut s = Self {
+            ep: ep.into(),
+            token: token.to_string(),
+            scene: scene.clone(),
+            id: new_client_session_id(),
+            moves: 0,
+            give_up: Duration::from_secs(60),
+        };
+        s.establish().await?;
+        Ok(s)
+    }
+
+    /// (Re)creates the session where its id routes: true when a new session was made, false
+    /// when it was still open there (409 `session_exists`).
+    async fn establish(&mut self) -> Res<bool> {
+        let t = Instant::now();
+        loop {
+            match http_create_session_with_id(&self.ep, &self.token, &self.scene, &self.id).await {
+                Ok(r) if r.status == 201 => return Ok(true),
+                Ok(r) if r.json()["error"]["code"] == "session_exists" => return Ok(false),
+                Ok(r) => {
+                    let code = r.json()["error"]["code"].as_str().unwrap_or("").to_string();
+                    if !(means_moved(&code) || matches!(r.status, 502..=504)) {
+                        return Err(format!(
+                            "create {}: {} {}",
+                            self.id,
+                            r.status,
+                            String::from_utf8_lossy(&r.body)
+                        ));
+                    }
+                }
+                Err(_) => {} // refused or broken connection: try again
+            }
+            if t.elapsed() > self.give_up {
+                return Err(format!("session {}: no backend took it in time", self.id));
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    }
+
+    /// Follows the session after a loss: re-creates it (counted in `moves` when new).
+    pub async fn follow(&mut self) -> Res<()> {
+        if self.establish().await? {
+            self.moves += 1;
+        }
+        Ok(())
+    }
+
+    /// Registers every frame in lock step over WebSocket (binary frames), following the
+    /// session across backends; the results in order.
+    pub async fn stream_ws(&mut self, frames: &[(String, Vec<[f64; 3]>)]) -> Res<Vec<Value>> {
+        let mut results = Vec::with_capacity(frames.len());
+        let mut ws: Option<WsClient> = None;
+        let mut k = 0;
+        let mut attempts = 0;
+        while k < frames.len() {
+            let (name, pts) = &frames[k];
+            if ws.is_none() {
+                match WsClient::connect(&self.ep, &self.id, &self.token).await {
+                    Ok(c) => ws = Some(c),
+                    Err(_) => {
+                        attempts += 1;
+                        if attempts > 200 {
+                            return Err(format!("frame {k}: no stream after {attempts} tries"));
+                        }
+                        self.follow().await?;
+                        continue;
+                    }
+                }
+            }
+            let c = ws.as_mut().expect("connected above");
+            let answer = match c.send_json(k as u64, name, pts).await {
+                Ok(()) => c.next().await,
+                Err(_) => None,
+            };
+            match answer {
+                Some(WsEvent::Result(v)) if v["seq"] == k as u64 => {
+                    results.push(v);
+                    k += 1;
+                    attempts = 0;
+                }
+                Some(WsEvent::Error(_, code, msg)) if !means_moved(&code) => {
+                    return Err(format!("frame {k}: {code}: {msg}"));
+                }
+                other => {
+                    // Closed, moved or gone: this frame was not answered; follow the session.
+                    attempts += 1;
+                    if attempts > 200 {
+                        return Err(format!("frame {k}: still unanswered: {other:?}"));
+                    }
+                    ws = None;
+                    self.follow().await?;
+                }
+            }
+        }
+        if let Some(c) = ws {
+            c.close().await;
+        }
+        Ok(results)
+    }
+
+    /// Registers every frame over gRPC (unary calls through `g`, a channel to the proxy),
+    /// following the session across backends; the results in order.
+    pub async fn register_grpc(
+        &mut self,
+        g: &mut GrpcClient,
+        frames: &[(String, Vec<[f64; 3]>)],
+    ) -> Res<Vec<proto::FrameResult>> {
+        let mut out = Vec::with_capacity(frames.len());
+        for (k, (name, pts)) in frames.iter().enumerate() {
+            let mut attempts = 0;
+            loop {
+                match g.register_routed(&self.id, k as u64, name, pts).await {
+                    Ok(r) => {
+                        out.push(r);
+                        break;
+                    }
+                    Err(st)
+                        if matches!(
+                            st.code(),
+                            tonic::Code::Unavailable
+                                | tonic::Code::NotFound
+                                | tonic::Code::Unknown
+                                | tonic::Code::Cancelled
+                        ) =>
+                    {
+                        attempts += 1;
+                        if attempts > 200 {
+                            return Err(format!("frame {k}: {st}"));
+                        }
+                        self.follow().await?;
+                    }
+                    Err(st) => return Err(format!("frame {k}: {st}")),
+                }
+            }
+        }
+        Ok(out)
+    }
 }

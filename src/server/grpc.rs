@@ -131,6 +131,7 @@ impl GrpcService {
         &self,
         owner: &Owner,
         r: proto::CreateSessionRequest,
+        requested_id: Option<&str>,
     ) -> Result<SessionInfo, ApiError> {
         let format = match r.scene_format.to_ascii_lowercase().as_str() {
             "" | "toml" => SceneFormat::Toml,
@@ -148,7 +149,7 @@ impl GrpcService {
             budget_ms: r.budget_ms,
             rigid_only: r.rigid_only,
         };
-        self.state.create_session(owner, upload).await
+        self.state.create_session(owner, upload, requested_id).await
     }
 }
 
@@ -188,7 +189,20 @@ impl proto::registration_server::Registration for GrpcService {
     ) -> Result<Response<proto::SessionInfo>, Status> {
         let owner = self.owner(&req)?;
         let peer = Peer(req.remote_addr());
-        let r = self.create_session_from(&owner, req.into_inner()).await;
+        let requested = match req.metadata().get(super::http::SESSION_HEADER) {
+            None => None,
+            Some(v) => Some(
+                v.to_str()
+                    .map_err(|_| {
+                        self.err(ApiError::bad_request("x-livereg-session is not valid text"))
+                    })?
+                    .trim()
+                    .to_string(),
+            ),
+        };
+        let r = self
+            .create_session_from(&owner, req.into_inner(), requested.as_deref())
+            .await;
         audit::event(
             Action::CreateSession,
             audit::outcome(&r),

@@ -190,11 +190,19 @@ async fn readyz(State(state): State<Arc<AppState>>) -> Response {
 }
 
 async fn metrics(State(state): State<Arc<AppState>>) -> Response {
-    (
-        [(header::CONTENT_TYPE, "text/plain; version=0.0.4")],
-        state.metrics.render(),
-    )
-        .into_response()
+    let mut text = state.metrics.render();
+    // The load a horizontal autoscaler should follow: registration slots in use.
+    let slots = state.config.worker_threads;
+    let busy = slots.saturating_sub(state.slots.free());
+    text.push_str(&format!(
+        "# HELP livereg_registration_slots Registration slots (worker_threads).\n# TYPE livereg_registration_slots gauge\nlivereg_registration_slots {slots}\n\
+         # HELP livereg_registration_slots_busy Registration slots registering a frame now.\n# TYPE livereg_registration_slots_busy gauge\nlivereg_registration_slots_busy {busy}\n\
+         # HELP livereg_registration_waiting Sessions with a frame waiting for a slot.\n# TYPE livereg_registration_waiting gauge\nlivereg_registration_waiting {}\n\
+         # HELP livereg_draining 1 while the server drains (refuses new work before it stops).\n# TYPE livereg_draining gauge\nlivereg_draining {}\n",
+        state.slots.waiting(),
+        u8::from(state.is_draining())
+    ));
+    ([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], text).into_response()
 }
 
 async fn openapi() -> Json<serde_json::Value> {
@@ -211,6 +219,22 @@ async fn method_not_allowed(method: Method, uri: axum::http::Uri) -> ApiError {
         "method_not_allowed",
         format!("{} does not accept {method}", uri.path()),
     )
+}
+
+/// The header naming a session: the id a client asks for when it creates one, and the key a
+/// scaled-out deployment's proxy routes every request of the session by (docs/server.md,
+/// "Scaling out").
+pub const SESSION_HEADER: &str = "x-livereg-session";
+
+/// The session id a create request asks for (`X-Livereg-Session`), if any.
+fn requested_session_id(headers: &HeaderMap) -> ApiResult<Option<String>> {
+    match headers.get(SESSION_HEADER) {
+        None => Ok(None),
+        Some(v) => v
+            .to_str()
+            .map(|s| Some(s.trim().to_string()))
+            .map_err(|_| ApiError::bad_request("X-Livereg-Session is not valid text")),
+    }
 }
 
 fn content_type(headers: &HeaderMap) -> String {
@@ -330,6 +354,7 @@ async fn create_session_from(
     req: Request,
 ) -> ApiResult<(StatusCode, Json<SessionInfo>)> {
     let limit = state.config.limits.max_body_bytes;
+    let requested = requested_session_id(req.headers())?;
     let ctype = content_type(req.headers());
     let upload = if ctype.starts_with("multipart/form-data") {
         let mp = Multipart::from_request(req, state)
@@ -356,7 +381,7 @@ async fn create_session_from(
         )));
     };
     let info = state
-        .create_session(owner, upload)
+        .create_session(owner, upload, requested.as_deref())
         .await
         .map_err(|e| state.count(e))?;
     Ok((StatusCode::CREATED, Json(info)))

@@ -163,7 +163,26 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
         .local_addr()
         .map_err(|e| format!("bound address: {e}"))?;
     let mut tasks = Vec::new();
-    let app = http::router(state.clone());
+    let grpc_service =
+        proto::registration_server::RegistrationServer::new(grpc::GrpcService::new(state.clone()))
+            .max_decoding_message_size(config.limits.max_body_bytes)
+            .max_encoding_message_size(usize::MAX);
+    let mut app = http::router(state.clone());
+    if config.grpc_bind.is_some() {
+        // gRPC also on the HTTP port (HTTP/2, told apart by its path): one address per
+        // backend, so that a proxy hashing sessions onto backends sends a session's HTTP,
+        // WebSocket and gRPC requests to the same one (docs/server.md, "Scaling out").
+        use tonic::server::NamedService;
+        use tower::ServiceExt;
+        let path = format!(
+            "/{}/{{*method}}",
+            proto::registration_server::RegistrationServer::<grpc::GrpcService>::NAME
+        );
+        let svc = grpc_service
+            .clone()
+            .map_request(|r: axum::extract::Request| r.map(tonic::body::Body::new));
+        app = app.route_service(&path, svc);
+    }
     let http_tls = tls.as_ref().map(|t| t.server_config.clone());
     let sig = signal(rx.clone());
     let conn_limits = connections::ConnectionLimits {
@@ -181,11 +200,7 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
             .await
             .map_err(|e| format!("cannot listen on {addr} (grpc_bind): {e}"))?;
         grpc_addr = Some(l.local_addr().map_err(|e| format!("bound address: {e}"))?);
-        let svc = proto::registration_server::RegistrationServer::new(grpc::GrpcService::new(
-            state.clone(),
-        ))
-        .max_decoding_message_size(config.limits.max_body_bytes)
-        .max_encoding_message_size(usize::MAX);
+        let svc = grpc_service;
         // `Server::tcp_nodelay` only applies to sockets tonic accepts itself: a listener
         // handed over must carry the setting, or Nagle's algorithm holds each small result
         // until the client's delayed ACK (measured: +43 ms per frame on loopback).

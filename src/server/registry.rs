@@ -92,6 +92,8 @@ struct Inner {
     sessions: HashMap<String, Arc<SessionHandle>>,
     /// Sessions being created, per owner (they count against the limits).
     reserved: HashMap<Owner, usize>,
+    /// Ids of the sessions being created.
+    reserved_ids: std::collections::HashSet<String>,
 }
 
 /// The open sessions.
@@ -101,30 +103,36 @@ pub struct Registry {
     limits: LimitsConfig,
 }
 
-/// A place reserved for a session being created; released on drop unless committed.
+/// A place and an id reserved for a session being created; released on drop unless
+/// committed.
 #[derive(Debug)]
 pub struct Reservation<'a> {
     registry: &'a Registry,
     owner: Owner,
+    /// The new session's id.
+    pub id: String,
     done: bool,
 }
 
 impl Drop for Reservation<'_> {
     fn drop(&mut self) {
         if !self.done {
-            self.registry.release(&self.owner);
+            self.registry.release(&self.owner, &self.id);
         }
     }
 }
 
 impl Reservation<'_> {
-    /// Registers the created session in place of the reservation.
+    /// Registers the created session (its id must be [`Reservation::id`]) in place of the
+    /// reservation.
     pub fn commit(mut self, handle: Arc<SessionHandle>) {
+        debug_assert_eq!(handle.id, self.id);
         self.done = true;
         if let Ok(mut g) = self.registry.inner.lock() {
             if let Some(n) = g.reserved.get_mut(&self.owner) {
                 *n = n.saturating_sub(1);
             }
+            g.reserved_ids.remove(&self.id);
             g.sessions.insert(handle.id.clone(), handle);
         }
     }
@@ -145,18 +153,42 @@ impl Registry {
             .map_err(|_| ApiError::internal("session registry poisoned"))
     }
 
-    fn release(&self, owner: &Owner) {
+    fn release(&self, owner: &Owner, id: &str) {
         if let Ok(mut g) = self.inner.lock() {
             if let Some(n) = g.reserved.get_mut(owner) {
                 *n = n.saturating_sub(1);
             }
+            g.reserved_ids.remove(id);
         }
     }
 
-    /// Reserves a place for a new session of `owner`; 429 when the token or the server is at
-    /// its session limit.
-    pub fn reserve(&self, owner: &Owner) -> Result<Reservation<'_>, ApiError> {
+    /// Reserves a place for a new session of `owner`, with the id `requested` by the client
+    /// (32 lowercase hex digits; the routing key of a scaled-out deployment, docs/server.md)
+    /// or a new random one. 400 for a malformed id, 409 `session_exists` when the id is
+    /// taken, 429 when the token or the server is at its session limit.
+    pub fn reserve(
+        &self,
+        owner: &Owner,
+        requested: Option<&str>,
+    ) -> Result<Reservation<'_>, ApiError> {
+        let id = match requested {
+            Some(r) if is_session_id(r) => r.to_string(),
+            Some(r) => {
+                return Err(ApiError::bad_request(format!(
+                    "X-Livereg-Session {:?} is not a session id: use 32 lowercase hex digits (128 random bits)",
+                    r.chars().take(64).collect::<String>()
+                )))
+            }
+            None => new_session_id()?,
+        };
         let mut g = self.lock()?;
+        if g.sessions.contains_key(&id) || g.reserved_ids.contains(&id) {
+            return Err(ApiError::new(
+                axum::http::StatusCode::CONFLICT,
+                "session_exists",
+                format!("a session `{id}` is already open on this server: close it first, or choose another id"),
+            ));
+        }
         let mine = g.sessions.values().filter(|h| &h.owner == owner).count()
             + g.reserved.get(owner).copied().unwrap_or(0);
         if mine >= self.limits.max_sessions_per_token {
@@ -178,9 +210,11 @@ impl Registry {
             ));
         }
         *g.reserved.entry(owner.clone()).or_insert(0) += 1;
+        g.reserved_ids.insert(id.clone());
         Ok(Reservation {
             registry: self,
             owner: owner.clone(),
+            id,
             done: false,
         })
     }
@@ -288,12 +322,37 @@ mod tests {
         });
         let a = Owner("a".into());
         let b = Owner("b".into());
-        let ra = r.reserve(&a).unwrap();
-        assert_eq!(r.reserve(&a).unwrap_err().code, "too_many_sessions");
-        let rb = r.reserve(&b).unwrap();
-        assert!(r.reserve(&Owner("c".into())).is_err());
+        let ra = r.reserve(&a, None).unwrap();
+        assert_eq!(r.reserve(&a, None).unwrap_err().code, "too_many_sessions");
+        let rb = r.reserve(&b, None).unwrap();
+        assert!(r.reserve(&Owner("c".into()), None).is_err());
         drop(ra);
         drop(rb);
-        assert!(r.reserve(&a).is_ok());
+        assert!(r.reserve(&a, None).is_ok());
+    }
+
+    /// A client-chosen id (the routing key) is used as given, refused while taken (being
+    /// created or open, whoever owns it), free again when its reservation is dropped, and
+    /// refused when malformed.
+    #[test]
+    fn requested_ids_are_unique_and_well_formed() {
+        let r = Registry::new(LimitsConfig::default());
+        let (a, b) = (Owner("a".into()), Owner("b".into()));
+        let id = new_session_id().unwrap();
+        let ra = r.reserve(&a, Some(&id)).unwrap();
+        assert_eq!(ra.id, id);
+        assert_eq!(r.reserve(&b, Some(&id)).unwrap_err().code, "session_exists");
+        assert_eq!(r.reserve(&a, Some(&id)).unwrap_err().code, "session_exists");
+        drop(ra);
+        assert_eq!(r.reserve(&b, Some(&id)).unwrap().id, id);
+        for bad in ["", "ABCDEF0123456789abcdef0123456789", "../x", "0123"] {
+            assert_eq!(
+                r.reserve(&a, Some(bad)).unwrap_err().code,
+                "bad_request",
+                "{bad}"
+            );
+        }
+        let fresh = r.reserve(&a, None).unwrap();
+        assert!(is_session_id(&fresh.id) && fresh.id != id);
     }
 }

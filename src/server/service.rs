@@ -15,7 +15,7 @@ use super::config::ServerConfig;
 use super::error::ApiError;
 use super::limits::check_frame;
 use super::metrics::Metrics;
-use super::registry::{new_session_id, Registry, SessionInfo};
+use super::registry::{Registry, SessionInfo};
 use super::slots::RegistrationSlots;
 use super::upload::{prepare_session, SceneUpload};
 use super::worker::{
@@ -184,18 +184,20 @@ impl AppState {
         self.live_workers.reached_zero().await;
     }
 
-    /// Creates a session for `owner` from `upload`: limits, scene checks, model build on the
-    /// blocking pool, then its worker.
+    /// Creates a session for `owner` from `upload`, with the client's `requested_id` (the
+    /// `X-Livereg-Session` routing key) or a new random id: limits, scene checks, model build
+    /// on the blocking pool, then its worker.
     pub async fn create_session(
         self: &Arc<Self>,
         owner: &Owner,
         upload: SceneUpload,
+        requested_id: Option<&str>,
     ) -> Result<SessionInfo, ApiError> {
         if self.is_draining() {
             return Err(ApiError::shutting_down());
         }
-        let reservation = self.registry.reserve(owner)?;
-        let id = new_session_id()?;
+        let reservation = self.registry.reserve(owner, requested_id)?;
+        let id = reservation.id.clone();
         let dir = self.config.data_dir.join("sessions").join(&id);
         let _permit = self
             .creates

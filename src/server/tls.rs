@@ -91,7 +91,9 @@ impl TlsFiles {
                     config.cert.display()
                 )
             })?;
-        server_config.alpn_protocols = vec![b"http/1.1".to_vec()];
+        // HTTP/1.1 first (WebSocket upgrades need it; rustls picks by the server's order),
+        // then HTTP/2 for gRPC clients, which offer only h2, on the HTTP port.
+        server_config.alpn_protocols = vec![b"http/1.1".to_vec(), b"h2".to_vec()];
         Ok(Self {
             cert_pem,
             key_pem,
@@ -245,7 +247,7 @@ mod tests {
         let files = TlsFiles::load(&config("server.pem", "server.key")).unwrap();
         assert_eq!(
             files.server_config.alpn_protocols,
-            vec![b"http/1.1".to_vec()]
+            vec![b"http/1.1".to_vec(), b"h2".to_vec()]
         );
     }
 
