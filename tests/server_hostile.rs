@@ -51,11 +51,19 @@ async fn until_closed(mut s: TcpStream, limit: Duration) -> (Duration, Vec<u8>) 
     }
 }
 
+/// The honest load: 4 sessions × 30 Hz for 4 s, or `LIVEREG_HOSTILE_SESSIONS` sessions for
+/// `LIVEREG_HOSTILE_SECONDS` (the measurement of docs/server.md: 8 sessions, 20 s, release).
 fn spec() -> LoadSpec {
+    let env = |k: &str, d: u64| {
+        std::env::var(k)
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(d)
+    };
     LoadSpec {
-        sessions: 4,
+        sessions: env("LIVEREG_HOSTILE_SESSIONS", 4) as usize,
         hz: 30.0,
-        duration: Duration::from_secs(4),
+        duration: Duration::from_secs(env("LIVEREG_HOSTILE_SECONDS", 4)),
         binary: true,
         binary_results: true,
         phases: Phases::Spread,
@@ -76,10 +84,26 @@ async fn hostile_clients_are_cut_while_honest_sessions_stream_on() {
     let server = start(cfg).await;
     let addr = server.http_addr;
     let scene = SceneFiles::read(&case.join("scene.toml")).unwrap();
-    let frames = read_frames(&case.join("frames")).unwrap();
+    // The honest sessions' scene: the small case, or with LIVEREG_HOSTILE_PHANTOM=1 the
+    // phantom's tool push (the measurement of docs/server.md).
+    let phantom_dir = temp_dir("hostile-phantom");
+    let (honest_scene, frames) = if std::env::var("LIVEREG_HOSTILE_PHANTOM").is_ok() {
+        let f = phantom_case(&phantom_dir, 12);
+        let frames: Vec<(String, Vec<[f64; 3]>)> = f
+            .into_iter()
+            .enumerate()
+            .map(|(k, p)| (format!("f{k:03}"), p))
+            .collect();
+        (
+            SceneFiles::read(&phantom_dir.join("scene.toml")).unwrap(),
+            frames,
+        )
+    } else {
+        (scene.clone(), read_frames(&case.join("frames")).unwrap())
+    };
 
     // The quiet run: the reference latency.
-    let quiet = load_test(addr, TOKEN_A, &scene, &frames, &spec())
+    let quiet = load_test(addr, TOKEN_A, &honest_scene, &frames, &spec())
         .await
         .unwrap();
     assert_eq!(quiet.errors, 0, "{:?}", quiet.error_samples);
@@ -250,7 +274,7 @@ async fn hostile_clients_are_cut_while_honest_sessions_stream_on() {
     });
 
     // Meanwhile, the honest sessions.
-    let busy = load_test(addr, TOKEN_A, &scene, &frames, &spec())
+    let busy = load_test(addr, TOKEN_A, &honest_scene, &frames, &spec())
         .await
         .unwrap();
     let mut survived = Vec::new();
@@ -258,15 +282,18 @@ async fn hostile_clients_are_cut_while_honest_sessions_stream_on() {
         survived.push(r.expect("an attack's checks failed"));
     }
     eprintln!(
-        "hostile suite ({} attacks over {:.1} s): quiet e2e p50/p95 {:.1}/{:.1} ms, under attack {:.1}/{:.1} ms; results {} / sent {}",
+        "hostile suite ({} attacks over {:.1} s, {} honest sessions): quiet e2e p50/p95 {:.1}/{:.1} ms, under attack {:.1}/{:.1} ms; results {} / sent {}, skipped {}, errors {}",
         survived.len(),
         t_start.elapsed().as_secs_f64(),
+        busy.sessions,
         quiet.e2e_p50_ms,
         quiet.e2e_p95_ms,
         busy.e2e_p50_ms,
         busy.e2e_p95_ms,
         busy.results,
-        busy.sent
+        busy.sent,
+        busy.skipped,
+        busy.errors
     );
     assert_eq!(survived.len(), 6);
     assert_eq!(busy.errors, 0, "{:?}", busy.error_samples);
@@ -284,4 +311,5 @@ async fn hostile_clients_are_cut_while_honest_sessions_stream_on() {
     );
     server.shutdown().await.unwrap();
     let _ = std::fs::remove_dir_all(&case);
+    let _ = std::fs::remove_dir_all(&phantom_dir);
 }

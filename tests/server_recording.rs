@@ -10,7 +10,6 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use livereg::recording::Recording;
-use livereg::synthetic::{generate_sequence, ScenarioKind, SequenceSpec};
 use serde_json::Value;
 
 #[path = "../examples/client/lib.rs"]
@@ -22,25 +21,6 @@ use server_support::*;
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
-}
-
-/// The phantom scene (written to `dir`) and `n` tool-push frames in scene units.
-fn phantom_case(dir: &Path, n: usize) -> Vec<Vec<[f64; 3]>> {
-    livereg::phantom::write_phantom(dir).unwrap();
-    let loaded = livereg::scene::load_scene(&dir.join("scene.toml")).unwrap();
-    let scale = loaded.length_scale();
-    let mut spec = SequenceSpec::phantom_default(ScenarioKind::ToolPush);
-    spec.frames = n;
-    let seq = generate_sequence(&loaded, &spec).unwrap();
-    seq.frames
-        .iter()
-        .map(|f| {
-            f.cloud
-                .iter()
-                .map(|p| [p.x / scale, p.y / scale, p.z / scale])
-                .collect()
-        })
-        .collect()
 }
 
 /// Checks that the recording's result `k` is the result the client received.

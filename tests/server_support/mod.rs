@@ -79,6 +79,27 @@ rigid = "icp"
     d
 }
 
+/// The phantom scene (written to `dir`) and `n` tool-push frames in scene units.
+pub fn phantom_case(dir: &Path, n: usize) -> Vec<Vec<[f64; 3]>> {
+    livereg::phantom::write_phantom(dir).unwrap();
+    let loaded = livereg::scene::load_scene(&dir.join("scene.toml")).unwrap();
+    let scale = loaded.length_scale();
+    let mut spec = livereg::synthetic::SequenceSpec::phantom_default(
+        livereg::synthetic::ScenarioKind::ToolPush,
+    );
+    spec.frames = n;
+    let seq = livereg::synthetic::generate_sequence(&loaded, &spec).unwrap();
+    seq.frames
+        .iter()
+        .map(|f| {
+            f.cloud
+                .iter()
+                .map(|p| [p.x / scale, p.y / scale, p.z / scale])
+                .collect()
+        })
+        .collect()
+}
+
 /// A configuration for tests: loopback, free ports, two tokens, a private data directory.
 pub fn test_config(tag: &str) -> ServerConfig {
     ServerConfig {
