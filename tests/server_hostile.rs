@@ -1,5 +1,5 @@
 //! The server against hostile clients on loopback (issue 20): slow headers, slow bodies, idle
-//! WebSockets, 200 idle connections from one address, a flood of bad tokens, 1e300 and NaN
+//! WebSockets, 200 idle connections from one address (and 60 on the gRPC port), a flood of bad tokens, 1e300 and NaN
 //! coordinates, a scene asking for 10⁶ iterations and a frame of 10⁶ points are each refused
 //! or cut within their limit, while 4 honest sessions streaming at 30 Hz meanwhile see no
 //! errors and an end-to-end p95 within 2× of the same load on a quiet server.
@@ -142,6 +142,31 @@ async fn hostile_clients_are_cut_while_honest_sessions_stream_on() {
             "{late} idle connections outlived the header timeout"
         );
         "200 idle connections"
+    });
+    // The dedicated gRPC port runs the same accept loop: its idle connections are cut too.
+    let grpc_addr = server.grpc_addr.expect("gRPC on");
+    attacks.spawn(async move {
+        let mut conns = Vec::new();
+        for _ in 0..PER_ADDRESS + 10 {
+            conns.push(attacker(grpc_addr).await);
+        }
+        let waits: Vec<_> = conns
+            .into_iter()
+            .map(|c| until_closed(c, Duration::from_secs_f64(HEADER_TIMEOUT_S) + SLACK))
+            .collect();
+        let closed = futures_util::future::join_all(waits).await;
+        let at_once = closed
+            .iter()
+            .filter(|(t, _)| *t < Duration::from_secs_f64(HEADER_TIMEOUT_S / 2.0))
+            .count();
+        assert!(at_once >= 10, "{at_once} gRPC connections refused at once");
+        assert!(
+            closed
+                .iter()
+                .all(|(t, _)| *t < Duration::from_secs_f64(HEADER_TIMEOUT_S) + SLACK),
+            "idle gRPC connections outlived the opening deadline"
+        );
+        "idle gRPC connections"
     });
     // Slow headers: half a request line, then nothing.
     attacks.spawn(async move {
@@ -295,7 +320,7 @@ async fn hostile_clients_are_cut_while_honest_sessions_stream_on() {
         busy.skipped,
         busy.errors
     );
-    assert_eq!(survived.len(), 6);
+    assert_eq!(survived.len(), 7);
     assert_eq!(busy.errors, 0, "{:?}", busy.error_samples);
     assert!(busy.results > 0);
     assert!(

@@ -111,6 +111,13 @@ impl Drop for ConnectionPermit {
     }
 }
 
+/// Interval of the HTTP/2 pings on every HTTP/2 connection (gRPC included), and how long an
+/// unanswered one waits before the connection is closed.
+pub const HTTP2_KEEPALIVE: Duration = Duration::from_secs(20);
+
+/// Most concurrent HTTP/2 streams (gRPC calls) on one connection.
+pub const MAX_STREAMS_PER_CONNECTION: u32 = 64;
+
 /// Bytes a client must send before hyper's own timers take over: the length of the HTTP/2
 /// preface, which hyper's protocol detection waits for without any timeout.
 const OPENING_BYTES: usize = 24;
@@ -251,8 +258,9 @@ pub async fn serve<L>(
     builder
         .http2()
         .timer(TokioTimer::new())
-        .keep_alive_interval(Some(Duration::from_secs(20)))
-        .keep_alive_timeout(Duration::from_secs(20))
+        .keep_alive_interval(Some(HTTP2_KEEPALIVE))
+        .keep_alive_timeout(HTTP2_KEEPALIVE)
+        .max_concurrent_streams(MAX_STREAMS_PER_CONNECTION)
         // CONNECT protocol: WebSockets over HTTP/2.
         .enable_connect_protocol();
     let builder = Arc::new(builder);

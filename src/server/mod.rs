@@ -168,20 +168,22 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
             .max_decoding_message_size(config.limits.max_body_bytes)
             .max_encoding_message_size(usize::MAX);
     let mut app = http::router(state.clone());
+    let grpc_path = {
+        use tonic::server::NamedService;
+        format!(
+            "/{}/{{*method}}",
+            proto::registration_server::RegistrationServer::<grpc::GrpcService>::NAME
+        )
+    };
+    let grpc_route = {
+        use tower::ServiceExt;
+        grpc_service.map_request(|r: axum::extract::Request| r.map(tonic::body::Body::new))
+    };
     if config.grpc_bind.is_some() {
         // gRPC also on the HTTP port (HTTP/2, told apart by its path): one address per
         // backend, so that a proxy hashing sessions onto backends sends a session's HTTP,
         // WebSocket and gRPC requests to the same one (docs/server.md, "Scaling out").
-        use tonic::server::NamedService;
-        use tower::ServiceExt;
-        let path = format!(
-            "/{}/{{*method}}",
-            proto::registration_server::RegistrationServer::<grpc::GrpcService>::NAME
-        );
-        let svc = grpc_service
-            .clone()
-            .map_request(|r: axum::extract::Request| r.map(tonic::body::Body::new));
-        app = app.route_service(&path, svc);
+        app = app.route_service(&grpc_path, grpc_route.clone());
     }
     let http_tls = tls.as_ref().map(|t| t.server_config.clone());
     let sig = signal(rx.clone());
@@ -200,31 +202,17 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
             .await
             .map_err(|e| format!("cannot listen on {addr} (grpc_bind): {e}"))?;
         grpc_addr = Some(l.local_addr().map_err(|e| format!("bound address: {e}"))?);
-        let svc = grpc_service;
-        // `Server::tcp_nodelay` only applies to sockets tonic accepts itself: a listener
-        // handed over must carry the setting, or Nagle's algorithm holds each small result
-        // until the client's delayed ACK (measured: +43 ms per frame on loopback).
-        // TCP keep-alive finds peers that vanished without a word (a pulled cable); HTTP/2
-        // pings (below) find connections that are open but dead above TCP.
-        let incoming = tonic::transport::server::TcpIncoming::from(l)
-            .with_nodelay(Some(true))
-            .with_keepalive(Some(Duration::from_secs(60)));
+        // The dedicated gRPC port runs the same accept loop as the HTTP port (connection
+        // caps, opening deadline, HTTP/2 keep-alive pings, TLS with ALPN h2), serving only
+        // the gRPC service.
+        let grpc_app = axum::Router::new().route_service(&grpc_path, grpc_route.clone());
         let sig = signal(rx.clone());
-        let mut builder = tonic::transport::Server::builder()
-            .http2_keepalive_interval(Some(GRPC_KEEPALIVE))
-            .http2_keepalive_timeout(Some(GRPC_KEEPALIVE))
-            .max_concurrent_streams(Some(GRPC_MAX_STREAMS_PER_CONNECTION));
-        if let Some(t) = &tls {
-            builder = builder
-                .tls_config(t.grpc_config())
-                .map_err(|e| format!("gRPC TLS: {e}"))?;
-        }
+        let (m, grpc_tls) = (
+            state.metrics.clone(),
+            tls.as_ref().map(|t| t.server_config.clone()),
+        );
         tasks.push(tokio::spawn(async move {
-            builder
-                .add_service(svc)
-                .serve_with_incoming_shutdown(incoming, sig)
-                .await
-                .map_err(|e| format!("gRPC server: {e}"))
+            serve_http(l, grpc_app, grpc_tls, conn_limits, m, sig).await
         }));
     }
     let policy = config.recordings_retention();
@@ -263,13 +251,6 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
         tasks,
     })
 }
-
-/// Interval of the gRPC server's HTTP/2 pings, and how long it waits for their answer before
-/// closing the connection.
-const GRPC_KEEPALIVE: Duration = Duration::from_secs(20);
-
-/// Most concurrent gRPC calls (streams) on one connection.
-const GRPC_MAX_STREAMS_PER_CONNECTION: u32 = 64;
 
 /// How often the recordings directory is checked against its retention policy.
 const RETENTION_PERIOD: Duration = Duration::from_secs(60);
