@@ -1,5 +1,5 @@
-//! Native TLS (rustls, ring provider) for the HTTP/WebSocket listener; gRPC gets the same
-//! certificate through tonic's own TLS acceptor.
+//! Native TLS (rustls, ring provider) for both listeners (HTTP/WebSocket, and the dedicated
+//! gRPC port, which runs the same accept loop).
 //!
 //! - [`TlsFiles::load`] reads the PEM certificate chain and private key named by
 //!   [`TlsConfig`], and checks that they belong together, before anything is bound: every
@@ -9,7 +9,8 @@
 //!   connects and never speaks (or speaks plain HTTP) does not hold up anyone else's
 //!   connection. Failed handshakes are logged at debug level and dropped.
 //!
-//! ALPN offers only `http/1.1`: WebSocket streams need the HTTP/1.1 upgrade.
+//! ALPN offers `http/1.1` first (WebSocket streams need the HTTP/1.1 upgrade; rustls picks by
+//! the server's order), then `h2` for gRPC clients, which offer only h2.
 
 use std::net::SocketAddr;
 use std::path::Path;
@@ -99,16 +100,6 @@ impl TlsFiles {
             key_pem,
             server_config: Arc::new(server_config),
         })
-    }
-
-    /// The same identity for tonic's gRPC server.
-    pub fn grpc_config(&self) -> tonic::transport::ServerTlsConfig {
-        tonic::transport::ServerTlsConfig::new()
-            .identity(tonic::transport::Identity::from_pem(
-                &self.cert_pem,
-                &self.key_pem,
-            ))
-            .timeout(HANDSHAKE_TIMEOUT)
     }
 }
 
