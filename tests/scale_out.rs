@@ -9,7 +9,6 @@
 //! nginx comes from the OS packages (`.ci/run` installs it); without it this test fails.
 
 use std::collections::BTreeSet;
-use std::io::{BufRead, BufReader};
 use std::net::SocketAddr;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
@@ -52,33 +51,10 @@ fn spawn_backend(dir: &Path, name: &str) -> Backend {
         ),
     )
     .unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_livereg"))
-        .args(["serve", "--config", s(&config)])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let stderr = child.stderr.take().unwrap();
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        let mut sent = false;
-        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-            if sent {
-                continue;
-            }
-            let Ok(v) = serde_json::from_str::<Value>(&line) else {
-                continue;
-            };
-            if v["fields"]["message"] == "listening" {
-                let http: SocketAddr = v["fields"]["http_addr"].as_str().unwrap().parse().unwrap();
-                let _ = tx.send(http);
-                sent = true;
-            }
-        }
-    });
-    let http = rx
-        .recv_timeout(Duration::from_secs(60))
-        .expect("livereg serve logs its address");
+    let mut serve = Command::new(env!("CARGO_BIN_EXE_livereg"));
+    serve.args(["serve", "--config", s(&config)]);
+    let (child, listening) = spawn_serve(serve);
+    let http = http_addr_of(&listening);
     Backend { child, http }
 }
 

@@ -4,9 +4,8 @@
 //! result the client had received; a `livereg serve` whose disk fills up mid-stream goes on
 //! unrecorded, says so, and leaves every frame answered before the disk filled readable.
 
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use livereg::recording::Recording;
@@ -123,15 +122,6 @@ async fn recording_can_be_turned_off() {
     assert!(!data.join("recordings").exists());
 }
 
-/// The `http_addr` of the `listening` line of a JSON-logging `livereg serve`.
-fn listening_addr(line: &str) -> Option<std::net::SocketAddr> {
-    let v: Value = serde_json::from_str(line).ok()?;
-    if v["fields"]["message"] != "listening" {
-        return None;
-    }
-    v["fields"]["http_addr"].as_str()?.parse().ok()
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_killed_server_leaves_every_frame_whose_result_was_sent() {
     const FRAMES: usize = 40;
@@ -150,28 +140,10 @@ async fn a_killed_server_leaves_every_frame_whose_result_was_sent() {
         ),
     )
     .unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_livereg"))
-        .args(["serve", "--config", s(&config), "--grpc-bind", "off"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let stderr = child.stderr.take().unwrap();
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        let mut sent = false;
-        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-            if !sent {
-                if let Some(a) = listening_addr(&line) {
-                    let _ = tx.send(a);
-                    sent = true;
-                }
-            }
-        }
-    });
-    let addr = rx
-        .recv_timeout(Duration::from_secs(60))
-        .expect("livereg serve logs its address");
+    let mut serve = Command::new(env!("CARGO_BIN_EXE_livereg"));
+    serve.args(["serve", "--config", s(&config), "--grpc-bind", "off"]);
+    let (mut child, listening) = spawn_serve(serve);
+    let addr = http_addr_of(&listening);
 
     let scene = SceneFiles::read(&case.join("scene.toml")).unwrap();
     let id = http_create_session(addr, TOKEN_A, &scene).await.unwrap();
@@ -226,43 +198,24 @@ fn serve_with_file_limit(
     config: &Path,
     max_file_bytes: u64,
 ) -> (std::process::Child, std::net::SocketAddr) {
-    let mut child = Command::new("python3")
-        .args([
-            "-c",
-            "import os, resource, signal, sys\n\
-             signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n\
-             n = int(sys.argv[1])\n\
-             resource.setrlimit(resource.RLIMIT_FSIZE, (n, n))\n\
-             os.execv(sys.argv[2], sys.argv[2:])",
-            &max_file_bytes.to_string(),
-            env!("CARGO_BIN_EXE_livereg"),
-            "serve",
-            "--config",
-            s(config),
-            "--grpc-bind",
-            "off",
-        ])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("python3 runs");
-    let stderr = child.stderr.take().unwrap();
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        let mut sent = false;
-        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-            if !sent {
-                if let Some(a) = listening_addr(&line) {
-                    let _ = tx.send(a);
-                    sent = true;
-                }
-            }
-        }
-    });
-    let addr = rx
-        .recv_timeout(Duration::from_secs(60))
-        .expect("livereg serve logs its address");
-    (child, addr)
+    let mut cmd = Command::new("python3");
+    cmd.args([
+        "-c",
+        "import os, resource, signal, sys\n\
+         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n\
+         n = int(sys.argv[1])\n\
+         resource.setrlimit(resource.RLIMIT_FSIZE, (n, n))\n\
+         os.execv(sys.argv[2], sys.argv[2:])",
+        &max_file_bytes.to_string(),
+        env!("CARGO_BIN_EXE_livereg"),
+        "serve",
+        "--config",
+        s(config),
+        "--grpc-bind",
+        "off",
+    ]);
+    let (child, listening) = spawn_serve(cmd);
+    (child, http_addr_of(&listening))
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

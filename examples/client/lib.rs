@@ -562,27 +562,38 @@ impl GrpcClient {
         r
     }
 
+    /// The create request for `scene` and its files.
+    fn create_request(scene: &SceneFiles) -> proto::CreateSessionRequest {
+        proto::CreateSessionRequest {
+            scene: scene.scene.clone(),
+            scene_format: scene.format.clone(),
+            files: scene.files.clone().into_iter().collect(),
+            budget_ms: None,
+            rigid_only: false,
+        }
+    }
+
     /// Creates a session with the id `id` chosen by the client (the routing key).
     pub async fn create_session_with_id(
         &mut self,
         scene: &SceneFiles,
         id: &str,
     ) -> Result<proto::SessionInfo, tonic::Status> {
-        let req = self.req_for(
-            id,
-            proto::CreateSessionRequest {
-                scene: scene.scene.clone(),
-                scene_format: scene.format.clone(),
-                files: scene.files.clone().into_iter().collect(),
-                budget_ms: None,
-                rigid_only: false,
-            },
-        );
+        let req = self.req_for(id, Self::create_request(scene));
         Ok(self.inner.create_session(req).await?.into_inner())
     }
 
-    /// Registers one frame of `session`, with its routing key (full precision).
-    pub async fn register_routed(
+    /// Creates a session from a scene and its files (the server draws its id).
+    pub async fn create_session(
+        &mut self,
+        scene: &SceneFiles,
+    ) -> Result<proto::SessionInfo, tonic::Status> {
+        let req = self.req(Self::create_request(scene));
+        Ok(self.inner.create_session(req).await?.into_inner())
+    }
+
+    /// Registers one frame of `session` (full precision), with the session's routing key.
+    pub async fn register(
         &mut self,
         session: &str,
         seq: u64,
@@ -596,36 +607,6 @@ impl GrpcClient {
                 frame: Some(frame_f64(seq, source, points)),
             },
         );
-        Ok(self.inner.register(req).await?.into_inner())
-    }
-
-    /// Creates a session from a scene and its files.
-    pub async fn create_session(
-        &mut self,
-        scene: &SceneFiles,
-    ) -> Result<proto::SessionInfo, tonic::Status> {
-        let req = self.req(proto::CreateSessionRequest {
-            scene: scene.scene.clone(),
-            scene_format: scene.format.clone(),
-            files: scene.files.clone().into_iter().collect(),
-            budget_ms: None,
-            rigid_only: false,
-        });
-        Ok(self.inner.create_session(req).await?.into_inner())
-    }
-
-    /// Registers one frame (full precision).
-    pub async fn register(
-        &mut self,
-        session: &str,
-        seq: u64,
-        source: &str,
-        points: &[[f64; 3]],
-    ) -> Result<proto::FrameResult, tonic::Status> {
-        let req = self.req(proto::RegisterRequest {
-            session_id: session.to_string(),
-            frame: Some(frame_f64(seq, source, points)),
-        });
         Ok(self.inner.register(req).await?.into_inner())
     }
 
@@ -1257,7 +1238,7 @@ impl MovingSession {
         for (k, (name, pts)) in frames.iter().enumerate() {
             let mut attempts = 0;
             loop {
-                match g.register_routed(&self.id, k as u64, name, pts).await {
+                match g.register(&self.id, k as u64, name, pts).await {
                     Ok(r) => {
                         out.push(r);
                         break;

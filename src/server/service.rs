@@ -275,18 +275,11 @@ impl AppState {
             watchdog: std::time::Duration::from_secs_f64(
                 WATCHDOG_FACTOR * self.config.limits.max_frame_ms / 1e3,
             ),
+            // (the worker has closed the session and counted it as failed)
             on_failure: Arc::new(move |h: &SessionHandle| {
                 if let Some(st) = state.upgrade() {
                     if st.registry.remove(&h.owner, &h.id).is_ok() {
-                        st.metrics.sessions.fetch_sub(1, Ordering::Relaxed);
-                        super::audit::event(
-                            super::audit::Action::RetireSession,
-                            "ok",
-                            super::audit::Peer(None),
-                            Some(h.owner.name()),
-                            Some(&h.id),
-                            "failed",
-                        );
+                        st.forget(h, "failed");
                     }
                 }
             }),
@@ -329,8 +322,14 @@ impl AppState {
     /// Closes a session already removed from the registry, counting why.
     pub fn retire(&self, h: &SessionHandle, reason: &str) {
         h.close();
-        self.metrics.sessions.fetch_sub(1, Ordering::Relaxed);
         self.metrics.inc("livereg_sessions_closed_total", reason, 1);
+        self.forget(h, reason);
+    }
+
+    /// Accounts for a session that left the registry: the open-session gauge, and an audit
+    /// event when the server (not the client, whose request is audited) retired it.
+    fn forget(&self, h: &SessionHandle, reason: &str) {
+        self.metrics.sessions.fetch_sub(1, Ordering::Relaxed);
         if reason != "client" {
             super::audit::event(
                 super::audit::Action::RetireSession,

@@ -100,6 +100,47 @@ pub fn phantom_case(dir: &Path, n: usize) -> Vec<Vec<[f64; 3]>> {
         .collect()
 }
 
+/// Starts `cmd` (a `livereg serve` with `log_format = "json"`, possibly behind a wrapper) and
+/// waits up to 60 s for its `listening` line: the child and the line's fields (`http_addr`,
+/// `grpc_addr`, `tls`). Its later log lines are read and dropped, so that it never blocks on
+/// a full pipe.
+pub fn spawn_serve(mut cmd: std::process::Command) -> (std::process::Child, Value) {
+    use std::io::BufRead;
+    let mut child = cmd
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("the server starts");
+    let stderr = child.stderr.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut sent = false;
+        for line in std::io::BufReader::new(stderr)
+            .lines()
+            .map_while(Result::ok)
+        {
+            if sent {
+                continue;
+            }
+            if let Ok(v) = serde_json::from_str::<Value>(&line) {
+                if v["fields"]["message"] == "listening" {
+                    let _ = tx.send(v["fields"].clone());
+                    sent = true;
+                }
+            }
+        }
+    });
+    let fields = rx
+        .recv_timeout(std::time::Duration::from_secs(60))
+        .expect("livereg serve logs its address");
+    (child, fields)
+}
+
+/// The `http_addr` of a `listening` line's fields.
+pub fn http_addr_of(fields: &Value) -> std::net::SocketAddr {
+    fields["http_addr"].as_str().unwrap().parse().unwrap()
+}
+
 /// A configuration for tests: loopback, free ports, two tokens, a private data directory.
 pub fn test_config(tag: &str) -> ServerConfig {
     ServerConfig {
