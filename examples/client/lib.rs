@@ -292,7 +292,7 @@ pub async fn http_create_session(
 }
 
 /// Creates a session over HTTP (multipart upload); returns the whole create response (the
-/// session description: id, recording path, model size, …).
+/// session description: id, recording file name, model size, …).
 pub async fn http_create_session_info(
     addr: impl Into<Endpoint>,
     token: &str,

@@ -100,7 +100,7 @@ pub fn document() -> Value {
               "frames_skipped": {"type": "integer"}, "frames_rejected": {"type": "integer"},
               "age_s": {"type": "number"}, "warm": {"type": "boolean"},
               "stream": {"type": "string", "description": "Relative URL of the session's WebSocket."},
-              "recording": {"type": ["string", "null"], "description": "Path of the session's MCAP recording on the server; null when not recorded."}
+              "recording": {"type": ["string", "null"], "description": "File name of the session's MCAP recording in the server's recordings directory (never a server path); null when not recorded."}
             }
           },
           "SessionList": {"type": "object", "required": ["sessions"],

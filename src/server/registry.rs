@@ -54,8 +54,9 @@ pub struct SessionInfo {
     pub warm: bool,
     /// Relative URL of the WebSocket stream.
     pub stream: String,
-    /// Path of the session's MCAP recording on the server (`null` when not recorded:
-    /// `record = false`, or the file could not be created).
+    /// File name of the session's MCAP recording in the server's recordings directory
+    /// (`<id>.mcap`; never the server's path), `null` when not recorded (`record = false`, or
+    /// the file could not be created).
     #[serde(default)]
     pub recording: Option<String>,
     /// Why the recording stopped while the session went on (a full disk, an I/O error);
@@ -81,7 +82,12 @@ impl SessionInfo {
             age_s: h.created.elapsed().as_secs_f64(),
             warm: h.is_warm(),
             stream: format!("/v1/sessions/{}/stream", h.id),
-            recording: h.info.recording.as_ref().map(|p| p.display().to_string()),
+            recording: h
+                .info
+                .recording
+                .as_ref()
+                .and_then(|p| p.file_name())
+                .map(|n| n.to_string_lossy().into_owned()),
             recording_error: h.recording_failure(),
         }
     }
