@@ -1061,9 +1061,9 @@ async fn one_session(
     Ok(run)
 }
 
-/// The header naming a session: the id a create asks for, and the key a scaled-out
-/// deployment's proxy routes every request of the session by (docs/server.md, "Scaling out").
-pub const SESSION_HEADER: &str = "x-livereg-session";
+/// The header naming a session (the server's: the id a create asks for, and the key a
+/// scaled-out deployment's proxy routes every request of the session by).
+pub use livereg::server::registry::SESSION_HEADER;
 
 /// A session id chosen by the client: 128 random bits, 32 lowercase hex digits.
 pub fn new_client_session_id() -> String {

@@ -73,6 +73,17 @@ pub enum RecordingError {
     Scene(String),
 }
 
+impl RecordingError {
+    /// What went wrong, without the file's path (for people the path must not reach, such
+    /// as a server's clients).
+    pub fn detail(&self) -> &str {
+        match self {
+            RecordingError::Io { message, .. } | RecordingError::Invalid { message, .. } => message,
+            RecordingError::Scene(m) => m,
+        }
+    }
+}
+
 /// Nanoseconds since the Unix epoch, now (0 if the clock is before 1970).
 pub fn now_ns() -> u64 {
     std::time::SystemTime::now()

@@ -34,6 +34,16 @@ pub enum RemovalReason {
     Size,
 }
 
+impl RemovalReason {
+    /// The name in logs and metrics (`age`, `size`).
+    pub fn label(self) -> &'static str {
+        match self {
+            RemovalReason::Age => "age",
+            RemovalReason::Size => "size",
+        }
+    }
+}
+
 /// What one pass of [`enforce`] did.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct RetentionReport {

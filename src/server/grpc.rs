@@ -18,7 +18,7 @@ use super::auth::Owner;
 use super::codec::{decode_proto_frame, ResultMessage};
 use super::error::ApiError;
 use super::proto;
-use super::registry::SessionInfo;
+use super::registry::{requested_session_id, SessionInfo, SESSION_HEADER};
 use super::service::AppState;
 use super::upload::SceneUpload;
 use super::worker::{Job, Reply, SessionHandle, StreamEvent, StreamSink};
@@ -189,17 +189,9 @@ impl proto::registration_server::Registration for GrpcService {
     ) -> Result<Response<proto::SessionInfo>, Status> {
         let owner = self.owner(&req)?;
         let peer = Peer(req.remote_addr());
-        let requested = match req.metadata().get(super::http::SESSION_HEADER) {
-            None => None,
-            Some(v) => Some(
-                v.to_str()
-                    .map_err(|_| {
-                        self.err(ApiError::bad_request("x-livereg-session is not valid text"))
-                    })?
-                    .trim()
-                    .to_string(),
-            ),
-        };
+        let requested =
+            requested_session_id(req.metadata().get(SESSION_HEADER).map(|v| v.as_bytes()))
+                .map_err(|e| self.err(e))?;
         let r = self
             .create_session_from(&owner, req.into_inner(), requested.as_deref())
             .await;

@@ -19,7 +19,7 @@ use super::audit::{self, Action, Peer};
 use super::auth::Owner;
 use super::codec::ResultMessage;
 use super::error::ApiError;
-use super::registry::SessionInfo;
+use super::registry::{requested_session_id, SessionInfo, SESSION_HEADER};
 use super::result_codec::{encode_binary_result, ResultFormat};
 use super::service::AppState;
 use super::upload::{check_file_name, CreateSessionJson, SceneUpload};
@@ -114,13 +114,7 @@ async fn body_deadline(State(state): State<Arc<AppState>>, req: Request, next: N
             // connection.
             let too_large = e.to_string().contains("length limit");
             let err = if too_large {
-                ApiError::too_large(
-                    "payload_too_large",
-                    format!(
-                        "the request body exceeds {} bytes (limits.max_body_bytes)",
-                        limits.max_body_bytes
-                    ),
-                )
+                body_too_large(limits.max_body_bytes)
             } else {
                 ApiError::bad_request(format!("cannot read the request body: {e}"))
             };
@@ -221,22 +215,6 @@ async fn method_not_allowed(method: Method, uri: axum::http::Uri) -> ApiError {
     )
 }
 
-/// The header naming a session: the id a client asks for when it creates one, and the key a
-/// scaled-out deployment's proxy routes every request of the session by (docs/server.md,
-/// "Scaling out").
-pub const SESSION_HEADER: &str = "x-livereg-session";
-
-/// The session id a create request asks for (`X-Livereg-Session`), if any.
-fn requested_session_id(headers: &HeaderMap) -> ApiResult<Option<String>> {
-    match headers.get(SESSION_HEADER) {
-        None => Ok(None),
-        Some(v) => v
-            .to_str()
-            .map(|s| Some(s.trim().to_string()))
-            .map_err(|_| ApiError::bad_request("X-Livereg-Session is not valid text")),
-    }
-}
-
 fn content_type(headers: &HeaderMap) -> String {
     headers
         .get(header::CONTENT_TYPE)
@@ -245,12 +223,17 @@ fn content_type(headers: &HeaderMap) -> String {
         .to_ascii_lowercase()
 }
 
+/// 413 `payload_too_large` for a request body over `limit` bytes.
+fn body_too_large(limit: usize) -> ApiError {
+    ApiError::too_large(
+        "payload_too_large",
+        format!("the request body exceeds {limit} bytes (limits.max_body_bytes)"),
+    )
+}
+
 fn body_error(e: axum::extract::rejection::BytesRejection, limit: usize) -> ApiError {
     if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
-        ApiError::too_large(
-            "payload_too_large",
-            format!("the request body exceeds {limit} bytes (limits.max_body_bytes)"),
-        )
+        body_too_large(limit)
     } else {
         ApiError::bad_request(format!("cannot read the request body: {e}"))
     }
@@ -354,7 +337,7 @@ async fn create_session_from(
     req: Request,
 ) -> ApiResult<(StatusCode, Json<SessionInfo>)> {
     let limit = state.config.limits.max_body_bytes;
-    let requested = requested_session_id(req.headers())?;
+    let requested = requested_session_id(req.headers().get(SESSION_HEADER).map(|v| v.as_bytes()))?;
     let ctype = content_type(req.headers());
     let upload = if ctype.starts_with("multipart/form-data") {
         let mp = Multipart::from_request(req, state)

@@ -264,7 +264,7 @@ async fn keep_recordings_within(
     policy: crate::recording::retention::RetentionPolicy,
     mut shutdown: watch::Receiver<bool>,
 ) {
-    use crate::recording::retention::{enforce, RemovalReason};
+    use crate::recording::retention::enforce;
     let mut tick = tokio::time::interval(RETENTION_PERIOD);
     loop {
         tokio::select! {
@@ -280,10 +280,7 @@ async fn keep_recordings_within(
         match report {
             Ok(Ok(r)) => {
                 for (path, bytes, why) in &r.removed {
-                    let reason = match why {
-                        RemovalReason::Age => "age",
-                        RemovalReason::Size => "size",
-                    };
+                    let reason = why.label();
                     state
                         .metrics
                         .inc("livereg_recordings_removed_total", reason, 1);

@@ -19,6 +19,23 @@ pub fn new_session_id() -> Result<String, ApiError> {
     Ok(b.iter().map(|x| format!("{x:02x}")).collect())
 }
 
+/// The header naming a session: the id a client asks for when it creates one, and the key a
+/// scaled-out deployment's proxy routes every request of the session by (docs/server.md,
+/// "Scaling out"). HTTP header and gRPC metadata alike.
+pub const SESSION_HEADER: &str = "x-livereg-session";
+
+/// The session id a create request asks for, from the raw value of its [`SESSION_HEADER`]
+/// (HTTP header or gRPC metadata), if any; its shape is checked when it is reserved.
+pub fn requested_session_id(value: Option<&[u8]>) -> Result<Option<String>, ApiError> {
+    value
+        .map(|v| {
+            std::str::from_utf8(v)
+                .map(|s| s.trim().to_string())
+                .map_err(|_| ApiError::bad_request("X-Livereg-Session is not valid text"))
+        })
+        .transpose()
+}
+
 /// Whether `id` has the shape of a session id (so bad ids are answered without a lookup).
 pub fn is_session_id(id: &str) -> bool {
     id.len() == 32

@@ -412,14 +412,10 @@ fn record(
         metrics.inc("livereg_recording_errors_total", "write", 1);
         tracing::error!(session = %handle.id, error = %e, "recording failed; the session goes on unrecorded");
         let frames = handle.counters.registered.load(Ordering::Relaxed);
-        // The message without the server's path: the description goes to the client.
-        let what = match &e {
-            crate::recording::RecordingError::Io { message, .. }
-            | crate::recording::RecordingError::Invalid { message, .. } => message.clone(),
-            crate::recording::RecordingError::Scene(m) => m.clone(),
-        };
+        // Without the server's path: the description goes to the client.
         handle.set_recording_failure(format!(
-            "the recording stopped after {frames} registered frames ({what}); the session goes on unrecorded"
+            "the recording stopped after {frames} registered frames ({}); the session goes on unrecorded",
+            e.detail()
         ));
         *recorder = None;
     }

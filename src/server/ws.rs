@@ -11,8 +11,9 @@
 //! Results are JSON text messages by default; `?results=binary` on the URL asks for them as
 //! binary messages in the encoding of [`super::result_codec`] (errors stay JSON text).
 
-use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
+use std::sync::atomic::AtomicU64;
 use std::sync::Arc;
+use std::sync::OnceLock;
 use std::time::Instant;
 
 use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade};
@@ -48,30 +49,21 @@ pub enum ServerMessage<'a> {
 }
 
 /// Why the server ends a stream, and the close frame it sends (RFC 6455 §7.4.1 codes).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u8)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 enum CloseWhy {
     /// The client closed, or its session went away: 1000.
-    Normal = 0,
+    #[default]
+    Normal,
     /// The server shuts down: 1001 ("going away").
-    ShuttingDown = 1,
+    ShuttingDown,
     /// A message over `limits.max_body_bytes`: 1009 ("message too big").
-    TooBig = 2,
+    TooBig,
     /// Nothing received (no frame, no pong) for `limits.stream_idle_timeout_s`: 1000 with
     /// the reason "idle".
-    Idle = 3,
+    Idle,
 }
 
 impl CloseWhy {
-    fn from_u8(v: u8) -> Self {
-        match v {
-            1 => CloseWhy::ShuttingDown,
-            2 => CloseWhy::TooBig,
-            3 => CloseWhy::Idle,
-            _ => CloseWhy::Normal,
-        }
-    }
-
     /// The close code and reason; `limits` gives the numbers the reasons quote.
     fn frame(self, limits: &super::config::LimitsConfig) -> (u16, String) {
         match self {
@@ -193,7 +185,8 @@ async fn run(
     let skipped = Arc::new(AtomicU64::new(0));
     let scale = handle.info.length_scale;
     let mut shutdown = state.shutdown.clone();
-    let close_why = Arc::new(AtomicU8::new(CloseWhy::Normal as u8));
+    // Set once, by the reader, when it is the server that ends the stream.
+    let close_why = Arc::new(OnceLock::<CloseWhy>::new());
     let cw = close_why.clone();
     let limits = state.config.limits.clone();
     let idle = std::time::Duration::from_secs_f64(limits.stream_idle_timeout_s);
@@ -213,7 +206,7 @@ async fn run(
                 return;
             }
         }
-        let (code, reason) = CloseWhy::from_u8(cw.load(Ordering::Relaxed)).frame(&limits);
+        let (code, reason) = cw.get().copied().unwrap_or_default().frame(&limits);
         let _ = sink
             .send(Message::Close(Some(CloseFrame {
                 code,
@@ -235,11 +228,11 @@ async fn run(
         let msg = tokio::select! {
             m = incoming.next() => m,
             _ = shutdown.wait_for(|s| *s) => {
-                close_why.store(CloseWhy::ShuttingDown as u8, Ordering::Relaxed);
+                let _ = close_why.set(CloseWhy::ShuttingDown);
                 break;
             }
             _ = tokio::time::sleep_until((last_seen + idle).into()) => {
-                close_why.store(CloseWhy::Idle as u8, Ordering::Relaxed);
+                let _ = close_why.set(CloseWhy::Idle);
                 break;
             }
         };
@@ -249,7 +242,7 @@ async fn run(
             None | Some(Ok(Message::Close(_))) => break,
             Some(Err(e)) => {
                 if is_too_big(&e) {
-                    close_why.store(CloseWhy::TooBig as u8, Ordering::Relaxed);
+                    let _ = close_why.set(CloseWhy::TooBig);
                     state.reject(
                         &handle,
                         &ApiError::too_large("payload_too_large", e.to_string()),
@@ -320,7 +313,10 @@ async fn run(
         Some(&handle.id),
         &format!(
             "websocket, close code {}",
-            CloseWhy::from_u8(close_why.load(Ordering::Relaxed))
+            close_why
+                .get()
+                .copied()
+                .unwrap_or_default()
                 .frame(&state.config.limits)
                 .0
         ),
