@@ -12,6 +12,7 @@ use super::register::{
     frame_files, recorder_for, register_files, register_inputs, session_for, summarize, FrameInput,
     FrameObserver,
 };
+use super::vtk_series::VtkSeriesWriter;
 use super::RerunArgs;
 use crate::benchmark::indentation::{IndentationFrameMetrics, IndentationMetrics};
 use crate::charts::per_frame::{none_rigid_non_rigid, write_per_frame_chart};
@@ -51,16 +52,17 @@ pub struct ScenarioSummary {
 
 /// Runs the demo into `out`; `only` restricts the scenarios (names), `frames` per scenario.
 pub fn run(out: &Path, frames: usize, only: &[String]) -> Result<Vec<ScenarioSummary>, String> {
-    run_with(out, frames, only, &RerunArgs::default())
+    run_with(out, frames, only, &RerunArgs::default(), None)
 }
 
 /// [`run`] with rerun output as `rerun` asks (one stream; entities under each scenario's
-/// name).
+/// name), and VTK series (`--vtk`) in a subdirectory of `vtk` per scenario.
 pub fn run_with(
     out: &Path,
     frames: usize,
     only: &[String],
     rerun: &RerunArgs,
+    vtk: Option<&Path>,
 ) -> Result<Vec<ScenarioSummary>, String> {
     #[allow(unused_variables)]
     let stream = rerun.stream("livereg-demo")?;
@@ -113,8 +115,15 @@ pub fn run_with(
             )
         });
         let inputs: Vec<FrameInput> = files.iter().cloned().map(FrameInput::File).collect();
+        let mut vtk_series = match vtk {
+            Some(v) => Some(VtkSeriesWriter::create(&v.join(kind.name()), &session)?),
+            None => None,
+        };
         let full = {
             let mut observers: Vec<&mut dyn FrameObserver> = vec![&mut recorder];
+            if let Some(v) = vtk_series.as_mut() {
+                observers.push(v);
+            }
             #[cfg(feature = "rerun")]
             if let Some(v) = visualiser.as_mut() {
                 observers.push(v);
@@ -209,7 +218,7 @@ pub fn run_with(
         summaries.push(summary);
     }
     if indentation {
-        summaries.extend(run_indentation_demo(out)?);
+        summaries.extend(run_indentation_demo(out, vtk)?);
     }
     println!("{}", table(&summaries));
     let json = serde_json::to_string_pretty(&summaries).map_err(|e| e.to_string())?;
@@ -252,7 +261,7 @@ fn write_view(
 /// tet-FE truth (linear law), clouds without a camera pose, registered with the fixture's
 /// scene (every default) and rigidly only (rigid ICP tracking); the per-frame chart and the
 /// deepest frame's view go to `DIR/tool-indentation/<sequence>/`.
-fn run_indentation_demo(out: &Path) -> Result<Vec<ScenarioSummary>, String> {
+fn run_indentation_demo(out: &Path, vtk: Option<&Path>) -> Result<Vec<ScenarioSummary>, String> {
     use crate::benchmark::indentation::{
         indentation_cases, indentation_metrics, indentation_workload, scene_for, IndentationVariant,
     };
@@ -292,10 +301,17 @@ fn run_indentation_demo(out: &Path) -> Result<Vec<ScenarioSummary>, String> {
         // The full pipeline frame by frame, keeping the deepest frame's registered surface.
         let mut full = crate::session::Session::from_scene(&scene_for(&scene, case.variant))
             .map_err(|e| e.to_string())?;
+        let mut vtk_series = match vtk {
+            Some(v) => Some(VtkSeriesWriter::create(&v.join(&name), &full)?),
+            None => None,
+        };
         let mut samples = Vec::new();
         let mut deepest_surface = Vec::new();
         for (k, (frame, truth)) in workload.frames.iter().zip(&workload.truth).enumerate() {
             let r = full.register(frame);
+            if let Some(v) = vtk_series.as_mut() {
+                v.write_frame(k, &r)?;
+            }
             samples.push(sample_of(&r, truth, scale));
             if k == deepest {
                 deepest_surface = r.surface;

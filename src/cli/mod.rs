@@ -14,6 +14,7 @@ pub mod register;
 pub mod replay;
 pub mod serve;
 pub mod simulate;
+pub mod vtk_series;
 
 /// `--rerun FILE.rrd` and `--rerun-connect URL`: 3D logging to rerun (feature `rerun`).
 #[derive(Debug, Clone, Default, clap::Args)]
@@ -111,7 +112,7 @@ pub enum Command {
     Register {
         /// The scene file.
         scene: PathBuf,
-        /// A directory of point files (.xyz .txt .csv .ply), taken in lexical order of name,
+        /// A directory of point files (.xyz .txt .csv .ply .vtk .vtp), taken in lexical order of name,
         /// or an MCAP recording (its recorded frames).
         #[arg(long)]
         frames: PathBuf,
@@ -121,6 +122,10 @@ pub enum Command {
         /// 3D visualisation.
         #[command(flatten)]
         rerun: RerunArgs,
+        /// Also write every frame's deformed liver and structures as VTK files (`.vtp`) with a
+        /// ParaView time series (`.pvd`) per object into DIR (docs/vtk.md).
+        #[arg(long, value_name = "DIR")]
+        vtk: Option<PathBuf>,
         /// Output directory (created); default `./register-out`.
         #[arg(long, default_value = "register-out")]
         out: PathBuf,
@@ -168,6 +173,10 @@ pub enum Command {
         /// 3D visualisation (with the truth's target errors).
         #[command(flatten)]
         rerun: RerunArgs,
+        /// Also write every registered frame as VTK files with ParaView time series, one
+        /// subdirectory of DIR per scenario (docs/vtk.md).
+        #[arg(long, value_name = "DIR")]
+        vtk: Option<PathBuf>,
     },
     /// Re-runs a recorded session through this build and compares: the largest difference of
     /// surface vertices and structures (mm) per frame and overall; exits non-zero beyond the
@@ -187,6 +196,7 @@ pub fn run(cli: Cli) -> ExitCode {
             frames,
             record,
             rerun,
+            vtk,
             out,
             budget_ms,
             rigid_only,
@@ -198,6 +208,7 @@ pub fn run(cli: Cli) -> ExitCode {
             rigid_only,
             record,
             rerun,
+            vtk,
         })
         .map(|_| ()),
         Command::Eval {
@@ -210,7 +221,8 @@ pub fn run(cli: Cli) -> ExitCode {
             frames,
             scenarios,
             rerun,
-        } => demo::run_with(&out, frames, &scenarios, &rerun).map(|_| ()),
+            vtk,
+        } => demo::run_with(&out, frames, &scenarios, &rerun, vtk.as_deref()).map(|_| ()),
         Command::Bench(args) => bench::run(&args).map(|_| ()),
         Command::Calibrate(args) => calibrate::run(&args).map(|_| ()),
         Command::Replay(args) => replay::run(&args).map(|_| ()),

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use super::progress::bar;
+use super::vtk_series::VtkSeriesWriter;
 use super::RerunArgs;
 use crate::evaluation::{percentile, JsonlWriter, ResultRecord};
 use crate::mesh::read_points;
@@ -31,6 +32,8 @@ pub struct RegisterArgs {
     pub record: Option<PathBuf>,
     /// Log to rerun (needs the `rerun` feature).
     pub rerun: RerunArgs,
+    /// Write each frame as VTK files with ParaView time series into this directory.
+    pub vtk: Option<PathBuf>,
 }
 
 /// What a `register` run did (printed as JSON on stdout).
@@ -327,10 +330,17 @@ pub fn run(args: &RegisterArgs) -> Result<RegisterSummary, String> {
     };
     #[allow(unused_mut, unused_variables)]
     let mut visualiser = args.rerun.visualiser(&session, "")?;
+    let mut vtk = match &args.vtk {
+        Some(dir) => Some(VtkSeriesWriter::create(dir, &session)?),
+        None => None,
+    };
     let results = {
         let mut observers: Vec<&mut dyn FrameObserver> = Vec::new();
         if let Some(r) = recorder.as_mut() {
             observers.push(r);
+        }
+        if let Some(v) = vtk.as_mut() {
+            observers.push(v);
         }
         #[cfg(feature = "rerun")]
         if let Some(v) = visualiser.as_mut() {

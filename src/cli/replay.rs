@@ -57,6 +57,10 @@ pub struct ReplayArgs {
     /// 3D visualisation of the replayed frames.
     #[command(flatten)]
     pub rerun: RerunArgs,
+    /// Also write every replayed frame as VTK files with a ParaView time series per object
+    /// into DIR (docs/vtk.md).
+    #[arg(long, value_name = "DIR")]
+    pub vtk: Option<PathBuf>,
 }
 
 /// The comparison of one frame.
@@ -170,6 +174,10 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayReport, String> {
     };
     #[allow(unused_mut, unused_variables)]
     let mut visualiser = args.rerun.visualiser(&session, "replay")?;
+    let mut vtk = match &args.vtk {
+        Some(dir) => Some(super::vtk_series::VtkSeriesWriter::create(dir, &session)?),
+        None => None,
+    };
     let n = rec.complete_frames();
     let pb = bar(n, "replay");
     let start = Instant::now();
@@ -197,6 +205,9 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayReport, String> {
             v.frame_done(k, frame.as_ref(), fm.timestamp_ns, &r)?;
         }
         let _ = (&mut visualiser, k);
+        if let Some(v) = vtk.as_mut() {
+            v.write_frame(k, &r)?;
+        }
         if let Some(w) = writer.as_mut() {
             w.write(&ResultRecord::from_frame(&r, scale))
                 .map_err(|e| e.to_string())?;

@@ -1,5 +1,5 @@
-//! Surface meshes and point clouds: readers (OBJ, STL, PLY, OFF, Gmsh 2 MSH, point text files),
-//! writers (OBJ, point text), validation and simple primitive solids. Lengths are always in the
+//! Surface meshes and point clouds: readers (OBJ, STL, PLY, OFF, Gmsh 2 MSH, VTK, point text
+//! files), writers (OBJ, VTK, point text), validation and simple primitive solids. Lengths are always in the
 //! file's units; unit conversion is done by the caller with [`TriSurface::scale`].
 
 pub mod error;
@@ -12,6 +12,7 @@ pub mod primitives;
 pub mod stl;
 pub mod surface;
 pub mod validate;
+pub mod vtk;
 
 mod assemble;
 #[cfg(test)]
@@ -25,16 +26,17 @@ pub use msh::read_msh;
 pub use obj::{read_obj, write_obj};
 pub use off::read_off;
 pub use ply::{read_ply, read_ply_vertices};
-pub use points::{read_points, write_points};
+pub use points::{read_points, write_points, POINT_EXTENSIONS};
 pub use stl::read_stl;
 pub use surface::TriSurface;
 pub use validate::{orient_outward, validate, SurfaceReport};
+pub use vtk::{read_vtk, read_vtk_points, write_vtk};
 
 /// The surface formats [`read_surface`] understands, by extension.
-pub const SURFACE_EXTENSIONS: [&str; 5] = ["obj", "stl", "ply", "off", "msh"];
+pub const SURFACE_EXTENSIONS: [&str; 7] = ["obj", "stl", "ply", "off", "msh", "vtk", "vtp"];
 
 /// Reads a triangle surface, choosing the reader from the file extension (case-insensitive):
-/// `obj`, `stl`, `ply`, `off` or `msh` (Gmsh 2.x ASCII). Lengths are in the file's units.
+/// `obj`, `stl`, `ply`, `off`, `msh` (Gmsh 2.x ASCII), `vtk` (legacy) or `vtp` (XML PolyData). Lengths are in the file's units.
 pub fn read_surface(path: &Path) -> Result<TriSurface, MeshError> {
     match extension(path).as_deref() {
         Some("obj") => read_obj(path),
@@ -42,6 +44,7 @@ pub fn read_surface(path: &Path) -> Result<TriSurface, MeshError> {
         Some("ply") => read_ply(path),
         Some("off") => read_off(path),
         Some("msh") => read_msh(path),
+        Some("vtk" | "vtp") => read_vtk(path),
         Some(other) => Err(MeshError::unsupported(
             path,
             format!(
@@ -111,13 +114,13 @@ mod tests {
     #[test]
     fn unknown_extension_names_file_extension_and_supported_ones() {
         let dir = TempDir::new("dispatch-bad");
-        let path = dir.write("liver.vtk", "");
+        let path = dir.write("liver.wrl", "");
         let msg = assert_err(
             read_surface(&path),
             &path,
-            &["'vtk'", "obj, stl, ply, off, msh"],
+            &["'wrl'", "obj, stl, ply, off, msh, vtk, vtp"],
         );
-        assert!(msg.contains("liver.vtk"));
+        assert!(msg.contains("liver.wrl"));
         let path = dir.write("liver", "");
         assert_err(read_surface(&path), &path, &["no extension", "obj, stl"]);
     }

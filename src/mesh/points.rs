@@ -11,23 +11,29 @@ use super::extension;
 use super::ply::read_ply_vertices;
 use super::text::{decode, quote, read_bytes, Lines};
 
+/// The point file formats [`read_points`] understands, by extension.
+pub const POINT_EXTENSIONS: [&str; 6] = ["xyz", "txt", "csv", "ply", "vtk", "vtp"];
+
 /// Reads a point cloud, dispatching on the extension (case-insensitive):
 /// - `.xyz`, `.txt`, `.csv`: one point per line, three numbers separated by spaces, tabs or
 ///   commas (mixed allowed); blank lines and `#` comments are skipped; any other line is an
 ///   error naming the file, the line and its text;
-/// - `.ply`: the x, y, z of the `vertex` element (faces, if any, are ignored).
+/// - `.ply`: the x, y, z of the `vertex` element (faces, if any, are ignored);
+/// - `.vtk`, `.vtp`: every point of the VTK data set (cells ignored).
 ///
 /// Coordinates must be finite and are in the file's units. An empty cloud is an error.
 pub fn read_points(path: &Path) -> Result<Vec<Point3<f64>>, MeshError> {
     let points = match extension(path).as_deref() {
         Some("xyz" | "txt" | "csv") => parse_text(path, &decode(&read_bytes(path)?))?,
         Some("ply") => read_ply_vertices(path)?,
+        Some("vtk" | "vtp") => super::vtk::read_vtk_points(path)?,
         other => {
             return Err(MeshError::unsupported(
                 path,
                 format!(
-                    "unknown point file extension {} (supported: xyz, txt, csv, ply)",
-                    quote(other.unwrap_or_default())
+                    "unknown point file extension {} (supported: {})",
+                    quote(other.unwrap_or_default()),
+                    POINT_EXTENSIONS.join(", ")
                 ),
             ))
         }

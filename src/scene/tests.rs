@@ -843,12 +843,12 @@ fn bad_points_values() {
         &["probe[0].points", "empty"],
     );
     toml_error(
-        &format!("{MINIMAL}\n[[probe]]\npoints = \"probe.vtk\"\n"),
-        &["probe[0].points", "probe.vtk", ".xyz"],
+        &format!("{MINIMAL}\n[[probe]]\npoints = \"probe.wrl\"\n"),
+        &["probe[0].points", "probe.wrl", ".xyz"],
     );
     toml_error(
-        &MINIMAL.replace("liver.obj", "liver.vtk"),
-        &["model.surface", "liver.vtk", ".obj"],
+        &MINIMAL.replace("liver.obj", "liver.wrl"),
+        &["model.surface", "liver.wrl", ".obj"],
     );
 }
 

@@ -147,7 +147,8 @@ pub struct Scene {
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ModelSpec {
-    /// Closed triangle surface (`.obj .stl .ply .off`, or the triangles of a Gmsh 2.2 `.msh`),
+    /// Closed triangle surface (`.obj .stl .ply .off .vtk .vtp`, or the triangles of a Gmsh 2.2
+    /// `.msh`),
     /// coordinates in scene units. Required.
     pub surface: PathBuf,
     /// `[[model.structures]]`: internal structures carried along by the deformation.

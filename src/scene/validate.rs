@@ -5,10 +5,11 @@ use std::path::Path;
 use super::error::Problem;
 use super::types::{BoxRegion, PointSource, Scene, Vec3};
 
-/// Extensions accepted for surfaces (`model.surface`, `model.structures[].mesh`), lower case.
-pub const SURFACE_EXTENSIONS: &[&str] = &["obj", "stl", "ply", "off", "msh"];
-/// Extensions accepted for point files, lower case.
-pub const POINT_EXTENSIONS: &[&str] = &["xyz", "txt", "csv", "ply"];
+/// Extensions accepted for surfaces (`model.surface`, `model.structures[].mesh`), lower case:
+/// those [`crate::mesh::read_surface`] reads.
+pub const SURFACE_EXTENSIONS: &[&str] = &crate::mesh::SURFACE_EXTENSIONS;
+/// Extensions accepted for point files, lower case: those [`crate::mesh::read_points`] reads.
+pub const POINT_EXTENSIONS: &[&str] = &crate::mesh::POINT_EXTENSIONS;
 /// Largest `grid.subdivisions`: a cut cell is split into up to 8^L sub-cells (8^6 = 262 144).
 pub const MAX_SUBDIVISIONS: u32 = 6;
 /// Largest `solver.step_stabilization` γ accepted: far beyond it the badly cut cells' nodes
