@@ -13,7 +13,7 @@
 //! - [`transform`], [`point`], [`polydata`], [`status`]: the message contents;
 //! - [`framing`]: reading and writing messages, with a body size limit;
 //! - [`conventions`]: livereg's device names and metadata keys;
-//! - [`error`]: [`IgtlError`].
+//! - [`IgtlError`], in [`error`].
 
 pub mod conventions;
 pub mod crc64;

@@ -94,7 +94,7 @@ impl MessageContent for PointMessage {
     /// [`IgtlError::ContentSize`], non-finite floats [`IgtlError::NonFinite`], invalid UTF-8
     /// [`IgtlError::InvalidName`].
     fn decode_content(content: &[u8]) -> Result<Self, IgtlError> {
-        if content.len() % POINT_ELEMENT_SIZE != 0 {
+        if !content.len().is_multiple_of(POINT_ELEMENT_SIZE) {
             return Err(IgtlError::ContentSize {
                 type_name: Self::TYPE_NAME,
                 actual: content.len() as u64,

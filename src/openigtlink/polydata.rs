@@ -331,7 +331,7 @@ impl MessageContent for PolyDataMessage {
         let mut names_length = 0usize;
         for attribute in &self.attributes {
             let components = attribute.kind.components();
-            if components == 0 || attribute.data.len() % components != 0 {
+            if components == 0 || !attribute.data.len().is_multiple_of(components) {
                 return Err(IgtlError::InvalidField {
                     field: "POLYDATA attribute data length",
                     value: attribute.data.len() as u64,
@@ -416,7 +416,7 @@ impl MessageContent for PolyDataMessage {
         for ((array, &(count, size)), (count_field, size_field)) in
             arrays.iter_mut().zip(counts.iter()).zip(CELL_FIELDS)
         {
-            if size % 4 != 0 {
+            if !size.is_multiple_of(4) {
                 return Err(IgtlError::InvalidField {
                     field: size_field,
                     value: u64::from(size),
