@@ -146,12 +146,14 @@ impl IgtlError {
     /// Whether the reader is still at a message boundary after this error, so that the
     /// connection can go on (answering with a STATUS). True for errors found after the whole body
     /// was read (unsupported type, content and metadata errors, CRC mismatch); false for header
-    /// errors, truncation, I/O errors and a refused body size, after which the connection should
-    /// be closed.
+    /// errors, a stream ending inside a header or body, I/O errors and a refused body size, after
+    /// which the connection should be closed.
     pub fn keeps_stream_in_sync(&self) -> bool {
         match self {
+            // The framing's own truncations; a section inside the content (e.g. "POLYDATA
+            // points") is short within a body that was read whole.
+            IgtlError::Truncated { section, .. } => !matches!(*section, "header" | "body"),
             IgtlError::Io(_)
-            | IgtlError::Truncated { .. }
             | IgtlError::UnsupportedVersion { .. }
             | IgtlError::BodyTooLarge { .. } => false,
             // Header name errors are raised before the body is read.

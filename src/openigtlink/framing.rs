@@ -347,6 +347,28 @@ mod tests {
     }
 
     #[tokio::test]
+    async fn malformed_content_keeps_the_stream_in_sync() {
+        // A POLYDATA whose NPOINTS exceeds its content, correctly framed and signed.
+        let mut bytes = messages()[2].encode(HeaderVersion::V1).unwrap();
+        bytes[HEADER_SIZE..HEADER_SIZE + 4].copy_from_slice(&1000u32.to_be_bytes());
+        let crc = crc64(&bytes[HEADER_SIZE..]);
+        bytes[50..58].copy_from_slice(&crc.to_be_bytes());
+        bytes.extend(messages()[0].encode(HeaderVersion::V2).unwrap());
+        let mut reader = &bytes[..];
+        let error = read_message(&mut reader, MAX).await.unwrap_err();
+        assert!(matches!(
+            error,
+            IgtlError::Truncated {
+                section: "POLYDATA points",
+                ..
+            }
+        ));
+        assert!(error.keeps_stream_in_sync());
+        let next = read_message(&mut reader, MAX).await.unwrap().unwrap();
+        assert_eq!(next.message, messages()[0]);
+    }
+
+    #[tokio::test]
     async fn unsupported_type_keeps_the_stream_in_sync() {
         let mut image = messages()[0].encode(HeaderVersion::V1).unwrap();
         image[2..14].copy_from_slice(b"STRING\0\0\0\0\0\0");

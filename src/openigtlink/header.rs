@@ -6,8 +6,8 @@
 //! | offset | size | field       | type                                              |
 //! |-------:|-----:|-------------|---------------------------------------------------|
 //! | 0      | 2    | V           | u16 header version (1 or 2)                       |
-//! | 2      | 12   | TYPE        | char[12], US-ASCII, NUL padded                    |
-//! | 14     | 20   | DEVICE_NAME | char[20], US-ASCII, NUL padded                    |
+//! | 2      | 12   | TYPE        | `char[12]`, US-ASCII, NUL padded                    |
+//! | 14     | 20   | DEVICE_NAME | `char[20]`, US-ASCII, NUL padded                    |
 //! | 34     | 8    | TIME_STAMP  | u32 seconds since 1970 UTC, u32 fraction (2⁻³² s) |
 //! | 42     | 8    | BODY_SIZE   | u64 bytes of body following the header            |
 //! | 50     | 8    | CRC         | u64 CRC-64/ECMA-182 of the body                   |

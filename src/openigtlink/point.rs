@@ -4,12 +4,12 @@
 //!
 //! | offset | size | field    | type                                  |
 //! |-------:|-----:|----------|---------------------------------------|
-//! | 0      | 64   | NAME     | char[64], NUL padded                  |
-//! | 64     | 32   | GROUP    | char[32] ("Landmark", "Fiducial", …)  |
+//! | 0      | 64   | NAME     | `char[64]`, NUL padded                  |
+//! | 64     | 32   | GROUP    | `char[32]` ("Landmark", "Fiducial", …)  |
 //! | 96     | 4    | RGBA     | u8 × 4                                |
 //! | 100    | 12   | X, Y, Z  | float32 × 3, millimetres              |
 //! | 112    | 4    | DIAMETER | float32, millimetres (may be 0)       |
-//! | 116    | 20   | OWNER    | char[20], id of the owner image       |
+//! | 116    | 20   | OWNER    | `char[20]`, id of the owner image       |
 //!
 //! Strings are decoded as UTF-8 up to the first NUL (pyigtl writes UTF-8).
 
