@@ -32,6 +32,7 @@ pub mod grid;
 pub mod linalg;
 pub mod mechanics;
 pub mod mesh;
+pub mod openigtlink;
 pub mod phantom;
 pub mod recording;
 pub mod registration;
