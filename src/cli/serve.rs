@@ -18,6 +18,12 @@ pub struct ServeArgs {
     /// gRPC address, or `off`.
     #[arg(long)]
     pub grpc_bind: Option<String>,
+    /// OpenIGTLink address (e.g. 127.0.0.1:18944), or `off` (the default).
+    #[arg(long)]
+    pub igtl_bind: Option<String>,
+    /// The scene OpenIGTLink sessions are built from.
+    #[arg(long)]
+    pub igtl_scene: Option<PathBuf>,
     /// File of bearer tokens (`name:token` per line). Tokens are not taken as flags, since
     /// command lines are visible to other users of the machine.
     #[arg(long)]
@@ -65,6 +71,19 @@ pub fn config_from(args: &ServeArgs) -> Result<ServerConfig, String> {
                     .map_err(|e| format!("--grpc-bind {g:?}: {e} (an address or `off`)"))?,
             )
         };
+    }
+    if let Some(g) = &args.igtl_bind {
+        c.igtl_bind = if g.eq_ignore_ascii_case("off") {
+            None
+        } else {
+            Some(
+                g.parse()
+                    .map_err(|e| format!("--igtl-bind {g:?}: {e} (an address or `off`)"))?,
+            )
+        };
+    }
+    if let Some(s) = &args.igtl_scene {
+        c.igtl_scene = Some(s.clone());
     }
     if let Some(f) = &args.token_file {
         c.token_file = Some(f.clone());

@@ -142,6 +142,16 @@ pub struct ServerConfig {
     pub metrics_require_token: bool,
     /// TLS for both HTTP and gRPC (`None`: plain TCP, e.g. behind a TLS-terminating proxy).
     pub tls: Option<TlsConfig>,
+    /// OpenIGTLink address (`None`, the default: off; the protocol's port is 18944). A
+    /// non-loopback address needs `tls` or `igtl_allow_remote` (docs/openigtlink.md).
+    pub igtl_bind: Option<SocketAddr>,
+    /// The scene OpenIGTLink sessions are built from, for devices without their own.
+    pub igtl_scene: Option<PathBuf>,
+    /// Scenes by the device name of the clouds (`[igtl_device_scenes]`, `Name = "scene.toml"`).
+    pub igtl_device_scenes: std::collections::BTreeMap<String, PathBuf>,
+    /// Serve OpenIGTLink on a non-loopback address without TLS (the protocol has no
+    /// authentication: anyone who reaches the port can stream and read results).
+    pub igtl_allow_remote: bool,
     /// Limits.
     pub limits: LimitsConfig,
 }
@@ -170,6 +180,10 @@ impl Default for ServerConfig {
             log_filter: "info".into(),
             metrics_require_token: false,
             tls: None,
+            igtl_bind: None,
+            igtl_scene: None,
+            igtl_device_scenes: Default::default(),
+            igtl_allow_remote: false,
             limits: LimitsConfig::default(),
         }
     }
@@ -179,6 +193,11 @@ impl Default for ServerConfig {
 pub const ENV_VARS: &[(&str, &str)] = &[
     ("LIVEREG_BIND", "bind"),
     ("LIVEREG_GRPC_BIND", "grpc_bind (`off` disables gRPC)"),
+    (
+        "LIVEREG_IGTL_BIND",
+        "igtl_bind (`off` disables OpenIGTLink)",
+    ),
+    ("LIVEREG_IGTL_SCENE", "igtl_scene"),
     (
         "LIVEREG_TOKENS",
         "tokens: comma-separated `name:token` or `token`",
@@ -291,6 +310,16 @@ impl ServerConfig {
         if let Some(v) = get("LIVEREG_BIND") {
             self.bind = parse_num("LIVEREG_BIND", &v)?;
         }
+        if let Some(v) = get("LIVEREG_IGTL_BIND") {
+            self.igtl_bind = if v.trim().eq_ignore_ascii_case("off") {
+                None
+            } else {
+                Some(parse_num("LIVEREG_IGTL_BIND", &v)?)
+            };
+        }
+        if let Some(v) = get("LIVEREG_IGTL_SCENE") {
+            self.igtl_scene = Some(PathBuf::from(v));
+        }
         if let Some(v) = get("LIVEREG_GRPC_BIND") {
             self.grpc_bind = if v.trim().eq_ignore_ascii_case("off") {
                 None
@@ -401,6 +430,20 @@ impl ServerConfig {
             }
         } else if tokens.is_empty() {
             return Err("no bearer tokens configured: set `tokens` in the configuration, LIVEREG_TOKENS or LIVEREG_TOKEN_FILE (or --insecure-loopback-dev for loopback-only development)".into());
+        }
+        if let Some(a) = self.igtl_bind {
+            if self.igtl_scene.is_none() && self.igtl_device_scenes.is_empty() {
+                return Err(format!(
+                    "igtl_bind = {a} needs a scene for its sessions: set igtl_scene (or igtl_device_scenes)"
+                ));
+            }
+            if !a.ip().is_loopback() && self.tls.is_none() && !self.igtl_allow_remote {
+                return Err(format!(
+                    "igtl_bind = {a} is not a loopback address: OpenIGTLink has no authentication, \
+                     so a remote listener needs TLS (tls.cert, tls.key; clients connect through a \
+                     TLS tunnel, docs/openigtlink.md) or an explicit igtl_allow_remote = true"
+                ));
+            }
         }
         let l = &self.limits;
         let checks: [(bool, &str); 13] = [
@@ -541,6 +584,48 @@ mod tests {
         c.insecure_loopback_dev = false;
         c.tokens = parse_token_list(["short"].into_iter(), "env");
         assert!(c.validate().unwrap_err().contains("shorter than 16"));
+    }
+
+    /// OpenIGTLink has no authentication: a remote listener needs TLS or an explicit opt-in,
+    /// and any listener needs a scene.
+    #[test]
+    fn openigtlink_binds_loopback_unless_tls_or_allowed() {
+        let mut c = ServerConfig {
+            insecure_loopback_dev: true,
+            igtl_bind: Some("127.0.0.1:18944".parse().unwrap()),
+            ..Default::default()
+        };
+        assert!(c.validate().unwrap_err().contains("igtl_scene"));
+        c.igtl_scene = Some("scene.toml".into());
+        c.validate().unwrap();
+        c.insecure_loopback_dev = false;
+        c.tokens = parse_token_list(["room:0123456789abcdef0123"].into_iter(), "env");
+        c.igtl_bind = Some("0.0.0.0:18944".parse().unwrap());
+        let e = c.validate().unwrap_err();
+        assert!(
+            e.contains("not a loopback address") && e.contains("igtl_allow_remote"),
+            "{e}"
+        );
+        c.igtl_allow_remote = true;
+        c.validate().unwrap();
+        c.igtl_allow_remote = false;
+        c.tls = Some(TlsConfig {
+            cert: "c.pem".into(),
+            key: "k.pem".into(),
+        });
+        c.validate().unwrap();
+        let from_toml: ServerConfig = toml::from_str(
+            "igtl_bind = \"127.0.0.1:18944\"\nigtl_scene = \"a.toml\"\n[igtl_device_scenes]\nLeftLobe = \"b.toml\"\n",
+        )
+        .unwrap();
+        assert_eq!(
+            from_toml.igtl_device_scenes["LeftLobe"],
+            PathBuf::from("b.toml")
+        );
+        let mut env = ServerConfig::default();
+        env.apply_env(|k| (k == "LIVEREG_IGTL_BIND").then(|| "127.0.0.1:1".to_string()))
+            .unwrap();
+        assert_eq!(env.igtl_bind, Some("127.0.0.1:1".parse().unwrap()));
     }
 
     /// Token names are unique across every source (bare tokens of the environment and of the

@@ -106,6 +106,11 @@ const COUNTERS: &[(&str, &str, &str)] = &[
         "reason",
     ),
     (
+        "livereg_igtl_messages_total",
+        "OpenIGTLink messages received, by kind (cloud, refused).",
+        "kind",
+    ),
+    (
         "livereg_sessions_closed_total",
         "Sessions closed, by reason (client, idle, shutdown, failed).",
         "reason",

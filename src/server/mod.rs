@@ -21,6 +21,7 @@ pub mod connections;
 pub mod error;
 pub mod grpc;
 pub mod http;
+pub mod igtl;
 pub mod limits;
 pub mod metrics;
 pub mod openapi;
@@ -73,6 +74,8 @@ pub struct RunningServer {
     pub http_addr: SocketAddr,
     /// Where gRPC listens (`None` when off).
     pub grpc_addr: Option<SocketAddr>,
+    /// Where OpenIGTLink listens (`None` when off).
+    pub igtl_addr: Option<SocketAddr>,
     handle: ShutdownHandle,
     state: Arc<AppState>,
     tasks: Vec<JoinHandle<Result<(), String>>>,
@@ -215,6 +218,26 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
             serve_http(l, grpc_app, grpc_tls, conn_limits, m, sig).await
         }));
     }
+    let mut igtl_addr = None;
+    if let Some(addr) = config.igtl_bind {
+        let scenes =
+            igtl::IgtlScenes::load(config.igtl_scene.as_deref(), &config.igtl_device_scenes)?;
+        let l = tokio::net::TcpListener::bind(addr)
+            .await
+            .map_err(|e| format!("cannot listen on {addr} (igtl_bind): {e}"))?;
+        igtl_addr = Some(l.local_addr().map_err(|e| format!("bound address: {e}"))?);
+        // The HTTP certificate, without ALPN (OpenIGTLink over a TLS tunnel names none).
+        let acceptor = tls.as_ref().map(|t| {
+            let mut c = (*t.server_config).clone();
+            c.alpn_protocols.clear();
+            tokio_rustls::TlsAcceptor::from(Arc::new(c))
+        });
+        let st = state.clone();
+        let rx = rx.clone();
+        tasks.push(tokio::spawn(async move {
+            igtl::serve(l, st, Arc::new(scenes), acceptor, conn_limits, rx).await
+        }));
+    }
     let policy = config.recordings_retention();
     if config.record && policy.is_active() {
         tokio::spawn(keep_recordings_within(
@@ -242,10 +265,11 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
             }
         });
     }
-    tracing::info!(%http_addr, grpc_addr = ?grpc_addr, tls = tls.is_some(), "listening");
+    tracing::info!(%http_addr, grpc_addr = ?grpc_addr, igtl_addr = ?igtl_addr, tls = tls.is_some(), "listening");
     Ok(RunningServer {
         http_addr,
         grpc_addr,
+        igtl_addr,
         handle,
         state,
         tasks,

@@ -239,6 +239,7 @@ impl AppState {
                         .iter()
                         .map(|s| s.name.clone())
                         .collect(),
+                    meshes: Arc::new(crate::server::worker::ModelMeshes::of(&session.model)),
                 };
                 Ok::<_, ApiError>((session, recorder, info))
             }))

@@ -271,6 +271,7 @@ mod tests {
             surface_vertices: 0,
             surface_triangles: 0,
             structures: Vec::new(),
+            meshes: Default::default(),
             recording: None,
         };
         Arc::new(SessionHandle::new(

@@ -108,8 +108,34 @@ pub struct ModelInfo {
     pub surface_triangles: usize,
     /// Structure names in scene order.
     pub structures: Vec<String>,
+    /// The surface's and the mesh structures' triangles (for transports that send meshes:
+    /// OpenIGTLink POLYDATA).
+    pub meshes: std::sync::Arc<ModelMeshes>,
     /// The session's recording (`None` when not recorded).
     pub recording: Option<std::path::PathBuf>,
+}
+
+/// The triangles of a session's model, indexing the positions of its results.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ModelMeshes {
+    /// The liver surface's triangles (`FrameResult::surface` positions).
+    pub surface: Vec<[usize; 3]>,
+    /// Per structure, in scene order: its triangles when it is a mesh.
+    pub structures: Vec<Option<Vec<[usize; 3]>>>,
+}
+
+impl ModelMeshes {
+    /// The triangles of `model`'s surface and mesh structures.
+    pub fn of(model: &crate::simulation::SceneModel) -> Self {
+        Self {
+            surface: model.surface.triangles.clone(),
+            structures: model
+                .structures
+                .iter()
+                .map(|s| s.triangles.clone())
+                .collect(),
+        }
+    }
 }
 
 /// Frame counters of a session.

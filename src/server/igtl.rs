@@ -1,0 +1,602 @@
+//! The OpenIGTLink transport of `livereg serve` (`igtl_bind`, default off): 3D Slicer's
+//! OpenIGTLinkIF, PLUS, or an AR headset connects over TCP (port 18944 by convention), sends
+//! its clouds as POLYDATA or POINT messages, and receives per registered frame a TRANSFORM
+//! (`LiverToReference`), a POLYDATA (`DeformedLiver`), a POLYDATA per mesh structure (named
+//! after the structure) and a POINT (`Targets`, one element per point of every point
+//! structure), all in millimetres. Device names and metadata: docs/openigtlink.md.
+//!
+//! A connection gets one session per device name of the clouds it sends, built from the scene
+//! configured for that device (`igtl_device_scenes`) or the default one (`igtl_scene`), and
+//! closed when the connection ends. Frames go through the same admission, newest-frame-wins
+//! mailbox, registration slots, metrics and recordings as WebSocket frames. A refused frame
+//! or message gets a STATUS naming the problem and the stream goes on; a message whose
+//! framing cannot be trusted (bad header, a body over `limits.max_body_bytes`, a short read)
+//! gets a STATUS and the connection is closed. Replies use the header version the client
+//! last used.
+//!
+//! OpenIGTLink has no authentication: sessions belong to the owner `openigtlink`, the
+//! listener binds to loopback unless TLS is configured or `igtl_allow_remote = true`
+//! ([`super::config::ServerConfig::validate`]).
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion};
+use tokio::io::{AsyncRead, AsyncWrite, AsyncWriteExt};
+use tokio::net::TcpListener;
+use tokio::sync::{mpsc, watch};
+
+use super::audit::{self, Action, Peer};
+use super::auth::Owner;
+use super::codec::Incoming;
+use super::connections::{ConnectionLimiter, ConnectionLimits};
+use super::error::ApiError;
+use super::service::AppState;
+use super::upload::SceneUpload;
+use super::worker::{Completed, Job, Reply, SessionHandle, StreamEvent, StreamSink};
+use crate::mesh::TriSurface;
+use crate::openigtlink::conventions::{
+    DEFORMED_LIVER_DEVICE, LIVER_TO_REFERENCE_DEVICE, METADATA_FRAME, METADATA_SESSION,
+    METADATA_UNITS, TARGETS_DEVICE, UNITS_MM,
+};
+use crate::openigtlink::{
+    read_message, status_code, Content, HeaderVersion, IgtlError, Message, Metadata, PointElement,
+    PointMessage, PolyDataMessage, StatusMessage, Timestamp, TransformMessage,
+};
+use crate::recording::SceneFiles;
+use crate::scene::load_scene;
+use crate::session::Frame;
+
+/// The owner of every OpenIGTLink session (the protocol carries no identity).
+pub const IGTL_OWNER: &str = "openigtlink";
+
+/// Results waiting to be written per connection.
+const CONNECTION_BUFFER: usize = 16;
+
+/// The scenes OpenIGTLink sessions are built from, read once at start.
+#[derive(Debug, Default)]
+pub struct IgtlScenes {
+    default: Option<Arc<SceneUpload>>,
+    by_device: HashMap<String, Arc<SceneUpload>>,
+}
+
+impl IgtlScenes {
+    /// Reads `default` and every scene of `by_device` (device name → scene file) with the
+    /// files they name; an unreadable scene is an error naming its key.
+    pub fn load(
+        default: Option<&Path>,
+        by_device: &std::collections::BTreeMap<String, std::path::PathBuf>,
+    ) -> Result<Self, String> {
+        let read = |key: &str, path: &Path| -> Result<Arc<SceneUpload>, String> {
+            let loaded = load_scene(path).map_err(|e| format!("{key}: {e}"))?;
+            let files = SceneFiles::from_loaded(&loaded).map_err(|e| format!("{key}: {e}"))?;
+            // Sessions are built as uploads are: the scene names its files by plain names,
+            // beside it.
+            let mut named = std::collections::BTreeMap::new();
+            for (file_key, p, bytes) in files.files {
+                let name = p
+                    .file_name()
+                    .filter(|_| p.parent() == Some(loaded.dir.as_path()))
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .ok_or_else(|| {
+                        format!(
+                            "{key}: {file_key} = {}: an OpenIGTLink scene's files must sit \
+                             beside it, named by plain file names",
+                            p.display()
+                        )
+                    })?;
+                named.insert(name, bytes);
+            }
+            Ok(Arc::new(SceneUpload {
+                scene: files.text,
+                format: Some(files.format),
+                files: named,
+                budget_ms: None,
+                rigid_only: false,
+            }))
+        };
+        Ok(Self {
+            default: default.map(|p| read("igtl_scene", p)).transpose()?,
+            by_device: by_device
+                .iter()
+                .map(|(d, p)| Ok((d.clone(), read(&format!("igtl_device_scenes.{d}"), p)?)))
+                .collect::<Result<_, String>>()?,
+        })
+    }
+
+    /// The scene for clouds from `device`: its own, else the default.
+    fn for_device(&self, device: &str) -> Option<Arc<SceneUpload>> {
+        self.by_device
+            .get(device)
+            .or(self.default.as_ref())
+            .cloned()
+    }
+}
+
+/// Accepts OpenIGTLink connections on `listener` (through TLS when `tls` is given) within
+/// `limits` until `shutdown`; each is served by [`serve_connection`].
+pub async fn serve(
+    listener: TcpListener,
+    state: Arc<AppState>,
+    scenes: Arc<IgtlScenes>,
+    tls: Option<tokio_rustls::TlsAcceptor>,
+    limits: ConnectionLimits,
+    mut shutdown: watch::Receiver<bool>,
+) -> Result<(), String> {
+    let limiter = ConnectionLimiter::new(limits);
+    loop {
+        let accepted = tokio::select! {
+            r = listener.accept() => r,
+            _ = shutdown.wait_for(|s| *s) => return Ok(()),
+        };
+        let (stream, addr) = match accepted {
+            Ok(x) => x,
+            Err(e) => {
+                tracing::warn!(error = %e, "OpenIGTLink accept failed");
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                continue;
+            }
+        };
+        let permit = match limiter.admit(addr.ip()) {
+            Ok(p) => p,
+            Err(refusal) => {
+                state
+                    .metrics
+                    .inc("livereg_connections_refused_total", refusal.label(), 1);
+                drop(stream);
+                continue;
+            }
+        };
+        let _ = stream.set_nodelay(true);
+        let (state, scenes, tls) = (state.clone(), scenes.clone(), tls.clone());
+        let opening = limits.header_read_timeout;
+        tokio::spawn(async move {
+            let _permit = permit;
+            match tls {
+                None => serve_connection(stream, addr, state, scenes).await,
+                Some(acceptor) => {
+                    match tokio::time::timeout(opening, acceptor.accept(stream)).await {
+                        Ok(Ok(s)) => serve_connection(s, addr, state, scenes).await,
+                        Ok(Err(e)) => {
+                            tracing::debug!(%addr, error = %e, "OpenIGTLink TLS handshake failed")
+                        }
+                        Err(_) => tracing::debug!(%addr, "OpenIGTLink TLS handshake timed out"),
+                    }
+                }
+            }
+        });
+    }
+}
+
+/// One device's session on a connection.
+struct DeviceSession {
+    handle: Arc<SessionHandle>,
+    events: mpsc::Sender<StreamEvent>,
+    skipped: Arc<AtomicU64>,
+}
+
+/// What the connection's writer sends: encoded messages.
+type Outgoing = Vec<u8>;
+
+/// Serves one OpenIGTLink connection until the client closes it, the stream breaks, it
+/// stays idle for `limits.stream_idle_timeout_s`, or the server shuts down.
+pub async fn serve_connection<S>(
+    io: S,
+    addr: SocketAddr,
+    state: Arc<AppState>,
+    scenes: Arc<IgtlScenes>,
+) where
+    S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
+{
+    let _guard = state.stream_guard();
+    let owner = Owner(Arc::from(IGTL_OWNER));
+    let peer = Peer(Some(addr));
+    let (mut reader, mut writer) = tokio::io::split(io);
+    let (out_tx, mut out_rx) = mpsc::channel::<Outgoing>(CONNECTION_BUFFER);
+    let write_task = tokio::spawn(async move {
+        while let Some(bytes) = out_rx.recv().await {
+            if writer.write_all(&bytes).await.is_err() {
+                return;
+            }
+            if writer.flush().await.is_err() {
+                return;
+            }
+        }
+        let _ = writer.shutdown().await;
+    });
+    // The header version of the client's latest message (replies use it).
+    let version = Arc::new(AtomicU8::new(HeaderVersion::V1 as u8));
+    audit::event(
+        Action::OpenStream,
+        "ok",
+        peer,
+        Some(IGTL_OWNER),
+        None,
+        "openigtlink",
+    );
+    let limits = state.config.limits.clone();
+    let idle = Duration::from_secs_f64(limits.stream_idle_timeout_s);
+    let max_body = limits.max_body_bytes as u64;
+    let mut shutdown = state.shutdown.clone();
+    let mut sessions: HashMap<String, DeviceSession> = HashMap::new();
+    let mut forwarders = Vec::new();
+    let mut counter = 0u64;
+    loop {
+        let read = tokio::select! {
+            r = tokio::time::timeout(idle, read_message(&mut reader, max_body)) => r,
+            _ = shutdown.wait_for(|s| *s) => break,
+        };
+        let received = Instant::now();
+        let msg = match read {
+            Err(_) => {
+                let s = status(
+                    status_code::TIME_OUT,
+                    "idle",
+                    format!("nothing received for {} s", limits.stream_idle_timeout_s),
+                );
+                send(&out_tx, &version, "", s, 0).await;
+                break;
+            }
+            Ok(Ok(None)) => break,
+            Ok(Err(e)) => {
+                state
+                    .metrics
+                    .inc("livereg_igtl_messages_total", "refused", 1);
+                let device = match &e {
+                    IgtlError::UnsupportedMessageType { device_name, .. } => device_name.clone(),
+                    _ => String::new(),
+                };
+                send(&out_tx, &version, &device, e.to_status(), 0).await;
+                if e.keeps_stream_in_sync() {
+                    continue;
+                }
+                tracing::info!(%addr, error = %e, "OpenIGTLink connection closed: the stream cannot be trusted");
+                break;
+            }
+            Ok(Ok(Some(m))) => m,
+        };
+        version.store(m_version(&msg.version), Ordering::Relaxed);
+        let message = msg.message;
+        let device = message.device_name.clone();
+        let points = match &message.content {
+            Content::PolyData(p) => p.to_point_cloud(),
+            Content::Point(p) => p.positions(),
+            // Acknowledgements a client may send; nothing to answer.
+            Content::Status(_) => continue,
+            Content::Transform(_) => {
+                state
+                    .metrics
+                    .inc("livereg_igtl_messages_total", "refused", 1);
+                let s = status(
+                    status_code::UNKNOWN_INSTRUCTION,
+                    "unexpected",
+                    "livereg takes clouds as POLYDATA or POINT; a TRANSFORM is not an input",
+                );
+                send(&out_tx, &version, &device, s, message.message_id).await;
+                continue;
+            }
+        };
+        state.metrics.inc("livereg_igtl_messages_total", "cloud", 1);
+        counter += 1;
+        let seq = message
+            .metadata
+            .get(METADATA_FRAME)
+            .and_then(|v| v.trim().parse::<u64>().ok())
+            .unwrap_or(if message.message_id != 0 {
+                u64::from(message.message_id)
+            } else {
+                counter
+            });
+        // The device's session, created on its first cloud.
+        if !sessions.contains_key(&device) {
+            match open_session(&state, &owner, &scenes, &device).await {
+                Ok(h) => {
+                    audit::event(
+                        Action::OpenStream,
+                        "ok",
+                        peer,
+                        Some(IGTL_OWNER),
+                        Some(&h.id),
+                        &format!("openigtlink device {device:?}"),
+                    );
+                    let (tx, rx) = mpsc::channel::<StreamEvent>(CONNECTION_BUFFER);
+                    forwarders.push(tokio::spawn(forward_results(
+                        rx,
+                        h.clone(),
+                        device.clone(),
+                        out_tx.clone(),
+                        version.clone(),
+                    )));
+                    sessions.insert(
+                        device.clone(),
+                        DeviceSession {
+                            handle: h,
+                            events: tx,
+                            skipped: Arc::new(AtomicU64::new(0)),
+                        },
+                    );
+                }
+                Err(e) => {
+                    let e = state.count(e);
+                    send(
+                        &out_tx,
+                        &version,
+                        &device,
+                        api_status(&e),
+                        message.message_id,
+                    )
+                    .await;
+                    continue;
+                }
+            }
+        }
+        let ds = &sessions[&device];
+        let scale_to_scene = 1e-3 / ds.handle.info.length_scale;
+        let admitted = state.admit_rate(&ds.handle).and_then(|()| {
+            let incoming = Incoming {
+                seq,
+                frame: Frame {
+                    source: format!("igtl-{device}-{seq}"),
+                    points: points.iter().map(|p| p * scale_to_scene).collect(),
+                    camera: None,
+                },
+            };
+            state
+                .admit_decoded(&ds.handle, &incoming)
+                .map(|()| incoming)
+        });
+        match admitted {
+            Ok(incoming) => ds.handle.submit(
+                Job {
+                    incoming,
+                    received,
+                    reply: Reply::Stream(StreamSink {
+                        tx: ds.events.clone(),
+                        skipped: ds.skipped.clone(),
+                    }),
+                },
+                &state.metrics,
+            ),
+            Err(e) => {
+                let e = state.count(e);
+                send(&out_tx, &version, &device, api_status(&e), seq as u32).await;
+            }
+        }
+    }
+    // Frames in flight finish and are sent; then the sessions close.
+    let ended: Vec<Arc<SessionHandle>> = sessions.values().map(|d| d.handle.clone()).collect();
+    drop(sessions);
+    for f in forwarders {
+        let _ = f.await;
+    }
+    for h in ended {
+        if let Ok(h) = state.registry.remove(&owner, &h.id) {
+            state.retire(&h, "client");
+        }
+    }
+    drop(out_tx);
+    let _ = write_task.await;
+    audit::event(
+        Action::CloseStream,
+        "ok",
+        peer,
+        Some(IGTL_OWNER),
+        None,
+        "openigtlink",
+    );
+}
+
+/// The header version as stored in the connection's atomic.
+fn m_version(v: &HeaderVersion) -> u8 {
+    v.as_u16() as u8
+}
+
+/// Creates the session for clouds of `device`.
+async fn open_session(
+    state: &Arc<AppState>,
+    owner: &Owner,
+    scenes: &IgtlScenes,
+    device: &str,
+) -> Result<Arc<SessionHandle>, ApiError> {
+    let upload = scenes.for_device(device).ok_or_else(|| {
+        ApiError::not_found(format!(
+            "no scene is configured for device {device:?} (igtl_scene, igtl_device_scenes)"
+        ))
+    })?;
+    let info = state.create_session(owner, (*upload).clone(), None).await?;
+    state.session(owner, &info.id)
+}
+
+/// Sends each result of a device's session as TRANSFORM, POLYDATA and POINT messages, and
+/// each refusal as a STATUS, until the session's senders are gone.
+async fn forward_results(
+    mut rx: mpsc::Receiver<StreamEvent>,
+    handle: Arc<SessionHandle>,
+    device: String,
+    out: mpsc::Sender<Outgoing>,
+    version: Arc<AtomicU8>,
+) {
+    while let Some(ev) = rx.recv().await {
+        let v = current_version(&version);
+        let encoded = match ev {
+            StreamEvent::Result(c) => result_messages(&c, &handle)
+                .into_iter()
+                .map(|mut m| {
+                    // Header version 1 carries no metadata.
+                    if v == HeaderVersion::V1 {
+                        m.metadata = Metadata::new();
+                    }
+                    m.encode(v)
+                })
+                .collect::<Result<Vec<_>, _>>()
+                .map(|parts| parts.concat()),
+            StreamEvent::Error { seq, error } => {
+                status_message(&device, api_status(&error), seq as u32).encode(v)
+            }
+        };
+        match encoded {
+            Ok(bytes) => {
+                if out.send(bytes).await.is_err() {
+                    return;
+                }
+            }
+            Err(e) => {
+                tracing::warn!(session = %handle.id, error = %e, "cannot encode an OpenIGTLink result")
+            }
+        }
+    }
+}
+
+fn current_version(v: &AtomicU8) -> HeaderVersion {
+    HeaderVersion::from_u16(u16::from(v.load(Ordering::Relaxed))).unwrap_or(HeaderVersion::V1)
+}
+
+/// The messages of one result, millimetres: TRANSFORM `LiverToReference` (model → cloud),
+/// POLYDATA `DeformedLiver`, a POLYDATA per mesh structure, POINT `Targets` (every point of
+/// the point structures, named `<structure>-<k>`, grouped by structure), and a STATUS when
+/// the frame failed (the positions are then the last good state's).
+pub fn result_messages(c: &Completed, handle: &SessionHandle) -> Vec<Message> {
+    let r = &c.result;
+    let to_mm = handle.info.length_scale * 1e3;
+    let mm = |ps: &[Point3<f64>]| -> Vec<Point3<f64>> { ps.iter().map(|p| p * to_mm).collect() };
+    let meta = |m: &mut Message| {
+        m.message_id = c.seq as u32;
+        m.timestamp = Timestamp::now();
+        let mut md = Metadata::new();
+        md.insert(METADATA_SESSION, handle.id.clone());
+        md.insert(METADATA_FRAME, c.seq.to_string());
+        md.insert(METADATA_UNITS, UNITS_MM);
+        md.insert("livereg.converged", r.converged.to_string());
+        md.insert("livereg.server_ms", format!("{:.3}", c.server_ms));
+        m.metadata = md;
+    };
+    let mut out = Vec::new();
+    let t = &r.model_to_cloud;
+    let iso = Isometry3::from_parts(
+        Translation3::from(t.translation * 1e3),
+        UnitQuaternion::from_rotation_matrix(&t.rotation),
+    );
+    out.push(Message::new(
+        LIVER_TO_REFERENCE_DEVICE,
+        TransformMessage::from_isometry(&iso),
+    ));
+    let meshes = &handle.info.meshes;
+    let surface = TriSurface::new(mm(&r.surface), meshes.surface.clone());
+    if let Ok(p) = PolyDataMessage::from_tri_surface(&surface) {
+        out.push(Message::new(DEFORMED_LIVER_DEVICE, p));
+    }
+    let mut targets = Vec::new();
+    for (k, (name, points)) in r.structures.iter().enumerate() {
+        match meshes.structures.get(k).and_then(|t| t.as_ref()) {
+            Some(tris) => {
+                let s = TriSurface::new(mm(points), tris.clone());
+                if let Ok(p) = PolyDataMessage::from_tri_surface(&s) {
+                    out.push(Message::new(device_name(name), p));
+                }
+            }
+            None => {
+                for (i, p) in mm(points).into_iter().enumerate() {
+                    let mut e = PointElement::new(truncate(&format!("{name}-{i}"), 63), p);
+                    e.group = truncate(name, 31);
+                    targets.push(e);
+                }
+            }
+        }
+    }
+    if !targets.is_empty() {
+        out.push(Message::new(
+            TARGETS_DEVICE,
+            PointMessage { points: targets },
+        ));
+    }
+    if let Some(e) = &r.error {
+        out.push(Message::new(
+            DEFORMED_LIVER_DEVICE,
+            status(
+                status_code::UNKNOWN_ERROR,
+                "frame_failed",
+                format!("{e}; the last good state is sent"),
+            ),
+        ));
+    }
+    for m in &mut out {
+        meta(m);
+    }
+    out
+}
+
+/// A device name for structure `name`: printable ASCII, at most 20 bytes.
+fn device_name(name: &str) -> String {
+    let ascii: String = name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_graphic() || c == ' ' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    let t = truncate(ascii.trim(), 20);
+    if t.is_empty() {
+        "Structure".into()
+    } else {
+        t
+    }
+}
+
+/// `s` cut to at most `max` bytes at a character boundary.
+fn truncate(s: &str, max: usize) -> String {
+    let mut end = s.len().min(max);
+    while !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    s[..end].to_string()
+}
+
+/// A STATUS with `code`, error name (at most 20 bytes) and message.
+fn status(code: u16, name: &str, message: impl Into<String>) -> StatusMessage {
+    StatusMessage {
+        code,
+        subcode: 0,
+        error_name: truncate(name, 20),
+        message: message.into(),
+    }
+}
+
+/// The STATUS answering an API error: its stable code as the error name.
+fn api_status(e: &ApiError) -> StatusMessage {
+    let code = match e.code {
+        "rate_limited" | "too_many_sessions" | "server_busy" => status_code::BUSY,
+        "shutting_down" => status_code::SHUT_DOWN,
+        "not_found" | "unknown_session" => status_code::NOT_FOUND,
+        "payload_too_large" | "frame_too_large" | "work_too_large" => status_code::OVERFLOW,
+        "invalid_frame" | "bad_request" | "invalid_scene" => status_code::CONFIG_ERROR,
+        _ => status_code::UNKNOWN_ERROR,
+    };
+    status(code, e.code, e.message.clone())
+}
+
+fn status_message(device: &str, s: StatusMessage, id: u32) -> Message {
+    let mut m = Message::new(device, s);
+    m.message_id = id;
+    m.timestamp = Timestamp::now();
+    m
+}
+
+/// Queues a STATUS for the writer.
+async fn send(
+    out: &mpsc::Sender<Outgoing>,
+    version: &AtomicU8,
+    device: &str,
+    s: StatusMessage,
+    id: u32,
+) {
+    if let Ok(bytes) = status_message(device, s, id).encode(current_version(version)) {
+        let _ = out.send(bytes).await;
+    }
+}
