@@ -1,0 +1,360 @@
+//! Decimation of a closed triangle surface to a target triangle count by quadric-error edge
+//! collapse (Garland & Heckbert 1997), keeping it a closed, consistently oriented 2-manifold.
+//!
+//! Each vertex carries the area-weighted sum of the quadrics of its original triangles' planes;
+//! the cheapest edge is collapsed to the point minimising the summed quadric (or to the better
+//! of its ends and midpoint when that point is ill-defined or far away). A collapse is refused
+//! when:
+//! * the **link condition** fails: the two ends must share exactly the two neighbours opposite
+//!   the edge (otherwise the collapse pinches the surface: non-manifold edge or vertex, or a
+//!   tetrahedron folded flat);
+//! * a surviving triangle around the edge would **turn** by more than
+//!   [`Decimation::max_normal_turn_degrees`] (folds, flips);
+//! * a surviving triangle would become a sliver worse than [`Decimation::min_quality`] (and
+//!   worse than it was), which also rules out degenerate triangles.
+//!
+//! Input that is not a closed manifold is returned unchanged.
+
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
+
+use nalgebra::{Matrix3, Point3, Vector3};
+
+use crate::mesh::{validate, TriSurface};
+
+/// Parameters of [`decimate`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Decimation {
+    /// Stop when at most this many triangles remain (fewer collapses may be possible).
+    pub target_triangles: usize,
+    /// Largest change of a triangle's normal a collapse may cause, degrees (default 75).
+    pub max_normal_turn_degrees: f64,
+    /// Smallest triangle quality `4√3·area / Σ edge²` (1 for equilateral) a collapse may create
+    /// unless the triangle was already worse (default 0.05).
+    pub min_quality: f64,
+}
+
+impl Default for Decimation {
+    fn default() -> Self {
+        Self {
+            target_triangles: 20_000,
+            max_normal_turn_degrees: 75.0,
+            min_quality: 0.05,
+        }
+    }
+}
+
+/// Symmetric 4×4 quadric: a², ab, ac, ad, b², bc, bd, c², cd, d².
+type Quadric = [f64; 10];
+
+fn plane_quadric(n: &Vector3<f64>, d: f64, w: f64) -> Quadric {
+    let (a, b, c) = (n.x, n.y, n.z);
+    [
+        w * a * a,
+        w * a * b,
+        w * a * c,
+        w * a * d,
+        w * b * b,
+        w * b * c,
+        w * b * d,
+        w * c * c,
+        w * c * d,
+        w * d * d,
+    ]
+}
+
+fn add(q: &mut Quadric, r: &Quadric) {
+    for (a, b) in q.iter_mut().zip(r) {
+        *a += b;
+    }
+}
+
+fn eval(q: &Quadric, p: &Point3<f64>) -> f64 {
+    let (x, y, z) = (p.x, p.y, p.z);
+    q[0] * x * x
+        + 2.0 * q[1] * x * y
+        + 2.0 * q[2] * x * z
+        + 2.0 * q[3] * x
+        + q[4] * y * y
+        + 2.0 * q[5] * y * z
+        + 2.0 * q[6] * y
+        + q[7] * z * z
+        + 2.0 * q[8] * z
+        + q[9]
+}
+
+/// The point minimising `q`, if well defined.
+fn optimum(q: &Quadric) -> Option<Point3<f64>> {
+    let a = Matrix3::new(q[0], q[1], q[2], q[1], q[4], q[5], q[2], q[5], q[7]);
+    let scale = (q[0] + q[4] + q[7]) / 3.0;
+    if !(scale > 0.0) || a.determinant().abs() < 1e-6 * scale * scale * scale {
+        return None;
+    }
+    let x = a.try_inverse()? * -Vector3::new(q[3], q[6], q[8]);
+    x.iter().all(|v| v.is_finite()).then(|| Point3::from(x))
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Candidate {
+    cost: f64,
+    u: u32,
+    v: u32,
+    stamp_u: u32,
+    stamp_v: u32,
+}
+
+impl PartialEq for Candidate {
+    fn eq(&self, o: &Self) -> bool {
+        self.cmp(o) == Ordering::Equal
+    }
+}
+impl Eq for Candidate {}
+impl PartialOrd for Candidate {
+    fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
+        Some(self.cmp(o))
+    }
+}
+impl Ord for Candidate {
+    /// Reversed: the cheapest collapse is the heap's maximum (ties by vertex ids).
+    fn cmp(&self, o: &Self) -> Ordering {
+        o.cost
+            .total_cmp(&self.cost)
+            .then_with(|| (o.u, o.v).cmp(&(self.u, self.v)))
+    }
+}
+
+struct State {
+    pos: Vec<Point3<f64>>,
+    quadric: Vec<Quadric>,
+    stamp: Vec<u32>,
+    vertex_alive: Vec<bool>,
+    tris: Vec<[u32; 3]>,
+    tri_alive: Vec<bool>,
+    /// Live triangles around each vertex.
+    around: Vec<Vec<u32>>,
+    alive_triangles: usize,
+    cos_turn: f64,
+    min_quality: f64,
+}
+
+fn quality(a: &Point3<f64>, b: &Point3<f64>, c: &Point3<f64>) -> f64 {
+    let area2 = (b - a).cross(&(c - a)).norm();
+    let sq = (b - a).norm_squared() + (c - b).norm_squared() + (a - c).norm_squared();
+    if sq == 0.0 {
+        0.0
+    } else {
+        2.0 * 3f64.sqrt() * area2 / sq
+    }
+}
+
+impl State {
+    fn neighbours(&self, v: u32, out: &mut Vec<u32>) {
+        out.clear();
+        for &t in &self.around[v as usize] {
+            for &w in &self.tris[t as usize] {
+                if w != v && !out.contains(&w) {
+                    out.push(w);
+                }
+            }
+        }
+    }
+
+    /// Target point and cost of collapsing `u`–`v`.
+    fn plan(&self, u: u32, v: u32) -> (Point3<f64>, f64) {
+        let mut q = self.quadric[u as usize];
+        add(&mut q, &self.quadric[v as usize]);
+        let (pu, pv) = (self.pos[u as usize], self.pos[v as usize]);
+        let mid = Point3::from((pu.coords + pv.coords) / 2.0);
+        let len = (pu - pv).norm();
+        if let Some(x) = optimum(&q) {
+            if (x - mid).norm() <= len {
+                return (x, eval(&q, &x).max(0.0));
+            }
+        }
+        [pu, pv, mid]
+            .into_iter()
+            .map(|p| (p, eval(&q, &p).max(0.0)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap()
+    }
+
+    fn push(&self, heap: &mut BinaryHeap<Candidate>, u: u32, v: u32) {
+        let (_, cost) = self.plan(u, v);
+        heap.push(Candidate {
+            cost,
+            u,
+            v,
+            stamp_u: self.stamp[u as usize],
+            stamp_v: self.stamp[v as usize],
+        });
+    }
+
+    /// Whether moving the corners `u` and `v` of the triangles around them to `x` keeps every
+    /// surviving triangle's orientation and shape.
+    fn geometry_ok(&self, u: u32, v: u32, x: &Point3<f64>) -> bool {
+        for &w in &[u, v] {
+            for &t in &self.around[w as usize] {
+                let tri = self.tris[t as usize];
+                if tri.contains(&u) && tri.contains(&v) {
+                    continue;
+                }
+                let old = tri.map(|i| self.pos[i as usize]);
+                let new = tri.map(|i| if i == w { *x } else { self.pos[i as usize] });
+                let n_old = (old[1] - old[0]).cross(&(old[2] - old[0]));
+                let n_new = (new[1] - new[0]).cross(&(new[2] - new[0]));
+                let (lo, ln) = (n_old.norm(), n_new.norm());
+                if ln == 0.0 || n_old.dot(&n_new) < self.cos_turn * lo * ln {
+                    return false;
+                }
+                let q_new = quality(&new[0], &new[1], &new[2]);
+                if q_new < self.min_quality && q_new < quality(&old[0], &old[1], &old[2]) {
+                    return false;
+                }
+            }
+        }
+        true
+    }
+
+    /// Collapses `v` into `u` at `x`.
+    fn collapse(&mut self, u: u32, v: u32, x: Point3<f64>) {
+        let around_v = std::mem::take(&mut self.around[v as usize]);
+        for &t in &around_v {
+            let tri = &mut self.tris[t as usize];
+            if tri.contains(&u) {
+                self.tri_alive[t as usize] = false;
+                self.alive_triangles -= 1;
+            } else {
+                for i in tri.iter_mut() {
+                    if *i == v {
+                        *i = u;
+                    }
+                }
+                self.around[u as usize].push(t);
+            }
+        }
+        for &t in &around_v {
+            if !self.tri_alive[t as usize] {
+                for w in self.tris[t as usize] {
+                    if w != v {
+                        let alive = &self.tri_alive;
+                        self.around[w as usize].retain(|&s| alive[s as usize]);
+                    }
+                }
+            }
+        }
+        let qv = self.quadric[v as usize];
+        add(&mut self.quadric[u as usize], &qv);
+        self.pos[u as usize] = x;
+        self.vertex_alive[v as usize] = false;
+        self.stamp[u as usize] += 1;
+    }
+}
+
+/// Decimates a closed manifold surface to at most `params.target_triangles` triangles where the
+/// checks allow it (see the module documentation); a surface that is not watertight, or
+/// already small enough, is returned unchanged.
+pub fn decimate(surface: &TriSurface, params: &Decimation) -> TriSurface {
+    let target = params.target_triangles.max(4);
+    if surface.triangles.len() <= target || !validate(surface).watertight {
+        return surface.clone();
+    }
+    let n = surface.vertices.len();
+    let mut st = State {
+        pos: surface.vertices.clone(),
+        quadric: vec![[0.0; 10]; n],
+        stamp: vec![0; n],
+        vertex_alive: vec![true; n],
+        tris: surface
+            .triangles
+            .iter()
+            .map(|t| t.map(|i| i as u32))
+            .collect(),
+        tri_alive: vec![true; surface.triangles.len()],
+        around: Vec::new(),
+        alive_triangles: surface.triangles.len(),
+        cos_turn: params.max_normal_turn_degrees.to_radians().cos(),
+        min_quality: params.min_quality,
+    };
+    let mut valence = vec![0u32; n];
+    for t in &st.tris {
+        for &i in t {
+            valence[i as usize] += 1;
+        }
+    }
+    st.around = valence
+        .iter()
+        .map(|&c| Vec::with_capacity(c as usize + 2))
+        .collect();
+    for (ti, t) in st.tris.iter().enumerate() {
+        let [a, b, c] = t.map(|i| st.pos[i as usize]);
+        let normal = (b - a).cross(&(c - a));
+        let area2 = normal.norm();
+        if area2 > 0.0 {
+            let unit = normal / area2;
+            let q = plane_quadric(&unit, -unit.dot(&a.coords), area2 / 2.0);
+            for &i in t {
+                add(&mut st.quadric[i as usize], &q);
+            }
+        }
+        for &i in t {
+            st.around[i as usize].push(ti as u32);
+        }
+    }
+    let mut heap = BinaryHeap::with_capacity(surface.triangles.len() * 3 / 2);
+    for t in &st.tris {
+        for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
+            // Each edge of a closed oriented surface appears once in each direction.
+            if a < b {
+                st.push(&mut heap, a, b);
+            }
+        }
+    }
+    let (mut nu, mut nv) = (Vec::new(), Vec::new());
+    while st.alive_triangles > target {
+        let Some(c) = heap.pop() else { break };
+        let (u, v) = (c.u, c.v);
+        if !st.vertex_alive[u as usize]
+            || !st.vertex_alive[v as usize]
+            || st.stamp[u as usize] != c.stamp_u
+            || st.stamp[v as usize] != c.stamp_v
+        {
+            continue;
+        }
+        st.neighbours(u, &mut nu);
+        st.neighbours(v, &mut nv);
+        if nu.len() < 3 || nv.len() < 3 {
+            continue;
+        }
+        let shared = nu.iter().filter(|w| nv.contains(w)).count();
+        if shared != 2 || st.alive_triangles <= 4 {
+            continue;
+        }
+        let (x, _) = st.plan(u, v);
+        if !st.geometry_ok(u, v, &x) {
+            continue;
+        }
+        st.collapse(u, v, x);
+        st.neighbours(u, &mut nu);
+        for &w in &nu {
+            st.push(&mut heap, u, w);
+        }
+    }
+
+    let mut index = vec![usize::MAX; n];
+    let mut vertices = Vec::new();
+    let mut triangles = Vec::with_capacity(st.alive_triangles);
+    for (t, tri) in st.tris.iter().enumerate() {
+        if !st.tri_alive[t] {
+            continue;
+        }
+        triangles.push(tri.map(|i| {
+            let i = i as usize;
+            if index[i] == usize::MAX {
+                index[i] = vertices.len();
+                vertices.push(st.pos[i]);
+            }
+            index[i]
+        }));
+    }
+    TriSurface::new(vertices, triangles)
+}
