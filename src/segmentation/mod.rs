@@ -15,7 +15,7 @@
 //! One concept per file: [`labelmap`] (the grid, affine, segment names), [`nifti`], [`nrrd`],
 //! [`samples`] (stored values → labels), [`mask`] (crop and voxel clean-up), [`isosurface`]
 //! (marching cubes), [`taubin`], [`decimate`], [`structure`] (labels → surfaces and points),
-//! [`error`].
+//! [`voxelise`] (a closed surface → labels, for phantoms and tests), [`error`].
 
 pub mod decimate;
 pub mod error;
@@ -27,6 +27,7 @@ pub mod nrrd;
 pub mod samples;
 pub mod structure;
 pub mod taubin;
+pub mod voxelise;
 
 #[cfg(test)]
 mod tests;
@@ -43,6 +44,7 @@ pub use structure::{
     LabelRef, SurfaceOptions,
 };
 pub use taubin::{taubin_smooth, Taubin};
+pub use voxelise::{voxelise, voxelise_into};
 
 /// Reads a labelmap, choosing the reader by the file name (case-insensitive): `.nii` and
 /// `.nii.gz` (NIfTI-1), `.nrrd` and `.seg.nrrd` (NRRD, a single layer; see
