@@ -31,8 +31,14 @@ fn labelmap() -> Labelmap {
     voxelise_into(&liver, dims, &affine, &mut labels, 1).unwrap();
     voxelise_into(&tumour, dims, &affine, &mut labels, 2).unwrap();
     for (a, b) in [
-        (Point3::new(-40.0, 0.0, -10.0), Point3::new(40.0, 10.0, 10.0)),
-        (Point3::new(-10.0, -30.0, 0.0), Point3::new(20.0, 30.0, -5.0)),
+        (
+            Point3::new(-40.0, 0.0, -10.0),
+            Point3::new(40.0, 10.0, 10.0),
+        ),
+        (
+            Point3::new(-10.0, -30.0, 0.0),
+            Point3::new(20.0, 30.0, -5.0),
+        ),
     ] {
         voxelise_into(&tube(a, b, 5.0), dims, &affine, &mut labels, 3).unwrap();
     }

@@ -84,7 +84,7 @@ fn eval(q: &Quadric, p: &Point3<f64>) -> f64 {
 fn optimum(q: &Quadric) -> Option<Point3<f64>> {
     let a = Matrix3::new(q[0], q[1], q[2], q[1], q[4], q[5], q[2], q[5], q[7]);
     let scale = (q[0] + q[4] + q[7]) / 3.0;
-    if !(scale > 0.0) || a.determinant().abs() < 1e-6 * scale * scale * scale {
+    if scale.is_nan() || scale <= 0.0 || a.determinant().abs() < 1e-6 * scale * scale * scale {
         return None;
     }
     let x = a.try_inverse()? * -Vector3::new(q[3], q[6], q[8]);
@@ -288,7 +288,10 @@ pub(crate) fn decimate_closed(surface: &TriSurface, params: &Decimation) -> TriS
                 }
             }
         }
-        edges.sort_unstable_by(|x, y| x.0.total_cmp(&y.0).then_with(|| (x.1, x.2).cmp(&(y.1, y.2))));
+        edges.sort_unstable_by(|x, y| {
+            x.0.total_cmp(&y.0)
+                .then_with(|| (x.1, x.2).cmp(&(y.1, y.2)))
+        });
         let needed = (st.alive_triangles - target).div_ceil(2);
         let limit = needed.min(alive_vertices / ROUND_FRACTION).max(1);
         let mut done = 0;

@@ -312,7 +312,7 @@ fn affine_ras(
 
 fn pixdim(path: &Path, h: &NiftiHeader) -> Result<[f64; 3], SegmentationError> {
     let mut s = [0.0; 3];
-    for a in 0..3 {
+    for (a, out) in s.iter_mut().enumerate() {
         let v = h.pixdim[a + 1] as f64;
         if !(v.is_finite() && v > 0.0) {
             return Err(SegmentationError::header(
@@ -321,7 +321,7 @@ fn pixdim(path: &Path, h: &NiftiHeader) -> Result<[f64; 3], SegmentationError> {
                 format!("{v} (voxel sizes must be positive)"),
             ));
         }
-        s[a] = v;
+        *out = v;
     }
     Ok(s)
 }

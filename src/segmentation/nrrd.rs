@@ -424,9 +424,8 @@ impl Header {
             });
             by_dir.or(by_kind).unwrap_or(true)
         };
-        let layers;
         let spatial_axes: Vec<usize> = (0..nd).filter(|&a| spatial(a)).collect();
-        if nd == 4 {
+        let layers = if nd == 4 {
             if spatial_axes != [1, 2, 3] {
                 return Err(SegmentationError::unsupported(
                     path,
@@ -436,7 +435,7 @@ impl Header {
                     ),
                 ));
             }
-            layers = sizes[0];
+            sizes[0]
         } else {
             if spatial_axes.len() != 3 {
                 return Err(SegmentationError::header(
@@ -445,8 +444,8 @@ impl Header {
                     "a 3-D labelmap needs three spatial axes ('none' given)",
                 ));
             }
-            layers = 1;
-        }
+            1
+        };
         let off = nd - 3;
         let dims = [sizes[off], sizes[off + 1], sizes[off + 2]];
         let count = voxel_count(dims)
@@ -673,7 +672,6 @@ impl Header {
                     )
                 })
             })
-            .map(|(s, l, k)| (s, l, k))
             .collect())
     }
 }

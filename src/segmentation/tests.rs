@@ -479,7 +479,7 @@ fn seg_nrrd_segments_and_layers() {
     );
     // A single layer in 4-D form reads as a labelmap, with its segments.
     let one = dir.path("one.seg.nrrd");
-    write(&one, &nrrd_file(&format!("type: uchar\ndimension: 4\nsizes: 1 4 3 2\nkinds: list domain domain domain\nencoding: raw\nspace: LPS\nspace directions: none (1,0,0) (0,1,0) (0,0,1)\nSegment0_Name:=liver\nSegment0_LabelValue:=3\n"), &v.iter().map(|&x| x as u8).collect::<Vec<_>>()));
+    write(&one, &nrrd_file("type: uchar\ndimension: 4\nsizes: 1 4 3 2\nkinds: list domain domain domain\nencoding: raw\nspace: LPS\nspace directions: none (1,0,0) (0,1,0) (0,0,1)\nSegment0_Name:=liver\nSegment0_LabelValue:=3\n", &v.iter().map(|&x| x as u8).collect::<Vec<_>>()));
     let map = read_labelmap(&one).unwrap();
     assert_eq!(
         map.segments(),

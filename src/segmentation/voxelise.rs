@@ -27,9 +27,9 @@ pub fn voxelise_into(
             labels.len()
         )));
     }
-    let inv = affine.try_inverse().ok_or_else(|| {
-        SegmentationError::Labelmap("the affine cannot be inverted".to_owned())
-    })?;
+    let inv = affine
+        .try_inverse()
+        .ok_or_else(|| SegmentationError::Labelmap("the affine cannot be inverted".to_owned()))?;
     let vertices: Vec<_> = surface
         .vertices
         .iter()
