@@ -85,6 +85,7 @@ fn main() {
         map.count(&[1]) as f64 * map.voxel_volume() * 1e-6
     );
     let options = SurfaceOptions::default();
+    eprintln!("before extraction: {}", memory());
     let t = Instant::now();
     let out = extract_surface(&map, &[1], &options).unwrap();
     let total = t.elapsed();
@@ -99,6 +100,7 @@ fn main() {
         out.surface.triangles.len(),
         out.report
     );
+    eprintln!("after extraction: {}", memory());
     if std::env::args().any(|a| a == "--once") {
         return;
     }
@@ -107,4 +109,15 @@ fn main() {
         b.iter(|| extract_surface(black_box(&map), &[1], &options).unwrap())
     });
     c.final_summary();
+}
+
+/// Current and peak resident memory (Linux `/proc/self/status`).
+fn memory() -> String {
+    std::fs::read_to_string("/proc/self/status")
+        .unwrap_or_default()
+        .lines()
+        .filter(|l| l.starts_with("VmRSS") || l.starts_with("VmHWM"))
+        .map(|l| l.split_whitespace().collect::<Vec<_>>().join(" "))
+        .collect::<Vec<_>>()
+        .join(", ")
 }

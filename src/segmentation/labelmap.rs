@@ -3,7 +3,7 @@
 //!
 //! **Physical coordinates are LPS, in millimetres**: x grows towards the patient's Left, y
 //! towards Posterior, z towards Superior — the convention of DICOM, ITK and of 3D Slicer's files.
-//! Readers convert into it: NIfTI's RAS+ world (x Right→… i.e. x towards Right is negative) is
+//! Readers convert into it: NIfTI's RAS+ world (x towards the patient's right, y anterior) is
 //! turned into LPS by negating x and y; NRRD files declare their `space` and are converted the
 //! same way.
 
