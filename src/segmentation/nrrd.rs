@@ -108,13 +108,20 @@ pub fn read_nrrd_layers(path: &Path) -> Result<Vec<Labelmap>, SegmentationError>
             format!("{line_skip} (must be ≥ 0)"),
         ));
     }
-    for _ in 0..line_skip {
+    for skipped in 0..line_skip {
         let mut sink = Vec::new();
-        reader
+        let n = reader
             .by_ref()
             .take(MAX_HEADER as u64)
             .read_until(b'\n', &mut sink)
             .map_err(|e| SegmentationError::io(path, e))?;
+        if n == 0 {
+            return Err(SegmentationError::header(
+                path,
+                "line skip",
+                format!("{line_skip}, but the file ends after {skipped} lines"),
+            ));
+        }
     }
 
     let dims = layout.dims;

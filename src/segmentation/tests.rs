@@ -515,6 +515,7 @@ fn malformed_nrrd_headers_give_the_specific_error() {
         ("not-a-label", nrrd_file(&ok.replace("uchar", "float").replace("raw", "raw\nendian: little"), &[0.5f32; 24].iter().flat_map(|f| f.to_le_bytes()).collect::<Vec<_>>()), &["voxel data", "0.5", "not an integer"]),
         ("segment", nrrd_file(&format!("{ok}\nSegment0_Name:=liver\nSegment0_LabelValue:=-3"), &data), &["'Segment0_LabelValue'", "'-3'"]),
         ("layer", nrrd_file(&format!("{ok}\nSegment0_Name:=liver\nSegment0_Layer:=2"), &data), &["'Segment0_Layer'", "1 layer"]),
+        ("line-skip", nrrd_file(&format!("{ok}\nline skip: 1000000000000"), &data), &["'line skip'", "ends after 1 lines"]),
         ("list-last", nrrd_file("type: uchar\ndimension: 4\nsizes: 4 3 2 1\nencoding: raw\nspace: LPS\nspace directions: (1,0,0) (0,1,0) (0,0,1) none", &data), &["unsupported", "not the first"]),
     ];
     for (name, bytes, needles) in cases {
@@ -767,4 +768,28 @@ fn malformed_nifti_gives_the_specific_error() {
     }
     let e = read_labelmap(Path::new("x.mha")).unwrap_err().to_string();
     assert!(e.contains("unknown labelmap extension"), "{e}");
+}
+
+#[test]
+fn a_label_filling_the_whole_image_still_closes() {
+    // Every voxel labelled: the crop's margin lies outside the image and counts as background.
+    let map = Labelmap::new([6, 5, 4], vec![2; 120], Matrix4::identity()).unwrap();
+    let raw = SurfaceOptions {
+        smooth: false,
+        target_triangles: 0,
+        ..SurfaceOptions::default()
+    };
+    let out = extract_surface(&map, &[2], &raw).unwrap();
+    let r = assert_clean(&out.surface);
+    // The 0.5-level box of 6×5×4 voxel centres is 5×4×3 plus half a voxel all round, minus
+    // the chamfers at its 12 edges (prisms of cross-section 1/8) and 8 corners.
+    assert!(
+        r.signed_volume > 5.0 * 4.0 * 3.0 && r.signed_volume < 6.0 * 5.0 * 4.0,
+        "{r}"
+    );
+    let (lo, hi) = out.surface.bounding_box().unwrap();
+    assert_eq!(
+        (lo, hi),
+        (Point3::new(-0.5, -0.5, -0.5), Point3::new(5.5, 4.5, 3.5))
+    );
 }
