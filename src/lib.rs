@@ -11,6 +11,7 @@
 //! - [`registration`]: rigid ICP and the biomechanical non-rigid ICP;
 //! - [`session`]: a model registered frame after frame (warm start, time budget, recovery);
 //! - [`phantom`]: the bundled liver phantom (surface, vessel targets, tumour, ligament);
+//! - [`segmentation`]: NIfTI/NRRD labelmaps turned into surfaces (liver, tumour) and vessel points;
 //! - [`synthetic`]: a virtual camera producing partial, noisy point clouds (tests, benchmarks);
 //! - [`evaluation`]: results and truth formats, target registration error;
 //! - [`benchmark`]: speed against accuracy — configuration sweeps, stability matrix;
@@ -38,6 +39,7 @@ pub mod recording;
 pub mod registration;
 pub mod scenarios;
 pub mod scene;
+pub mod segmentation;
 pub mod server;
 pub mod session;
 pub mod simulation;

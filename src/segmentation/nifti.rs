@@ -1,0 +1,327 @@
+//! NIfTI-1 labelmaps (`.nii`, `.nii.gz`), the header parsed by the `nifti` crate, the voxel
+//! data read and checked here.
+//!
+//! * **Affine**: the sform if `sform_code > 0`, else the qform (quaternion, `pixdim`, `qfac`)
+//!   if `qform_code > 0`, else plain `pixdim` scaling with the origin at voxel 0 (NIfTI's
+//!   "method 1"). NIfTI's world is RAS+; it is turned into LPS by negating x and y (the first
+//!   two rows of the affine).
+//! * **Units**: `xyzt_units` metres or micrometres are converted to mm; unknown (0) is taken
+//!   as mm.
+//! * **Scaling**: `scl_slope ≠ 0` applies `value × scl_slope + scl_inter`; the result must be an
+//!   integer label in 0..=65535.
+//! * **Refused with a clear error**: NIfTI-2 (540-byte header: the crate parses NIfTI-1 only),
+//!   `.hdr`/`.img` pairs, more than three non-singleton dimensions, complex/RGB/128-bit types,
+//!   sizes over [`MAX_VOXELS`](super::labelmap::MAX_VOXELS), a file shorter than its header says.
+
+use std::fs::File;
+use std::io::{BufReader, Read};
+use std::path::Path;
+
+use flate2::read::MultiGzDecoder;
+use nalgebra::{Matrix4, Quaternion, UnitQuaternion};
+use nifti::{Endianness, NiftiHeader, NiftiType};
+
+use super::error::SegmentationError;
+use super::labelmap::{voxel_count, Labelmap, MAX_VOXELS};
+use super::samples::{to_labels, ByteOrder, SampleType, Scaling};
+
+/// Where the affine of a NIfTI file came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NiftiTransform {
+    /// `srow_x/y/z` (`sform_code > 0`).
+    Sform,
+    /// The quaternion, `pixdim` and `qfac` (`qform_code > 0`, `sform_code = 0`).
+    Qform,
+    /// Neither code set: `pixdim` scaling, origin at voxel 0.
+    Pixdim,
+}
+
+/// Reads a NIfTI-1 labelmap (`.nii`, or gzip-compressed `.nii.gz`); the affine is converted to
+/// LPS mm (see the module documentation).
+pub fn read_nifti(path: &Path) -> Result<Labelmap, SegmentationError> {
+    read_nifti_with_transform(path).map(|(l, _)| l)
+}
+
+/// [`read_nifti`], also telling which transform of the header was used.
+pub fn read_nifti_with_transform(
+    path: &Path,
+) -> Result<(Labelmap, NiftiTransform), SegmentationError> {
+    let name = path.to_string_lossy().to_ascii_lowercase();
+    if name.ends_with(".hdr") || name.ends_with(".img") || name.ends_with(".hdr.gz") {
+        return Err(SegmentationError::unsupported(
+            path,
+            "NIfTI/Analyze .hdr/.img pairs; convert to a single .nii or .nii.gz",
+        ));
+    }
+    let file = File::open(path).map_err(|e| SegmentationError::io(path, e))?;
+    let file_len = file.metadata().map(|m| m.len()).ok();
+    let gz = name.ends_with(".gz");
+    let mut reader: Box<dyn Read> = if gz {
+        Box::new(MultiGzDecoder::new(BufReader::new(file)))
+    } else {
+        Box::new(BufReader::new(file))
+    };
+
+    let mut raw = [0u8; 348];
+    reader.read_exact(&mut raw).map_err(|e| {
+        if e.kind() == std::io::ErrorKind::UnexpectedEof {
+            SegmentationError::header(
+                path,
+                "sizeof_hdr",
+                "the file is shorter than a 348-byte NIfTI-1 header",
+            )
+        } else {
+            SegmentationError::io(path, e)
+        }
+    })?;
+    let sizeof = i32::from_le_bytes(raw[..4].try_into().unwrap());
+    if sizeof == 540 || sizeof.swap_bytes() == 540 {
+        return Err(SegmentationError::unsupported(
+            path,
+            "NIfTI-2 (sizeof_hdr = 540): the nifti crate reads NIfTI-1 only; save as NIfTI-1 \
+             (e.g. nibabel.Nifti1Image)",
+        ));
+    }
+    if sizeof != 348 && sizeof.swap_bytes() != 348 {
+        return Err(SegmentationError::header(
+            path,
+            "sizeof_hdr",
+            format!("{sizeof} (expected 348): not a NIfTI-1 file"),
+        ));
+    }
+    let h = NiftiHeader::from_reader(&raw[..]).map_err(|e| {
+        SegmentationError::header(path, "magic", format!("not a NIfTI-1 header ({e})"))
+    })?;
+    if &h.magic != b"n+1\0" {
+        return Err(SegmentationError::unsupported(
+            path,
+            format!(
+                "magic {:?} announces a separate .img file; only single-file .nii is read",
+                String::from_utf8_lossy(&h.magic)
+            ),
+        ));
+    }
+
+    let dims = dims_of(path, &h)?;
+    let ty = sample_type(path, &h)?;
+    let order = match h.endianness {
+        Endianness::Little => ByteOrder::Little,
+        Endianness::Big => ByteOrder::Big,
+    };
+    let n = voxel_count(dims)
+        .filter(|&n| n <= MAX_VOXELS)
+        .ok_or_else(|| {
+            SegmentationError::header(
+                path,
+                "dim",
+                format!("{dims:?} is more than the {MAX_VOXELS} voxels accepted"),
+            )
+        })?;
+    let bytes = n * ty.size();
+    let offset = h.vox_offset;
+    if !(offset.is_finite() && offset >= 348.0 && offset.fract() == 0.0) {
+        return Err(SegmentationError::header(
+            path,
+            "vox_offset",
+            format!("{offset} (must be a whole number ≥ 348)"),
+        ));
+    }
+    let offset = offset as u64;
+    if let (false, Some(len)) = (gz, file_len) {
+        if len < offset + bytes as u64 {
+            return Err(SegmentationError::data(
+                path,
+                format!(
+                    "the file has {len} bytes but dim {dims:?} of {ty:?} from vox_offset {offset} \
+                     needs {}",
+                    offset + bytes as u64
+                ),
+            ));
+        }
+    }
+    // Extensions between the header and the data.
+    std::io::copy(&mut (&mut reader).take(offset - 348), &mut std::io::sink())
+        .map_err(|e| SegmentationError::io(path, e))?;
+    // Grows with the data actually decompressed: a tiny file claiming huge sizes allocates
+    // little before it fails.
+    let mut data = Vec::with_capacity(bytes.min(64 << 20));
+    reader
+        .take(bytes as u64)
+        .read_to_end(&mut data)
+        .map_err(|e| SegmentationError::io(path, e))?;
+    if data.len() < bytes {
+        return Err(SegmentationError::data(
+            path,
+            format!(
+                "the data end after {} bytes but dim {dims:?} of {ty:?} needs {bytes}",
+                data.len()
+            ),
+        ));
+    }
+    let slope = h.scl_slope as f64;
+    let scaling = (slope != 0.0 && slope.is_finite())
+        .then_some(Scaling {
+            slope,
+            inter: if h.scl_inter.is_finite() {
+                h.scl_inter as f64
+            } else {
+                0.0
+            },
+        })
+        .filter(|s| {
+            *s != Scaling {
+                slope: 1.0,
+                inter: 0.0,
+            }
+        });
+    let labels = to_labels(path, &data, ty, order, scaling, dims)?;
+    drop(data);
+    let (mut ras, transform) = affine_ras(path, &h)?;
+    // xyzt_units: metres and micrometres are converted; unknown (0) is taken as millimetres.
+    let to_mm = match h.xyzt_units & 0x07 {
+        1 => 1000.0,
+        3 => 1e-3,
+        _ => 1.0,
+    };
+    ras.fixed_view_mut::<3, 4>(0, 0).scale_mut(to_mm);
+    let lps = ras_to_lps(&ras);
+    let map = Labelmap::new(dims, labels, lps)
+        .map_err(|e| SegmentationError::header(path, transform.field(), e.to_string()))?;
+    Ok((map, transform))
+}
+
+impl NiftiTransform {
+    fn field(self) -> &'static str {
+        match self {
+            Self::Sform => "srow_x/srow_y/srow_z",
+            Self::Qform => "quatern_b/c/d, pixdim",
+            Self::Pixdim => "pixdim",
+        }
+    }
+}
+
+/// RAS ↔ LPS: negate the first two rows (x and y) of an index → world affine.
+pub fn ras_to_lps(a: &Matrix4<f64>) -> Matrix4<f64> {
+    Matrix4::from_diagonal(&nalgebra::Vector4::new(-1.0, -1.0, 1.0, 1.0)) * a
+}
+
+fn dims_of(path: &Path, h: &NiftiHeader) -> Result<[usize; 3], SegmentationError> {
+    let nd = h.dim[0] as usize;
+    if !(3..=7).contains(&nd) {
+        return Err(SegmentationError::header(
+            path,
+            "dim[0]",
+            format!("{nd}: a labelmap needs 3 dimensions"),
+        ));
+    }
+    if let Some(extra) = (4..=nd).find(|&d| h.dim[d] > 1) {
+        return Err(SegmentationError::unsupported(
+            path,
+            format!(
+                "dim[{extra}] = {}: only 3-D labelmaps are read (no time series or vector images)",
+                h.dim[extra]
+            ),
+        ));
+    }
+    let dims = [h.dim[1] as usize, h.dim[2] as usize, h.dim[3] as usize];
+    if let Some(a) = (0..3).find(|&a| dims[a] == 0 || h.dim[a + 1] as i16 <= 0) {
+        return Err(SegmentationError::header(
+            path,
+            &format!("dim[{}]", a + 1),
+            format!("{} (sizes must be positive)", h.dim[a + 1] as i16),
+        ));
+    }
+    Ok(dims)
+}
+
+fn sample_type(path: &Path, h: &NiftiHeader) -> Result<SampleType, SegmentationError> {
+    let t = h.data_type().map_err(|_| {
+        SegmentationError::header(path, "datatype", format!("unknown code {}", h.datatype))
+    })?;
+    Ok(match t {
+        NiftiType::Uint8 => SampleType::U8,
+        NiftiType::Int8 => SampleType::I8,
+        NiftiType::Int16 => SampleType::I16,
+        NiftiType::Uint16 => SampleType::U16,
+        NiftiType::Int32 => SampleType::I32,
+        NiftiType::Uint32 => SampleType::U32,
+        NiftiType::Int64 => SampleType::I64,
+        NiftiType::Uint64 => SampleType::U64,
+        NiftiType::Float32 => SampleType::F32,
+        NiftiType::Float64 => SampleType::F64,
+        other => {
+            return Err(SegmentationError::unsupported(
+                path,
+                format!("datatype {other:?} ({}) cannot hold labels", h.datatype),
+            ))
+        }
+    })
+}
+
+/// The header's index → RAS mm affine and where it came from.
+fn affine_ras(
+    path: &Path,
+    h: &NiftiHeader,
+) -> Result<(Matrix4<f64>, NiftiTransform), SegmentationError> {
+    if h.sform_code > 0 {
+        let r = |row: [f32; 4]| row.map(|v| v as f64);
+        let [x, y, z] = [r(h.srow_x), r(h.srow_y), r(h.srow_z)];
+        #[rustfmt::skip]
+        let a = Matrix4::new(
+            x[0], x[1], x[2], x[3],
+            y[0], y[1], y[2], y[3],
+            z[0], z[1], z[2], z[3],
+            0.0, 0.0, 0.0, 1.0,
+        );
+        return Ok((a, NiftiTransform::Sform));
+    }
+    let spacing = pixdim(path, h)?;
+    if h.qform_code > 0 {
+        let (b, c, d) = (h.quatern_b as f64, h.quatern_c as f64, h.quatern_d as f64);
+        let s = b * b + c * c + d * d;
+        if !(s.is_finite() && s <= 1.0 + 1e-6) {
+            return Err(SegmentationError::header(
+                path,
+                "quatern_b/c/d",
+                format!("({b}, {c}, {d}) is not part of a unit quaternion (b²+c²+d² = {s})"),
+            ));
+        }
+        let a = (1.0 - s).max(0.0).sqrt();
+        let rot = UnitQuaternion::from_quaternion(Quaternion::new(a, b, c, d));
+        // qfac = pixdim[0]: −1 flips the third axis; any other value counts as 1 (the standard).
+        let qfac = if h.pixdim[0] == -1.0 { -1.0 } else { 1.0 };
+        let m = rot.to_rotation_matrix().into_inner()
+            * nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(
+                spacing[0],
+                spacing[1],
+                spacing[2] * qfac,
+            ));
+        let mut out = Matrix4::identity();
+        out.fixed_view_mut::<3, 3>(0, 0).copy_from(&m);
+        out[(0, 3)] = h.quatern_x as f64;
+        out[(1, 3)] = h.quatern_y as f64;
+        out[(2, 3)] = h.quatern_z as f64;
+        return Ok((out, NiftiTransform::Qform));
+    }
+    let mut out = Matrix4::identity();
+    for a in 0..3 {
+        out[(a, a)] = spacing[a];
+    }
+    Ok((out, NiftiTransform::Pixdim))
+}
+
+fn pixdim(path: &Path, h: &NiftiHeader) -> Result<[f64; 3], SegmentationError> {
+    let mut s = [0.0; 3];
+    for (a, out) in s.iter_mut().enumerate() {
+        let v = h.pixdim[a + 1] as f64;
+        if !(v.is_finite() && v > 0.0) {
+            return Err(SegmentationError::header(
+                path,
+                &format!("pixdim[{}]", a + 1),
+                format!("{v} (voxel sizes must be positive)"),
+            ));
+        }
+        *out = v;
+    }
+    Ok(s)
+}

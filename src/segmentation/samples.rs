@@ -1,0 +1,289 @@
+//! Voxel samples as stored in files (integer or float, either byte order) turned into `u16`
+//! labels, refusing anything that is not a label: negative values, values above 65535 and
+//! non-integer floats (a probability map or an intensity image).
+
+use std::path::Path;
+
+use super::error::SegmentationError;
+
+/// Storage type of one voxel sample.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SampleType {
+    /// `i8`.
+    I8,
+    /// `u8`.
+    U8,
+    /// `i16`.
+    I16,
+    /// `u16`.
+    U16,
+    /// `i32`.
+    I32,
+    /// `u32`.
+    U32,
+    /// `i64`.
+    I64,
+    /// `u64`.
+    U64,
+    /// `f32`.
+    F32,
+    /// `f64`.
+    F64,
+}
+
+impl SampleType {
+    /// Bytes per sample.
+    pub fn size(self) -> usize {
+        match self {
+            Self::I8 | Self::U8 => 1,
+            Self::I16 | Self::U16 => 2,
+            Self::I32 | Self::U32 | Self::F32 => 4,
+            Self::I64 | Self::U64 | Self::F64 => 8,
+        }
+    }
+
+    fn is_float(self) -> bool {
+        matches!(self, Self::F32 | Self::F64)
+    }
+}
+
+/// Byte order of multi-byte samples.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ByteOrder {
+    /// Least significant byte first.
+    Little,
+    /// Most significant byte first.
+    Big,
+}
+
+/// Linear value scaling `value = stored × slope + inter` (NIfTI's `scl_slope`/`scl_inter`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Scaling {
+    /// Multiplier.
+    pub slope: f64,
+    /// Offset.
+    pub inter: f64,
+}
+
+/// Decodes one sample as f64 (exact for every integer type up to 2⁵³, which covers every
+/// acceptable label).
+#[inline]
+fn decode(ty: SampleType, order: ByteOrder, b: &[u8]) -> f64 {
+    macro_rules! num {
+        ($t:ty, $n:expr) => {{
+            let a: [u8; $n] = b[..$n].try_into().unwrap();
+            (match order {
+                ByteOrder::Little => <$t>::from_le_bytes(a),
+                ByteOrder::Big => <$t>::from_be_bytes(a),
+            }) as f64
+        }};
+    }
+    match ty {
+        SampleType::I8 => b[0] as i8 as f64,
+        SampleType::U8 => b[0] as f64,
+        SampleType::I16 => num!(i16, 2),
+        SampleType::U16 => num!(u16, 2),
+        SampleType::I32 => num!(i32, 4),
+        SampleType::U32 => num!(u32, 4),
+        SampleType::I64 => num!(i64, 8),
+        SampleType::U64 => num!(u64, 8),
+        SampleType::F32 => num!(f32, 4),
+        SampleType::F64 => num!(f64, 8),
+    }
+}
+
+/// Converts raw samples (first index fastest) into labels. `dims` only serves the error
+/// messages (voxel position of the first bad value).
+pub fn to_labels(
+    path: &Path,
+    bytes: &[u8],
+    ty: SampleType,
+    order: ByteOrder,
+    scaling: Option<Scaling>,
+    dims: [usize; 3],
+) -> Result<Vec<u16>, SegmentationError> {
+    let size = ty.size();
+    let n = bytes.len() / size;
+    let mut out = Vec::with_capacity(n);
+    // Fast paths: unscaled unsigned bytes and shorts in any order need no check at all.
+    match (ty, scaling) {
+        (SampleType::U8, None) => return Ok(bytes.iter().map(|&b| b as u16).collect()),
+        (SampleType::U16, None) => {
+            return Ok(bytes
+                .chunks_exact(2)
+                .map(|c| match order {
+                    ByteOrder::Little => u16::from_le_bytes([c[0], c[1]]),
+                    ByteOrder::Big => u16::from_be_bytes([c[0], c[1]]),
+                })
+                .collect())
+        }
+        _ => {}
+    }
+    for (idx, chunk) in bytes.chunks_exact(size).enumerate() {
+        let mut v = decode(ty, order, chunk);
+        if let Some(s) = scaling {
+            v = v * s.slope + s.inter;
+        }
+        if let Some(label) = as_label(v) {
+            out.push(label);
+            continue;
+        }
+        let at = voxel_of(idx, dims);
+        let what = if !v.is_finite() {
+            "is not finite".to_owned()
+        } else if v.fract() != 0.0 {
+            format!(
+                "is not an integer{}: this looks like a {} image, not a labelmap",
+                if scaling.is_some() {
+                    " after scl_slope/scl_inter"
+                } else {
+                    ""
+                },
+                if ty.is_float() || scaling.is_some() {
+                    "probability or intensity"
+                } else {
+                    "scaled"
+                }
+            )
+        } else {
+            "is outside the label range 0..=65535".to_owned()
+        };
+        return Err(SegmentationError::data(
+            path,
+            format!("value {v} at voxel {at:?} {what}"),
+        ));
+    }
+    Ok(out)
+}
+
+/// Parses ASCII samples (NRRD `encoding: ascii`): whitespace-separated numbers.
+pub fn ascii_to_labels(
+    path: &Path,
+    text: &str,
+    count: usize,
+    dims: [usize; 3],
+) -> Result<Vec<u16>, SegmentationError> {
+    let mut out = Vec::with_capacity(count.min(1 << 24));
+    for (idx, word) in text.split_ascii_whitespace().enumerate() {
+        if idx == count {
+            return Err(SegmentationError::data(
+                path,
+                format!("more than the {count} ASCII values the header's sizes call for"),
+            ));
+        }
+        let v: f64 = word.parse().map_err(|_| {
+            SegmentationError::data(
+                path,
+                format!(
+                    "'{word}' at voxel {:?} is not a number",
+                    voxel_of(idx, dims)
+                ),
+            )
+        })?;
+        out.push(as_label(v).ok_or_else(|| {
+            SegmentationError::data(
+                path,
+                format!(
+                    "value {v} at voxel {:?} is not a label (an integer in 0..=65535)",
+                    voxel_of(idx, dims)
+                ),
+            )
+        })?);
+    }
+    if out.len() != count {
+        return Err(SegmentationError::data(
+            path,
+            format!(
+                "{} ASCII values where the header's sizes call for {count}",
+                out.len()
+            ),
+        ));
+    }
+    Ok(out)
+}
+
+#[inline]
+fn as_label(v: f64) -> Option<u16> {
+    (v.is_finite() && v.fract() == 0.0 && (0.0..=65535.0).contains(&v)).then_some(v as u16)
+}
+
+fn voxel_of(idx: usize, dims: [usize; 3]) -> [usize; 3] {
+    let (nx, ny) = (dims[0].max(1), dims[1].max(1));
+    [idx % nx, (idx / nx) % ny, idx / (nx * ny)]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn integers_of_every_type_and_order() {
+        let p = Path::new("x");
+        let be: Vec<u8> = [3i32, 0, 65535]
+            .iter()
+            .flat_map(|v| v.to_be_bytes())
+            .collect();
+        assert_eq!(
+            to_labels(p, &be, SampleType::I32, ByteOrder::Big, None, [3, 1, 1]).unwrap(),
+            vec![3, 0, 65535]
+        );
+        let le: Vec<u8> = [3u16, 9].iter().flat_map(|v| v.to_le_bytes()).collect();
+        assert_eq!(
+            to_labels(p, &le, SampleType::U16, ByteOrder::Little, None, [2, 1, 1]).unwrap(),
+            vec![3, 9]
+        );
+        let f: Vec<u8> = [1.0f64, 2.0].iter().flat_map(|v| v.to_le_bytes()).collect();
+        assert_eq!(
+            to_labels(p, &f, SampleType::F64, ByteOrder::Little, None, [2, 1, 1]).unwrap(),
+            vec![1, 2]
+        );
+    }
+
+    #[test]
+    fn non_labels_are_refused_with_their_voxel() {
+        let p = Path::new("prob.nii");
+        let f: Vec<u8> = [0.0f32, 0.0, 0.25]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        let e = to_labels(p, &f, SampleType::F32, ByteOrder::Little, None, [1, 3, 1]).unwrap_err();
+        let s = e.to_string();
+        assert!(
+            s.contains("prob.nii") && s.contains("0.25") && s.contains("[0, 2, 0]"),
+            "{s}"
+        );
+        assert!(s.contains("not an integer"), "{s}");
+        let neg: Vec<u8> = [-1i16].iter().flat_map(|v| v.to_le_bytes()).collect();
+        let e = to_labels(p, &neg, SampleType::I16, ByteOrder::Little, None, [1, 1, 1]);
+        assert!(e
+            .unwrap_err()
+            .to_string()
+            .contains("outside the label range"));
+        // Scaling applies first: 3 × 0.5 is not an integer.
+        let s = Some(Scaling {
+            slope: 0.5,
+            inter: 0.0,
+        });
+        let e = to_labels(p, &[3], SampleType::U8, ByteOrder::Little, s, [1, 1, 1]).unwrap_err();
+        assert!(e.to_string().contains("scl_slope"), "{e}");
+        let s = Some(Scaling {
+            slope: 2.0,
+            inter: 1.0,
+        });
+        assert_eq!(
+            to_labels(p, &[3], SampleType::U8, ByteOrder::Little, s, [1, 1, 1]).unwrap(),
+            vec![7]
+        );
+    }
+
+    #[test]
+    fn ascii_values() {
+        let p = Path::new("a.nrrd");
+        assert_eq!(
+            ascii_to_labels(p, "1 2\n3", 3, [3, 1, 1]).unwrap(),
+            vec![1, 2, 3]
+        );
+        assert!(ascii_to_labels(p, "1 2", 3, [3, 1, 1]).is_err());
+        assert!(ascii_to_labels(p, "1 2.5 3", 3, [3, 1, 1]).is_err());
+    }
+}
