@@ -9,6 +9,7 @@ pub mod bench;
 pub mod calibrate;
 pub mod demo;
 pub mod eval;
+pub mod model;
 pub mod progress;
 pub mod register;
 pub mod replay;
@@ -178,6 +179,10 @@ pub enum Command {
         #[arg(long, value_name = "DIR")]
         vtk: Option<PathBuf>,
     },
+    /// The patient model straight from a segmentation labelmap (.nii, .nii.gz, .nrrd,
+    /// .seg.nrrd): the organ's closed surface, tumours as meshes, vessels as points, and a scene
+    /// file naming them (docs/segmentation.md).
+    Model(model::ModelArgs),
     /// Re-runs a recorded session through this build and compares: the largest difference of
     /// surface vertices and structures (mm) per frame and overall; exits non-zero beyond the
     /// tolerance.
@@ -226,6 +231,7 @@ pub fn run(cli: Cli) -> ExitCode {
         Command::Bench(args) => bench::run(&args).map(|_| ()),
         Command::Calibrate(args) => calibrate::run(&args).map(|_| ()),
         Command::Replay(args) => replay::run(&args).map(|_| ()),
+        Command::Model(args) => model::run(&args).map(|_| ()),
         Command::Serve(args) => serve::run(&args),
     };
     match result {

@@ -136,7 +136,7 @@ fn write_object(
 
 /// `name` reduced to `A–Z a–z 0–9 - _` (others become `_`, empty becomes `structure`),
 /// suffixed `-2`, `-3`, … when already in `taken`.
-fn unique_stem(name: &str, taken: &mut HashSet<String>) -> String {
+pub(crate) fn unique_stem(name: &str, taken: &mut HashSet<String>) -> String {
     let mut base: String = name
         .chars()
         .map(|c| {

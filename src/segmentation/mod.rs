@@ -22,6 +22,7 @@ pub mod error;
 pub mod isosurface;
 pub mod labelmap;
 pub mod mask;
+pub mod model;
 pub mod nifti;
 pub mod nrrd;
 pub mod samples;
@@ -37,6 +38,7 @@ use std::path::Path;
 pub use decimate::{decimate, Decimation};
 pub use error::SegmentationError;
 pub use labelmap::{Labelmap, Segment, MAX_VOXELS};
+pub use model::{derive_model, DerivedModel, ModelRequest, DEFAULT_MAX_POINTS};
 pub use nifti::{read_nifti, read_nifti_with_transform, NiftiTransform};
 pub use nrrd::{read_nrrd, read_nrrd_layers};
 pub use structure::{
