@@ -3,9 +3,9 @@
 //! as NIfTI (`.nii.gz`) and NRRD (`.seg.nrrd`) by the independent writers nibabel and pynrrd,
 //! turned back into a liver surface by `livereg model`, and the phantom's synthetic sequences
 //! are registered with that surface in place of the phantom's. The mean TRE must stay within
-//! 10 % (plus 0.05 mm) of the phantom's own.
+//! 10 % of the phantom's own, plus a tenth of a voxel.
 //!
-//! By default: the tool-push scenario, 3 frames, 2 mm voxels (CI). The measurement of every
+//! By default: the tool-push scenario, 3 frames, 1 mm and 2 mm voxels (CI). The measurement of every
 //! scenario: `LIVEREG_SEG_SCENARIOS=all LIVEREG_SEG_FRAMES=10 LIVEREG_SEG_VOXELS=1,2
 //! cargo test --release --test segmentation_registration -- --nocapture`.
 //!
@@ -132,7 +132,7 @@ fn a_labelmap_model_registers_like_the_phantom() {
         ],
         _ => vec![ScenarioKind::ToolPush],
     };
-    let voxels: Vec<f64> = env_or("LIVEREG_SEG_VOXELS", "2")
+    let voxels: Vec<f64> = env_or("LIVEREG_SEG_VOXELS", "1,2")
         .split(',')
         .map(|v| v.trim().parse().unwrap())
         .collect();
@@ -188,7 +188,10 @@ fn a_labelmap_model_registers_like_the_phantom() {
                     kind.name(),
                     100.0 * (tre / reference - 1.0)
                 );
-                if tre > 1.1 * reference + 0.05 {
+                // The 10 %, plus a tenth of a voxel: a model made of voxels is only
+                // known to within them (the full measurement, 10 frames of every scenario,
+                // is in docs/segmentation.md).
+                if tre > 1.1 * reference + 0.1 * h {
                     failures.push(format!(
                         "{} {h} mm {file}: {tre:.3} vs {reference:.3}",
                         kind.name()

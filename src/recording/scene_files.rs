@@ -129,11 +129,14 @@ impl SceneFiles {
                 RecordingError::Scene(format!("recorded scene `{}`: {e}", self.name))
             })?,
         };
+        // A scene whose model was derived from a labelmap is recorded with the derived files
+        // under the ordinary keys: the derivation keys go (replay uses the recorded model).
+        strip_derivation_keys(&mut doc);
         for (i, (key, path, bytes)) in self.files.iter().enumerate() {
             let rel = format!("files/{i:02}-{}", file_name(path));
             let target = dir.join(&rel);
             std::fs::write(&target, bytes).map_err(|e| io(&target, e))?;
-            set_key(&mut doc, key, Value::String(rel), false)
+            set_key(&mut doc, key, Value::String(rel), true)
                 .map_err(|e| RecordingError::Scene(format!("recorded scene: {e}")))?;
         }
         for o in overrides {
@@ -181,6 +184,23 @@ fn file_name(p: &Path) -> String {
     p.file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_else(|| "file".into())
+}
+
+/// Removes `model.segmentation`, `model.label`, `model.target_triangles` and the
+/// structures' `mesh_label` / `points_label` from a scene document.
+fn strip_derivation_keys(doc: &mut Value) {
+    let Some(model) = doc.get_mut("model").and_then(Value::as_object_mut) else {
+        return;
+    };
+    for k in ["segmentation", "label", "target_triangles"] {
+        model.remove(k);
+    }
+    if let Some(structures) = model.get_mut("structures").and_then(Value::as_array_mut) {
+        for s in structures.iter_mut().filter_map(Value::as_object_mut) {
+            s.remove("mesh_label");
+            s.remove("points_label");
+        }
+    }
 }
 
 /// A `--set` value: a TOML value (`0.5`, `true`, `"icp"`, `[1, 2, 3]`), else the text itself.

@@ -136,6 +136,14 @@ fn load_scene_str_impl(
     let mut problems = validate_scene(&scene);
     resolve_paths(&mut scene, &dir);
     check_files(&scene, &mut problems);
+    if scene.model.segmentation.is_some() && problems.is_empty() {
+        if let Err(message) = super::derived_model::derive_into(&mut scene, &dir) {
+            problems.push(Problem {
+                key: "model.segmentation".into(),
+                message,
+            });
+        }
+    }
     if scene.grid.cell_size_omitted() && problems.is_empty() {
         let derived = crate::mesh::read_surface(&scene.model.surface)
             .map_err(|e| e.to_string())
@@ -293,6 +301,9 @@ fn resolve_paths(scene: &mut Scene, dir: &Path) {
         }
     };
     r(&mut scene.model.surface);
+    if let Some(p) = &mut scene.model.segmentation {
+        r(p);
+    }
     for s in &mut scene.model.structures {
         if let Some(p) = &mut s.points {
             r(p);
@@ -330,6 +341,9 @@ fn check_files(scene: &Scene, problems: &mut Vec<Problem>) {
         problems.push(Problem { key, message });
     };
     check("model.surface".into(), &scene.model.surface);
+    if let Some(p) = &scene.model.segmentation {
+        check("model.segmentation".into(), p);
+    }
     for (i, s) in scene.model.structures.iter().enumerate() {
         if let Some(p) = &s.points {
             check(format!("model.structures[{i}].points"), p);

@@ -10,6 +10,7 @@
 //! [`LoadedScene::length_scale`]. The full reference is `docs/scene.md`.
 
 pub mod derived_cell_size;
+pub mod derived_model;
 mod error;
 mod load;
 mod output;
@@ -24,9 +25,9 @@ pub use load::{load_scene, load_scene_str, parse_scene, LoadedScene, SceneFormat
 pub use output::{GridSummary, ProbeResult, SimulateReport};
 pub use types::{
     defaults, BoundarySpec, BoxRegion, Camera, DataTerm, FixedRegion, FixedSpec, GridSpec,
-    IntegrationMode, LawKind, LoadSpec, MaterialSpec, ModelSpec, PointSource, PoseUpdate,
-    ProbeSpec, RegistrationSpec, RigidMode, Scene, SolverKind, SolverSpec, StructureSpec,
-    SupportSpec, TractionSpec, Units, Vec3, VolumetricIntegration,
+    IntegrationMode, Label, Labels, LawKind, LoadSpec, MaterialSpec, ModelSpec, PointSource,
+    PoseUpdate, ProbeSpec, RegistrationSpec, RigidMode, Scene, SolverKind, SolverSpec,
+    StructureSpec, SupportSpec, TractionSpec, Units, Vec3, VolumetricIntegration,
 };
 pub use validate::{
     validate_scene, MAX_BISECTIONS, MAX_LOAD_STEPS, MAX_STEP_STABILIZATION, MAX_SUBDIVISIONS,

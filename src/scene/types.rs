@@ -148,9 +148,20 @@ pub struct Scene {
 #[serde(deny_unknown_fields)]
 pub struct ModelSpec {
     /// Closed triangle surface (`.obj .stl .ply .off .vtk .vtp`, or the triangles of a Gmsh 2.2
-    /// `.msh`),
-    /// coordinates in scene units. Required.
+    /// `.msh`), coordinates in scene units. Required unless `segmentation` is given; then it
+    /// is the surface derived on load.
+    #[serde(default, skip_serializing_if = "path_is_empty")]
     pub surface: PathBuf,
+    /// A segmentation labelmap (`.nii`, `.nii.gz`, `.nrrd`, `.seg.nrrd`; LPS millimetres) the
+    /// surface is derived from on load, instead of `surface` (docs/segmentation.md).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub segmentation: Option<PathBuf>,
+    /// The organ's label(s) in `segmentation`: a value, a segment name, or a list of them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub label: Option<Labels>,
+    /// Triangles of the surface derived from `segmentation` (default 20 000).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target_triangles: Option<usize>,
     /// `[[model.structures]]`: internal structures carried along by the deformation.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub structures: Vec<StructureSpec>,
@@ -170,6 +181,50 @@ pub struct StructureSpec {
     /// A surface mesh (same formats as `model.surface`, scene units) whose vertices are carried.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mesh: Option<PathBuf>,
+    /// Label(s) of `model.segmentation` made into a closed mesh on load (a tumour).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh_label: Option<Labels>,
+    /// Label(s) of `model.segmentation` made into points on load (vessels: voxel centres).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub points_label: Option<Labels>,
+}
+
+/// One label of a labelmap: its value or its segment name.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(untagged)]
+pub enum Label {
+    /// A voxel value.
+    Value(u16),
+    /// A segment name (3D Slicer's), matched exactly, then ignoring case.
+    Name(String),
+}
+
+/// One label or several (united).
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(untagged)]
+pub enum Labels {
+    /// One label.
+    One(Label),
+    /// Several labels, united.
+    Many(Vec<Label>),
+}
+
+impl Labels {
+    /// The labels as the segmentation module takes them.
+    pub fn refs(&self) -> Vec<crate::segmentation::LabelRef> {
+        let one = |l: &Label| match l {
+            Label::Value(v) => crate::segmentation::LabelRef::Value(*v),
+            Label::Name(n) => crate::segmentation::LabelRef::Name(n.clone()),
+        };
+        match self {
+            Labels::One(l) => vec![one(l)],
+            Labels::Many(ls) => ls.iter().map(one).collect(),
+        }
+    }
+}
+
+fn path_is_empty(p: &PathBuf) -> bool {
+    p.as_os_str().is_empty()
 }
 
 /// `[grid]`: the regular grid of hexahedral cells laid over the surface.

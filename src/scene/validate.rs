@@ -135,12 +135,46 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
     };
 
     // model
-    c.extension(
-        "model.surface",
-        &scene.model.surface,
-        SURFACE_EXTENSIONS,
-        "surface",
-    );
+    let m = &scene.model;
+    match (&m.segmentation, m.surface.as_os_str().is_empty()) {
+        (None, _) => c.extension("model.surface", &m.surface, SURFACE_EXTENSIONS, "surface"),
+        (Some(seg), true) => {
+            let name = seg.to_string_lossy().to_ascii_lowercase();
+            if ![".nii", ".nii.gz", ".nrrd"]
+                .iter()
+                .any(|e| name.ends_with(e))
+            {
+                c.fail(
+                    "model.segmentation",
+                    format!(
+                        "`{}`: unsupported labelmap format (expected .nii .nii.gz .nrrd .seg.nrrd)",
+                        seg.display()
+                    ),
+                );
+            }
+            if m.label.is_none() {
+                c.fail(
+                    "model.label",
+                    "`model.segmentation` needs the organ's `label` (a value or a segment name)",
+                );
+            }
+        }
+        (Some(_), false) => c.fail(
+            "model",
+            "both `surface` and `segmentation` are given; give exactly one",
+        ),
+    }
+    if m.segmentation.is_none() {
+        for key in [
+            ("model.label", m.label.is_some()),
+            ("model.target_triangles", m.target_triangles.is_some()),
+        ]
+        .iter()
+        .filter(|k| k.1)
+        {
+            c.fail(key.0, "only meaningful with `model.segmentation`");
+        }
+    }
     let mut seen: Vec<&str> = Vec::new();
     for (i, s) in scene.model.structures.iter().enumerate() {
         let k = format!("model.structures[{i}]");
@@ -158,19 +192,40 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
         } else {
             seen.push(name);
         }
+        let from_labels = s.mesh_label.is_some() || s.points_label.is_some();
+        if from_labels && m.segmentation.is_none() {
+            c.fail(
+                &k,
+                format!(
+                    "structure {:?}: `mesh_label` / `points_label` need `model.segmentation`",
+                    s.name
+                ),
+            );
+        }
+        let given = [
+            s.points.is_some(),
+            s.mesh.is_some(),
+            s.mesh_label.is_some(),
+            s.points_label.is_some(),
+        ]
+        .iter()
+        .filter(|g| **g)
+        .count();
         match (&s.points, &s.mesh) {
+            _ if given > 1 => c.fail(
+                &k,
+                format!(
+                    "structure {:?} has more than one of `points`, `mesh`, `mesh_label`, \
+                     `points_label`; give exactly one",
+                    s.name
+                ),
+            ),
             (Some(p), None) => {
                 c.extension(&format!("{k}.points"), p, POINT_EXTENSIONS, "point file")
             }
             (None, Some(m)) => c.extension(&format!("{k}.mesh"), m, SURFACE_EXTENSIONS, "mesh"),
-            (Some(_), Some(_)) => c.fail(
-                &k,
-                format!(
-                    "structure {:?} has both `points` and `mesh`; give exactly one",
-                    s.name
-                ),
-            ),
-            (None, None) => c.fail(
+            _ if given == 1 => {}
+            _ => c.fail(
                 &k,
                 format!(
                     "structure {:?} has neither `points` nor `mesh`; give exactly one",

@@ -205,6 +205,13 @@ pub fn materialize(
     let scene = parse_scene(&upload.scene, format, Path::new(scene_name))
         .map_err(|e| ApiError::invalid_scene(e.to_string()))?;
     check_scene_work(limits, &scene)?;
+    if scene.model.segmentation.is_some() {
+        return Err(ApiError::invalid_scene(
+            "model.segmentation is not accepted in uploaded scenes (a labelmap can inflate to \
+             gigabytes): derive the model with `livereg model` and upload its surface and \
+             structure files",
+        ));
+    }
     for name in upload.files.keys() {
         check_file_name(name)?;
         if name == scene_name {
