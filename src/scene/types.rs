@@ -223,7 +223,7 @@ impl Labels {
     }
 }
 
-fn path_is_empty(p: &PathBuf) -> bool {
+fn path_is_empty(p: &std::path::Path) -> bool {
     p.as_os_str().is_empty()
 }
 
