@@ -136,6 +136,13 @@ async fn pyigtl_streams_frames_and_the_server_survives_hostile_messages() {
     config.igtl_bind = Some("127.0.0.1:0".parse().unwrap());
     config.igtl_scene = Some(case.join("scene.toml"));
     config.limits.max_body_bytes = 4 << 20;
+    // register's frame, for comparison; the RAS default is checked at the end.
+    config.igtl_coordinates = livereg::server::config::IgtlCoordinates::Lps;
+    let ras_config = livereg::server::ServerConfig {
+        igtl_coordinates: livereg::server::config::IgtlCoordinates::Ras,
+        data_dir: config.data_dir.join("ras"),
+        ..config.clone()
+    };
     let server = start(config).await;
     let port = server.igtl_addr.expect("OpenIGTLink listens").port();
     let frames = frames_of(&case);
@@ -343,6 +350,58 @@ async fn pyigtl_streams_frames_and_the_server_survives_hostile_messages() {
         .metrics
         .counter("livereg_igtl_messages_total", "refused");
     assert!(refused >= 5, "refusals counted: {refused}");
+    drop(s);
+    server.shutdown().await.unwrap();
+
+    // The default: clients speak RAS (3D Slicer's world). The same frame sent in RAS gives
+    // register's targets in RAS, and the model-to-reference transform conjugated to RAS.
+    let server = start(ras_config).await;
+    let mut s = TcpStream::connect(server.igtl_addr.unwrap()).await.unwrap();
+    let ras: Vec<Point3<f64>> = frames[0]
+        .iter()
+        .map(|p| Point3::new(-p.x, -p.y, p.z))
+        .collect();
+    s.write_all(&cloud_message(&ras, 0).encode(HeaderVersion::V2).unwrap())
+        .await
+        .unwrap();
+    let transform = next_from(&mut s, "LiverToReference").await;
+    let targets = next_from(&mut s, "Targets").await;
+    let Content::Point(points) = &targets.message.content else {
+        panic!("Targets is a POINT message")
+    };
+    let want = reference[0]["structures"]["targets"].as_array().unwrap();
+    for (p, w) in points.points.iter().zip(want) {
+        let w = [
+            w[0].as_f64().unwrap(),
+            w[1].as_f64().unwrap(),
+            w[2].as_f64().unwrap(),
+        ];
+        let d = (p.position - Point3::new(-w[0], -w[1], w[2])).norm();
+        assert!(
+            d < 1e-4,
+            "RAS target {} vs register's {w:?} in RAS",
+            p.position
+        );
+    }
+    let Content::Transform(t) = &transform.message.content else {
+        panic!("LiverToReference is a TRANSFORM")
+    };
+    let flip = [-1.0, -1.0, 1.0];
+    for r in 0..3 {
+        for c in 0..3 {
+            let want =
+                flip[r] * flip[c] * reference[0]["rigid"]["rotation"][r][c].as_f64().unwrap();
+            assert!(
+                (t.matrix[(r, c)] - want).abs() < 1e-5,
+                "RAS rotation ({r},{c})"
+            );
+        }
+        let want = flip[r] * reference[0]["rigid"]["translation"][r].as_f64().unwrap();
+        assert!(
+            (t.matrix[(r, 3)] - want).abs() < 1e-4,
+            "RAS translation {r}"
+        );
+    }
     drop(s);
     server.shutdown().await.unwrap();
 }

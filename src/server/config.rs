@@ -152,6 +152,9 @@ pub struct ServerConfig {
     /// Serve OpenIGTLink on a non-loopback address without TLS (the protocol has no
     /// authentication: anyone who reaches the port can stream and read results).
     pub igtl_allow_remote: bool,
+    /// The coordinates OpenIGTLink clients speak: `"ras"` (the default: 3D Slicer's world;
+    /// x and y change sign between them and the LPS model) or `"lps"` (taken as they are).
+    pub igtl_coordinates: IgtlCoordinates,
     /// Limits.
     pub limits: LimitsConfig,
 }
@@ -184,9 +187,21 @@ impl Default for ServerConfig {
             igtl_scene: None,
             igtl_device_scenes: Default::default(),
             igtl_allow_remote: false,
+            igtl_coordinates: IgtlCoordinates::Ras,
             limits: LimitsConfig::default(),
         }
     }
+}
+
+/// The patient coordinates of OpenIGTLink clients (the model's are LPS).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum IgtlCoordinates {
+    /// Right-anterior-superior: 3D Slicer's world (the default).
+    #[default]
+    Ras,
+    /// Left-posterior-superior: DICOM/ITK, and the model's own.
+    Lps,
 }
 
 /// Environment variables read by [`ServerConfig::apply_env`], with the key each sets.

@@ -62,6 +62,8 @@ const CONNECTION_BUFFER: usize = 16;
 pub struct IgtlScenes {
     default: Option<Arc<SceneUpload>>,
     by_device: HashMap<String, Arc<SceneUpload>>,
+    /// Clients speak RAS (3D Slicer's world): x and y change sign both ways.
+    ras: bool,
 }
 
 impl IgtlScenes {
@@ -70,6 +72,7 @@ impl IgtlScenes {
     pub fn load(
         default: Option<&Path>,
         by_device: &std::collections::BTreeMap<String, std::path::PathBuf>,
+        coordinates: super::config::IgtlCoordinates,
     ) -> Result<Self, String> {
         let read = |key: &str, path: &Path| -> Result<Arc<SceneUpload>, String> {
             let loaded = load_scene(path).map_err(|e| format!("{key}: {e}"))?;
@@ -100,6 +103,7 @@ impl IgtlScenes {
             }))
         };
         Ok(Self {
+            ras: coordinates == super::config::IgtlCoordinates::Ras,
             default: default.map(|p| read("igtl_scene", p)).transpose()?,
             by_device: by_device
                 .iter()
@@ -310,6 +314,7 @@ pub async fn serve_connection<S>(
                         device.clone(),
                         out_tx.clone(),
                         version.clone(),
+                        scenes.ras,
                     )));
                     sessions.insert(
                         device.clone(),
@@ -341,7 +346,10 @@ pub async fn serve_connection<S>(
                 seq,
                 frame: Frame {
                     source: format!("igtl-{device}-{seq}"),
-                    points: points.iter().map(|p| p * scale_to_scene).collect(),
+                    points: points
+                        .iter()
+                        .map(|p| flip(p, scenes.ras) * scale_to_scene)
+                        .collect(),
                     camera: None,
                 },
             };
@@ -419,11 +427,12 @@ async fn forward_results(
     device: String,
     out: mpsc::Sender<Outgoing>,
     version: Arc<AtomicU8>,
+    ras: bool,
 ) {
     while let Some(ev) = rx.recv().await {
         let v = current_version(&version);
         let encoded = match ev {
-            StreamEvent::Result(c) => result_messages(&c, &handle)
+            StreamEvent::Result(c) => result_messages(&c, &handle, ras)
                 .into_iter()
                 .map(|mut m| {
                     // Header version 1 carries no metadata.
@@ -459,10 +468,12 @@ fn current_version(v: &AtomicU8) -> HeaderVersion {
 /// POLYDATA `DeformedLiver`, a POLYDATA per mesh structure, POINT `Targets` (every point of
 /// the point structures, named `<structure>-<k>`, grouped by structure), and a STATUS when
 /// the frame failed (the positions are then the last good state's).
-pub fn result_messages(c: &Completed, handle: &SessionHandle) -> Vec<Message> {
+pub fn result_messages(c: &Completed, handle: &SessionHandle, ras: bool) -> Vec<Message> {
     let r = &c.result;
     let to_mm = handle.info.length_scale * 1e3;
-    let mm = |ps: &[Point3<f64>]| -> Vec<Point3<f64>> { ps.iter().map(|p| p * to_mm).collect() };
+    let mm = |ps: &[Point3<f64>]| -> Vec<Point3<f64>> {
+        ps.iter().map(|p| flip(&(p * to_mm), ras)).collect()
+    };
     let meta = |m: &mut Message| {
         m.message_id = c.seq as u32;
         m.timestamp = Timestamp::now();
@@ -476,9 +487,19 @@ pub fn result_messages(c: &Completed, handle: &SessionHandle) -> Vec<Message> {
     };
     let mut out = Vec::new();
     let t = &r.model_to_cloud;
+    // In RAS, both the model's and the reference's coordinates: F T F, F = diag(−1, −1, 1).
+    let f = nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(-1.0, -1.0, 1.0));
+    let (rotation, translation) = if ras {
+        (
+            nalgebra::Rotation3::from_matrix_unchecked(f * t.rotation.matrix() * f),
+            f * t.translation * 1e3,
+        )
+    } else {
+        (t.rotation, t.translation * 1e3)
+    };
     let iso = Isometry3::from_parts(
-        Translation3::from(t.translation * 1e3),
-        UnitQuaternion::from_rotation_matrix(&t.rotation),
+        Translation3::from(translation),
+        UnitQuaternion::from_rotation_matrix(&rotation),
     );
     out.push(Message::new(
         LIVER_TO_REFERENCE_DEVICE,
@@ -527,6 +548,15 @@ pub fn result_messages(c: &Completed, handle: &SessionHandle) -> Vec<Message> {
         meta(m);
     }
     out
+}
+
+/// `p` turned between LPS and RAS (x and y change sign) when `ras`.
+fn flip(p: &Point3<f64>, ras: bool) -> Point3<f64> {
+    if ras {
+        Point3::new(-p.x, -p.y, p.z)
+    } else {
+        *p
+    }
 }
 
 /// A device name for structure `name`: printable ASCII, at most 20 bytes.

@@ -220,8 +220,11 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
     }
     let mut igtl_addr = None;
     if let Some(addr) = config.igtl_bind {
-        let scenes =
-            igtl::IgtlScenes::load(config.igtl_scene.as_deref(), &config.igtl_device_scenes)?;
+        let scenes = igtl::IgtlScenes::load(
+            config.igtl_scene.as_deref(),
+            &config.igtl_device_scenes,
+            config.igtl_coordinates,
+        )?;
         let l = tokio::net::TcpListener::bind(addr)
             .await
             .map_err(|e| format!("cannot listen on {addr} (igtl_bind): {e}"))?;
