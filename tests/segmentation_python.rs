@@ -7,7 +7,6 @@
 //! test fails, never skips, when they are missing.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use livereg::mesh::{read_obj, validate, TriSurface};
 use livereg::segmentation::{
@@ -19,7 +18,7 @@ use parry3d::math::Vector;
 use parry3d::query::PointQuery;
 use parry3d::shape::TriMesh;
 
-const PIP: &str = "python3 -m pip install nibabel==5.4.2 pynrrd==1.1.3 numpy";
+mod common;
 
 fn fixture(name: &str) -> TriSurface {
     read_obj(
@@ -30,36 +29,16 @@ fn fixture(name: &str) -> TriSurface {
     .unwrap()
 }
 
-/// Index → LPS affine: rotation, isotropic `h` mm voxels, optionally mirrored; the translation
-/// puts the surfaces' index-space bounding box, with a 3-voxel margin, at the grid's start.
+/// Index → LPS affine: rotation, isotropic `h` mm voxels, optionally mirrored, over the
+/// surface with a 3-voxel margin.
 fn grid_for(
     surface: &TriSurface,
     h: f64,
     rotation: Rotation3<f64>,
     mirror: bool,
 ) -> ([usize; 3], Matrix4<f64>) {
-    let mut scale = Vector3::new(h, h, h);
-    if mirror {
-        scale.y = -h;
-    }
-    let mut a = Matrix4::identity();
-    a.fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(rotation.matrix() * nalgebra::Matrix3::from_diagonal(&scale)));
-    let inv = a.try_inverse().unwrap();
-    let mut lo = [f64::MAX; 3];
-    let mut hi = [f64::MIN; 3];
-    for p in &surface.vertices {
-        let q = inv.transform_point(p);
-        for k in 0..3 {
-            lo[k] = lo[k].min(q[k]);
-            hi[k] = hi[k].max(q[k]);
-        }
-    }
-    let start = lo.map(|l| l.floor() - 3.0);
-    let dims = [0, 1, 2].map(|k| (hi[k] - start[k]).ceil() as usize + 4);
-    let t = a.transform_point(&Point3::new(start[0], start[1], start[2]));
-    a.fixed_view_mut::<3, 1>(0, 3).copy_from(&t.coords);
-    (dims, a)
+    let spacing = Vector3::new(h, if mirror { -h } else { h }, h);
+    common::labelmaps::grid_for(surface, spacing, rotation)
 }
 
 struct TempDir(PathBuf);
@@ -79,26 +58,7 @@ fn write_with_python(
 ) -> TempDir {
     let dir = std::env::temp_dir().join(format!("livereg-segpy-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    let bytes: Vec<u8> = labels.iter().flat_map(|l| l.to_le_bytes()).collect();
-    std::fs::write(dir.join("labels.u16"), bytes).unwrap();
-    let rows: Vec<Vec<f64>> = (0..4)
-        .map(|r| (0..4).map(|c| affine[(r, c)]).collect())
-        .collect();
-    let meta = serde_json::json!({ "dims": dims, "affine_lps": rows });
-    std::fs::write(dir.join("meta.json"), meta.to_string()).unwrap();
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/write_labelmaps.py");
-    let out = Command::new("python3")
-        .arg(&script)
-        .arg(&dir)
-        .output()
-        .unwrap_or_else(|e| panic!("python3 does not run ({e}); install it and: {PIP}"));
-    assert!(
-        out.status.success(),
-        "the Python writers failed (are they installed? {PIP}):\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    eprintln!("{}", String::from_utf8_lossy(&out.stdout).trim());
+    common::labelmaps::write_with_python(&dir, labels, dims, affine);
     TempDir(dir)
 }
 

@@ -12,43 +12,17 @@
 //! Needs `python3 -m pip install nibabel==5.4.2 pynrrd==1.1.3 numpy` (fails without).
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
-use livereg::mesh::{read_obj, TriSurface};
+use livereg::mesh::read_obj;
 use livereg::segmentation::voxelise_into;
 use livereg::synthetic::{generate_sequence, write_sequence, ScenarioKind, SequenceSpec};
-use nalgebra::{Matrix3, Matrix4, Point3, Rotation3, Vector3};
+use nalgebra::{Rotation3, Vector3};
 use serde_json::Value;
 
 mod common;
 
-const PIP: &str = "python3 -m pip install nibabel==5.4.2 pynrrd==1.1.3 numpy";
-
 fn env_or(key: &str, default: &str) -> String {
     std::env::var(key).unwrap_or_else(|_| default.to_string())
-}
-
-/// Index → LPS affine: rotated, `h × h × 1.25h` mm voxels; the grid covers `s` with 3 voxels
-/// to spare.
-fn grid_for(s: &TriSurface, h: f64) -> ([usize; 3], Matrix4<f64>) {
-    let r = Rotation3::from_euler_angles(0.15, -0.1, 0.35);
-    let mut a = Matrix4::identity();
-    a.fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(r.matrix() * Matrix3::from_diagonal(&Vector3::new(h, h, 1.25 * h))));
-    let inv = a.try_inverse().unwrap();
-    let (mut lo, mut hi) = ([f64::MAX; 3], [f64::MIN; 3]);
-    for p in &s.vertices {
-        let q = inv.transform_point(p);
-        for k in 0..3 {
-            lo[k] = lo[k].min(q[k]);
-            hi[k] = hi[k].max(q[k]);
-        }
-    }
-    let start = lo.map(|l| l.floor() - 3.0);
-    let dims = [0, 1, 2].map(|k| (hi[k] - start[k]).ceil() as usize + 4);
-    let t = a.transform_point(&Point3::new(start[0], start[1], start[2]));
-    a.fixed_view_mut::<3, 1>(0, 3).copy_from(&t.coords);
-    (dims, a)
 }
 
 /// Voxelises the phantom (liver 1, tumour 2) at `h` mm and has Python write it; the
@@ -56,30 +30,14 @@ fn grid_for(s: &TriSurface, h: f64) -> ([usize; 3], Matrix4<f64>) {
 fn labelmaps(phantom: &Path, h: f64, out: &Path) -> PathBuf {
     let liver = read_obj(&phantom.join("liver.obj")).unwrap();
     let tumour = read_obj(&phantom.join("tumour.obj")).unwrap();
-    let (dims, affine) = grid_for(&liver, h);
+    let rotation = Rotation3::from_euler_angles(0.15, -0.1, 0.35);
+    let (dims, affine) =
+        common::labelmaps::grid_for(&liver, Vector3::new(h, h, 1.25 * h), rotation);
     let mut labels = vec![0u16; dims.iter().product()];
     voxelise_into(&liver, dims, &affine, &mut labels, 1).unwrap();
     voxelise_into(&tumour, dims, &affine, &mut labels, 2).unwrap();
     let dir = out.join(format!("labelmap-{h}mm"));
-    std::fs::create_dir_all(&dir).unwrap();
-    let bytes: Vec<u8> = labels.iter().flat_map(|l| l.to_le_bytes()).collect();
-    std::fs::write(dir.join("labels.u16"), bytes).unwrap();
-    let rows: Vec<Vec<f64>> = (0..4)
-        .map(|r| (0..4).map(|c| affine[(r, c)]).collect())
-        .collect();
-    let meta = serde_json::json!({ "dims": dims, "affine_lps": rows });
-    std::fs::write(dir.join("meta.json"), meta.to_string()).unwrap();
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/write_labelmaps.py");
-    let o = Command::new("python3")
-        .arg(&script)
-        .arg(&dir)
-        .output()
-        .unwrap_or_else(|e| panic!("python3 does not run ({e}); {PIP}"));
-    assert!(
-        o.status.success(),
-        "the Python writers failed ({PIP}): {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    common::labelmaps::write_with_python(&dir, &labels, dims, &affine);
     dir
 }
 

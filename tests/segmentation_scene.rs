@@ -208,3 +208,49 @@ fn segmentation_keys_are_checked() {
         }
     }
 }
+
+/// The contract's form, `livereg model LABELMAP --out DIR`: the model read off the labelmap's
+/// segments (the liver, a tumour as a mesh, the portal vein as points), and a scene that loads.
+#[test]
+fn model_without_labels_reads_the_segments() {
+    let d = dir("model");
+    write_nrrd(&d.join("seg.nrrd"));
+    let out = d.join("model");
+    let (code, stdout, err) = common::livereg(&[
+        "model",
+        d.join("seg.nrrd").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let summary: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(summary["watertight"], true);
+    let v = summary["volume_ml"].as_f64().unwrap();
+    let ball = 4.0 / 3.0 * PI * 24f64.powi(3) * 1e-3;
+    assert!((v / ball - 1.0).abs() < 0.03, "{v} mL vs {ball}");
+    let loaded = load_scene(&out.join("scene.toml")).unwrap();
+    let names: Vec<&str> = loaded
+        .scene
+        .model
+        .structures
+        .iter()
+        .map(|s| s.name.as_str())
+        .collect();
+    assert_eq!(names, ["tumour", "portal vein"]);
+    assert!(loaded.scene.model.structures[0].mesh.is_some());
+    let vessels = read_points(loaded.scene.model.structures[1].points.as_ref().unwrap()).unwrap();
+    assert!(vessels
+        .iter()
+        .all(|p| ((p.x + 10.0).powi(2) + p.z * p.z).sqrt() <= 2.0 + 1e-9));
+    // --mesh without --label is refused with the reason.
+    let (code, _, err) = common::livereg(&[
+        "model",
+        d.join("seg.nrrd").to_str().unwrap(),
+        "--mesh",
+        "t=2",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_ne!(code, 0);
+    assert!(err.contains("--label"), "{err}");
+}

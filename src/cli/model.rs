@@ -12,7 +12,10 @@ use serde::Serialize;
 
 use crate::mesh::vtk::VtkPolyData;
 use crate::mesh::{write_obj, write_points, write_vtk, TriSurface};
-use crate::segmentation::{derive_model, LabelRef, ModelRequest, SurfaceOptions};
+use crate::segmentation::{
+    default_request, derive_model_from, read_labelmap, DerivedModel, LabelRef, ModelRequest,
+    SurfaceOptions,
+};
 
 /// Surface file format of `model`'s output.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -40,8 +43,12 @@ impl ModelFormat {
 pub struct ModelArgs {
     /// The labelmap: `.nii`, `.nii.gz`, `.nrrd` or `.seg.nrrd` (docs/segmentation.md).
     pub segmentation: PathBuf,
-    /// The organ: a label value or a segment name (repeat to unite several labels).
-    #[arg(long, required = true)]
+    /// The organ: a label value or a segment name (repeat to unite several labels). Without
+    /// it (and without --mesh / --points) the model is read off the labelmap: the segment
+    /// named like "liver" (else the only label, else label 1) is the organ, every other label
+    /// a structure — points when its name says vessel, vein, artery, portal, hepatic or cava,
+    /// a closed mesh otherwise.
+    #[arg(long)]
     pub label: Vec<String>,
     /// A structure as a closed mesh, e.g. `--mesh tumour=2` or `--mesh "tumour=Tumor 1"`
     /// (repeatable; labels separated by `+` are united).
@@ -113,7 +120,28 @@ pub fn named_labels(flag: &str, s: &str) -> Result<(String, Vec<LabelRef>), Stri
 
 /// Runs the command.
 pub fn run(args: &ModelArgs) -> Result<ModelSummary, String> {
-    let request = ModelRequest {
+    let t0 = std::time::Instant::now();
+    let map = read_labelmap(&args.segmentation).map_err(|e| e.to_string())?;
+    let read_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let mut request = if args.label.is_empty() {
+        if !args.meshes.is_empty() || !args.points.is_empty() {
+            return Err("--mesh and --points need the organ's --label".into());
+        }
+        default_request(&map, &args.segmentation).map_err(|e| e.to_string())?
+    } else {
+        explicit_request(args)?
+    };
+    request.organ_options.target_triangles = args.target_triangles;
+    request.max_points = args.max_points.max(1);
+    let model = derive_model_from(&map, &args.segmentation, &request, read_ms)
+        .map_err(|e| e.to_string())?;
+    drop(map);
+    write_model(args, &model)
+}
+
+/// The request the flags name.
+fn explicit_request(args: &ModelArgs) -> Result<ModelRequest, String> {
+    Ok(ModelRequest {
         organ: args
             .label
             .iter()
@@ -134,8 +162,11 @@ pub fn run(args: &ModelArgs) -> Result<ModelSummary, String> {
             ..SurfaceOptions::default()
         },
         max_points: args.max_points.max(1),
-    };
-    let model = derive_model(&args.segmentation, &request).map_err(|e| e.to_string())?;
+    })
+}
+
+/// Writes `model` into `args.out` with its scene; the summary, also printed.
+fn write_model(args: &ModelArgs, model: &DerivedModel) -> Result<ModelSummary, String> {
     std::fs::create_dir_all(&args.out)
         .map_err(|e| format!("{}: cannot create: {e}", args.out.display()))?;
     let ext = args.format.extension();

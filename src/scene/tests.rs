@@ -11,7 +11,7 @@ use crate::scene::PoseUpdate;
 const CONTRACT_EXAMPLE: &str = r#"units = "m"                      # "m" | "cm" | "mm"
 
 [model]
-surface = "liver.obj"            # closed triangle surface: .obj .stl .ply .off, Gmsh 2.2 .msh (its triangles)
+surface = "liver.obj"            # closed triangle surface: .obj .stl .ply .off .vtk .vtp, Gmsh 2.2 .msh (its triangles)
 
 [[model.structures]]             # internal structures, carried along by the deformation
 name = "nodes"
@@ -470,7 +470,11 @@ fn missing_required_keys() {
     );
     toml_error(
         &MINIMAL.replace("surface = \"liver.obj\"", ""),
-        &["missing field `surface`", "model.surface"],
+        &[
+            "model.surface",
+            "missing: give `surface`",
+            "or `segmentation`",
+        ],
     );
     let e = toml_error("units = \"m\"\n", &["missing field `model`"]);
     assert!(

@@ -137,7 +137,11 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
     // model
     let m = &scene.model;
     match (&m.segmentation, m.surface.as_os_str().is_empty()) {
-        (None, _) => c.extension("model.surface", &m.surface, SURFACE_EXTENSIONS, "surface"),
+        (None, true) => c.fail(
+            "model.surface",
+            "missing: give `surface` (a closed triangle surface) or `segmentation` with `label`",
+        ),
+        (None, false) => c.extension("model.surface", &m.surface, SURFACE_EXTENSIONS, "surface"),
         (Some(seg), true) => {
             let name = seg.to_string_lossy().to_ascii_lowercase();
             if ![".nii", ".nii.gz", ".nrrd"]

@@ -38,7 +38,10 @@ use std::path::Path;
 pub use decimate::{decimate, Decimation};
 pub use error::SegmentationError;
 pub use labelmap::{Labelmap, Segment, MAX_VOXELS};
-pub use model::{derive_model, DerivedModel, ModelRequest, DEFAULT_MAX_POINTS};
+pub use model::{
+    default_request, derive_model, derive_model_from, DerivedModel, ModelRequest,
+    DEFAULT_MAX_POINTS,
+};
 pub use nifti::{read_nifti, read_nifti_with_transform, NiftiTransform};
 pub use nrrd::{read_nrrd, read_nrrd_layers};
 pub use structure::{

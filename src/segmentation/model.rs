@@ -8,8 +8,8 @@ use std::time::Instant;
 use nalgebra::Point3;
 
 use super::{
-    extract_surface, read_labelmap, resolve_labels, vessel_points, LabelRef, SegmentationError,
-    SurfaceOptions,
+    extract_surface, read_labelmap, resolve_labels, vessel_points, LabelRef, Labelmap,
+    SegmentationError, SurfaceOptions,
 };
 use crate::mesh::{SurfaceReport, TriSurface};
 
@@ -39,6 +39,51 @@ impl ModelRequest {
             max_points: DEFAULT_MAX_POINTS,
         }
     }
+}
+
+/// What to derive when nothing is named: the organ is the segment whose name contains
+/// "liver" (ignoring case), else the only label, else label 1; every other label present
+/// becomes a structure named after its segment (or `label-N`): points when the name says it
+/// is a vessel (`vessel`, `vein`, `artery`, `portal`, `hepatic`, `cava`), a closed mesh
+/// otherwise (a tumour). An error lists the labels present when no organ can be told.
+pub fn default_request(map: &Labelmap, path: &Path) -> Result<ModelRequest, SegmentationError> {
+    let present = map.present_labels();
+    let named = |l: u16| {
+        map.segments()
+            .iter()
+            .find(|s| s.label == l)
+            .map(|s| s.name.clone())
+    };
+    let organ = map
+        .segments()
+        .iter()
+        .find(|s| s.name.to_ascii_lowercase().contains("liver") && present.contains(&s.label))
+        .map(|s| s.label)
+        .or_else(|| (present.len() == 1).then(|| present[0]))
+        .or_else(|| present.contains(&1).then_some(1))
+        .ok_or_else(|| {
+            SegmentationError::data(
+                path,
+                format!(
+                    "cannot tell the organ's label (no segment named like \"liver\", no label 1; \
+                     labels present: {present:?}): name it with --label"
+                ),
+            )
+        })?;
+    let mut request = ModelRequest::organ(vec![LabelRef::Value(organ)]);
+    for &l in present.iter().filter(|&&l| l != organ) {
+        let name = named(l).unwrap_or_else(|| format!("label-{l}"));
+        let lower = name.to_ascii_lowercase();
+        let vessel = ["vessel", "vein", "artery", "portal", "hepatic", "cava"]
+            .iter()
+            .any(|k| lower.contains(k));
+        if vessel {
+            request.points.push((name, vec![LabelRef::Value(l)]));
+        } else {
+            request.meshes.push((name, vec![LabelRef::Value(l)]));
+        }
+    }
+    Ok(request)
 }
 
 /// Default cap on the points of a point structure (vessels).
@@ -73,9 +118,20 @@ pub fn derive_model(
     let t0 = Instant::now();
     let map = read_labelmap(path)?;
     let read_ms = t0.elapsed().as_secs_f64() * 1e3;
+    derive_model_from(&map, path, request, read_ms)
+}
+
+/// [`derive_model`] of a labelmap already read from `path` (which names errors), `read_ms`
+/// after reading it.
+pub fn derive_model_from(
+    map: &Labelmap,
+    path: &Path,
+    request: &ModelRequest,
+    read_ms: f64,
+) -> Result<DerivedModel, SegmentationError> {
     let t1 = Instant::now();
-    let organ = resolve_labels(&map, &request.organ)?;
-    let extracted = extract_surface(&map, &organ, &request.organ_options)?;
+    let organ = resolve_labels(map, &request.organ)?;
+    let extracted = extract_surface(map, &organ, &request.organ_options)?;
     if !extracted.report.watertight {
         return Err(SegmentationError::data(
             path,
@@ -87,15 +143,15 @@ pub fn derive_model(
     }
     let mut meshes = Vec::new();
     for (name, labels) in &request.meshes {
-        let values = resolve_labels(&map, labels)?;
-        let e = extract_surface(&map, &values, &SurfaceOptions::small_structure())?;
+        let values = resolve_labels(map, labels)?;
+        let e = extract_surface(map, &values, &SurfaceOptions::small_structure())?;
         meshes.push((name.clone(), e.surface));
     }
     let mut points = Vec::new();
     for (name, labels) in &request.points {
         points.push((
             name.clone(),
-            vessel_points(&map, labels, request.max_points)?,
+            vessel_points(map, labels, request.max_points)?,
         ));
     }
     Ok(DerivedModel {

@@ -295,6 +295,12 @@ pub async fn serve_connection<S>(
             } else {
                 counter
             });
+        // A session retired meanwhile (idle timeout, watchdog) is replaced by a new one.
+        if let Some(ds) = sessions.get(&device) {
+            if state.registry.get(&owner, &ds.handle.id).is_err() {
+                sessions.remove(&device);
+            }
+        }
         // The device's session, created on its first cloud.
         if !sessions.contains_key(&device) {
             match open_session(&state, &owner, &scenes, &device).await {

@@ -1,6 +1,8 @@
 //! Helpers shared by the whole-flow tests.
 #![allow(dead_code)]
 
+pub mod labelmaps;
+
 use livereg::geometry::Aabb;
 use livereg::grid::{GridOptions, IntegrationMode, WeightedCellGrid};
 use livereg::linalg::SymmetricCsc;

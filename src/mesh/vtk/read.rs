@@ -7,12 +7,12 @@ use nalgebra::Point3;
 use vtkio::model::{CellType, DataSet, IOBuffer, Piece, VertexNumbers};
 use vtkio::Vtk;
 
-use super::super::assemble::{fan, finish, is_finite};
+use super::super::assemble::{fan, finish};
 use super::super::error::MeshError;
 use super::super::extension;
 use super::super::surface::TriSurface;
 use super::super::text::read_bytes;
-use super::xml_polydata::{parse_xml_polydata, XmlPiece};
+use super::xml_polydata::{finite_points, parse_xml_polydata, XmlPiece};
 
 /// Reads the polygons of a VTK file as a triangle surface (scene units):
 /// - `.vtk` (legacy, ASCII or binary): `DATASET POLYDATA` (its `POLYGONS` and
@@ -222,21 +222,7 @@ fn points(path: &Path, buffer: &IOBuffer) -> Result<Vec<Point3<f64>>, MeshError>
             ),
         ));
     }
-    values
-        .chunks_exact(3)
-        .enumerate()
-        .map(|(i, c)| {
-            let p = Point3::new(c[0], c[1], c[2]);
-            if is_finite(&p) {
-                Ok(p)
-            } else {
-                Err(MeshError::malformed(
-                    path,
-                    format!("point {i} has a non-finite coordinate: {p:?}"),
-                ))
-            }
-        })
-        .collect()
+    finite_points(path, &values)
 }
 
 /// The cells of a vertex-number list as index lists, checked for consistency (never

@@ -16,6 +16,7 @@ use nalgebra::Point3;
 use quick_xml::events::{BytesStart, Event};
 use quick_xml::Reader;
 
+use super::super::assemble::is_finite;
 use super::super::error::MeshError;
 
 /// The surface cells of one piece: polygons and triangle strips as point-index lists.
@@ -659,14 +660,14 @@ fn read_block(src: &mut dyn Source, enc: Encoding) -> Result<Vec<u8>, String> {
     Ok(out)
 }
 
-/// Triples of `values` as finite points.
-fn finite_points(path: &Path, values: &[f64]) -> Result<Vec<Point3<f64>>, MeshError> {
+/// Triples of `values` as finite points (an error names the first point that is not).
+pub(super) fn finite_points(path: &Path, values: &[f64]) -> Result<Vec<Point3<f64>>, MeshError> {
     values
         .chunks_exact(3)
         .enumerate()
         .map(|(i, c)| {
             let p = Point3::new(c[0], c[1], c[2]);
-            if p.iter().all(|v| v.is_finite()) {
+            if is_finite(&p) {
                 Ok(p)
             } else {
                 Err(MeshError::malformed(
