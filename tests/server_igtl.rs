@@ -333,6 +333,14 @@ async fn pyigtl_streams_frames_and_the_server_survives_hostile_messages() {
     let _ = status_or_close(&mut garbage).await;
     assert!(closed(&mut garbage).await);
 
+    // A cloud over 64 KiB (decoded off the network threads) registers too.
+    let big: Vec<Point3<f64>> = (0..4).flat_map(|_| frames[3].iter().copied()).collect();
+    let bytes = cloud_message(&big, 103).encode(HeaderVersion::V2).unwrap();
+    assert!(bytes.len() > 64 * 1024, "{} bytes", bytes.len());
+    s.write_all(&bytes).await.unwrap();
+    let t = next_from(&mut s, "Targets").await;
+    assert_eq!(t.message.metadata.get("livereg.frame"), Some("103"));
+
     // Still serving: the first connection registers another frame.
     let mut v1 = cloud_message(&frames[2], 102);
     v1.metadata = Metadata::new();

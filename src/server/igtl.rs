@@ -44,7 +44,7 @@ use crate::openigtlink::conventions::{
     METADATA_UNITS, TARGETS_DEVICE, UNITS_MM,
 };
 use crate::openigtlink::{
-    read_message, status_code, Content, HeaderVersion, IgtlError, Message, Metadata, PointElement,
+    read_frame, status_code, Content, HeaderVersion, IgtlError, Message, Metadata, PointElement,
     PointMessage, PolyDataMessage, StatusMessage, Timestamp, TransformMessage,
 };
 use crate::recording::SceneFiles;
@@ -231,7 +231,7 @@ pub async fn serve_connection<S>(
     let mut counter = 0u64;
     loop {
         let read = tokio::select! {
-            r = tokio::time::timeout(idle, read_message(&mut reader, max_body)) => r,
+            r = tokio::time::timeout(idle, read_decoded(&mut reader, max_body)) => r,
             _ = shutdown.wait_for(|s| *s) => break,
         };
         let received = Instant::now();
@@ -402,6 +402,24 @@ pub async fn serve_connection<S>(
         None,
         "openigtlink",
     );
+}
+
+/// Reads one message; a body over [`super::service::INLINE_DECODE_BYTES`] is decoded on the
+/// blocking pool, so that big clouds never stall the network threads.
+async fn read_decoded<R: AsyncRead + Unpin>(
+    reader: &mut R,
+    max_body: u64,
+) -> Result<Option<crate::openigtlink::ReceivedMessage>, IgtlError> {
+    let Some(frame) = read_frame(reader, max_body).await? else {
+        return Ok(None);
+    };
+    if frame.body.len() <= super::service::INLINE_DECODE_BYTES {
+        return frame.decode().map(Some);
+    }
+    tokio::task::spawn_blocking(move || frame.decode())
+        .await
+        .map_err(|e| IgtlError::Io(std::io::Error::other(format!("decoding task: {e}"))))?
+        .map(Some)
 }
 
 /// The header version as stored in the connection's atomic.
