@@ -197,7 +197,12 @@ fn segmentation_keys_are_checked() {
         ),
         (
             SCENE.replace("mesh_label = 2", "mesh_label = 9"),
-            vec!["model.segmentation"],
+            vec![
+                "model.segmentation",
+                "seg.nrrd",
+                "[9]",
+                "labels present: [1, 2, 3]",
+            ],
         ),
     ];
     for (text, needles) in cases {

@@ -129,6 +129,25 @@ pub fn derive_model_from(
     request: &ModelRequest,
     read_ms: f64,
 ) -> Result<DerivedModel, SegmentationError> {
+    derive(map, path, request, read_ms).map_err(|e| naming(path, e))
+}
+
+/// `e`, naming `path` when it does not already (a missing label, a failed extraction).
+fn naming(path: &Path, e: SegmentationError) -> SegmentationError {
+    match e {
+        SegmentationError::Labelmap(m)
+        | SegmentationError::NoSuchLabel(m)
+        | SegmentationError::Surface(m) => SegmentationError::data(path, m),
+        other => other,
+    }
+}
+
+fn derive(
+    map: &Labelmap,
+    path: &Path,
+    request: &ModelRequest,
+    read_ms: f64,
+) -> Result<DerivedModel, SegmentationError> {
     let t1 = Instant::now();
     let organ = resolve_labels(map, &request.organ)?;
     let extracted = extract_surface(map, &organ, &request.organ_options)?;
