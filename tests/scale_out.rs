@@ -162,6 +162,7 @@ async fn sessions_stay_on_their_backend_and_move_when_it_drains() {
                 id,
                 moves: 0,
                 give_up: Duration::from_secs(60),
+                pace: Duration::ZERO,
             }
         };
         let r = m.stream_ws(&frames[..3]).await.unwrap();
@@ -235,6 +236,9 @@ async fn sessions_stay_on_their_backend_and_move_when_it_drains() {
     // Every Rust session streams on: 12 over WebSocket, 4 over gRPC.
     let mut streams = tokio::task::JoinSet::new();
     for (i, mut m) in sessions.into_iter().enumerate() {
+        // At a camera's pace (30 Hz), so that the drain below lands mid-stream however fast
+        // the machine registers (unpaced, a session could finish its 40 frames first).
+        m.pace = Duration::from_millis(33);
         let f = frames.clone();
         let grpc_ep = proxy_grpc;
         streams.spawn(async move {

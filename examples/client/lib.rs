@@ -1121,6 +1121,9 @@ pub struct MovingSession {
     pub moves: usize,
     /// Longest a re-creation may keep failing before the client gives up.
     pub give_up: Duration,
+    /// Wait between one frame's result and the next frame (a camera's period; zero: as fast
+    /// as results come).
+    pub pace: Duration,
 }
 
 impl MovingSession {
@@ -1133,6 +1136,7 @@ impl MovingSession {
             id: new_client_session_id(),
             moves: 0,
             give_up: Duration::from_secs(60),
+            pace: Duration::ZERO,
         };
         s.establish().await?;
         Ok(s)
@@ -1206,6 +1210,9 @@ impl MovingSession {
                     results.push(v);
                     k += 1;
                     attempts = 0;
+                    if !self.pace.is_zero() {
+                        tokio::time::sleep(self.pace).await;
+                    }
                 }
                 Some(WsEvent::Error(_, code, msg)) if !means_moved(&code) => {
                     return Err(format!("frame {k}: {code}: {msg}"));
@@ -1241,6 +1248,9 @@ impl MovingSession {
                 match g.register(&self.id, k as u64, name, pts).await {
                     Ok(r) => {
                         out.push(r);
+                        if !self.pace.is_zero() {
+                            tokio::time::sleep(self.pace).await;
+                        }
                         break;
                     }
                     Err(st)
