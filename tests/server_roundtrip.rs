@@ -83,15 +83,13 @@ async fn rust_and_python_clients_round_trip_100_frames_equal_to_register() {
     assert_eq!(frames.len(), FRAMES);
 
     // Python (stdlib) over WebSocket with JSON frames, in a child process.
-    let py = if python_available() {
+    require_python();
+    let py = {
         let case = case.clone();
-        Some(tokio::spawn(async move {
+        tokio::spawn(async move {
             python_roundtrip_results(&format!("http://{http_addr}"), &case, "python.jsonl", &[])
                 .await
-        }))
-    } else {
-        eprintln!("SKIPPED the Python client: python3 is not installed");
-        None
+        })
     };
 
     // Rust: WebSocket JSON, WebSocket binary (f32-exact frames), gRPC stream, concurrently.
@@ -133,13 +131,11 @@ async fn rust_and_python_clients_round_trip_100_frames_equal_to_register() {
     assert_eq!(ws_json[3]["source"], "f003.xyz");
     assert_eq!(ws_bin[3]["source"], "frame-3");
     assert_eq!(grpc[3]["source"], "f003.xyz");
-    if let Some(py) = py {
-        let py = py.await.unwrap();
-        assert_eq!(py.len(), FRAMES);
-        for (g, w) in py.iter().zip(&want) {
-            assert_matches_reference(g, w);
-            assert_eq!(g["source"], w["source"]);
-        }
+    let py = py.await.unwrap();
+    assert_eq!(py.len(), FRAMES);
+    for (g, w) in py.iter().zip(&want) {
+        assert_matches_reference(g, w);
+        assert_eq!(g["source"], w["source"]);
     }
     server.shutdown().await.unwrap();
     eprintln!("round trips: {:.1} s", t0.elapsed().as_secs_f64());
@@ -295,11 +291,7 @@ async fn binary_results_equal_json_results_to_f32_precision() {
     }
     http_close_session(addr, TOKEN_A, &id).await.unwrap();
 
-    if !python_available() {
-        eprintln!("SKIPPED the Python client: python3 is not installed");
-        server.shutdown().await.unwrap();
-        return;
-    }
+    require_python();
     let url = format!("http://{addr}");
     let py = python_roundtrip_results(
         &url,

@@ -166,6 +166,13 @@ async fn disconnects_newest_wins_and_graceful_shutdown() {
     let handle = server.shutdown_handle();
     let stopping = tokio::spawn(server.run_until_stopped());
     handle.trigger();
+    // New work is refused meanwhile: no session is created (503 `shutting_down`, or the
+    // listener has already stopped accepting).
+    let refused = http_create_session(addr, TOKEN_A, &scene).await;
+    assert!(
+        refused.is_err(),
+        "a session was created during the shutdown: {refused:?}"
+    );
     let mut got_result = false;
     let mut close_code = None;
     while let Some(ev) = tokio::time::timeout(Duration::from_secs(60), ws.next())
@@ -228,7 +235,8 @@ async fn grpc_bad_inputs_get_the_right_status() {
     assert_eq!(st.code(), Code::NotFound);
     let st = b.close_session(&info.id).await.unwrap_err();
     assert_eq!(st.code(), Code::NotFound);
-    let _ = none.close_session("x").await;
+    let st = none.close_session("x").await.unwrap_err();
+    assert_eq!(st.code(), Code::Unauthenticated, "{st:?}");
     // Frames: NaN, empty, not a multiple of 3, oversized message.
     let st = a
         .register(&info.id, 0, "nan", &[[0.0, f64::NAN, 0.0]])

@@ -142,9 +142,8 @@ async fn tls_clients_get_register_results_and_others_are_refused() {
         }
     }
 
-    if !python_available() {
-        eprintln!("SKIPPED the Python client: python3 is not installed");
-    } else {
+    require_python();
+    {
         // HTTPS + WSS (Python, stdlib ssl), checking the certificate against the test CA,
         // by IP address (the certificate names 127.0.0.1 and localhost).
         let url = format!("https://127.0.0.1:{}", http_addr.port());

@@ -90,18 +90,7 @@ impl FrameInput {
     }
 }
 
-/// Told about every frame as soon as it is registered (recorders, visualisers).
-pub trait FrameObserver {
-    /// Frame `index` of the run: `frame` as registered (`None` when its input could not be
-    /// read), received at `received_ns` (ns since the Unix epoch), and its result.
-    fn frame_done(
-        &mut self,
-        index: usize,
-        frame: Option<&Frame>,
-        received_ns: u64,
-        result: &FrameResult,
-    ) -> Result<(), String>;
-}
+pub use crate::session::FrameObserver;
 
 impl FrameObserver for Recorder {
     fn frame_done(

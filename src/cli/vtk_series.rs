@@ -16,10 +16,9 @@
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
-use super::register::FrameObserver;
 use crate::mesh::vtk::{PointArray, PvdSeries, VtkPolyData};
 use crate::mesh::write_vtk;
-use crate::session::{Frame, FrameResult, Session};
+use crate::session::{Frame, FrameObserver, FrameResult, Session};
 
 /// One object of the series: its file stem, triangles (empty for points) and collection.
 #[derive(Debug)]

@@ -8,7 +8,7 @@ use serde_json::Value;
 use super::base64;
 use super::messages::{SceneFileEntry, SceneMessage};
 use super::RecordingError;
-use crate::scene::{load_scene, LoadedScene, PointSource, SceneFormat};
+use crate::scene::{load_scene, LoadedScene, SceneFormat};
 
 /// A scene file's text and the bytes of every file it names.
 #[derive(Debug, Clone, PartialEq)]
@@ -155,29 +155,10 @@ impl SceneFiles {
     }
 }
 
-/// Every file a loaded scene names, with the key naming it (paths absolute).
+/// Every file a loaded scene names, with the key naming it (paths absolute):
+/// [`crate::scene::Scene::file_keys`].
 pub fn scene_file_keys(loaded: &LoadedScene) -> Vec<(String, PathBuf)> {
-    let s = &loaded.scene;
-    let mut out = vec![("model.surface".to_string(), s.model.surface.clone())];
-    for (i, st) in s.model.structures.iter().enumerate() {
-        if let Some(p) = &st.points {
-            out.push((format!("model.structures[{i}].points"), p.clone()));
-        }
-        if let Some(p) = &st.mesh {
-            out.push((format!("model.structures[{i}].mesh"), p.clone()));
-        }
-    }
-    for (i, f) in s.boundary.fixed.iter().enumerate() {
-        if let Some(PointSource::File(p)) = &f.points {
-            out.push((format!("boundary.fixed[{i}].points"), p.clone()));
-        }
-    }
-    for (i, p) in s.probe.iter().enumerate() {
-        if let PointSource::File(f) = &p.points {
-            out.push((format!("probe[{i}].points"), f.clone()));
-        }
-    }
-    out
+    loaded.scene.file_keys()
 }
 
 fn file_name(p: &Path) -> String {

@@ -143,6 +143,41 @@ pub struct Scene {
     pub registration: Option<RegistrationSpec>,
 }
 
+impl Scene {
+    /// Every file the scene names, with the dotted key naming it (`model.surface`,
+    /// `model.structures[1].mesh`, `boundary.fixed[0].points`, …), paths as they stand
+    /// (relative as written, absolute once loaded). The one list of a scene's files: what a
+    /// recording stores and what an upload must bring.
+    pub fn file_keys(&self) -> Vec<(String, PathBuf)> {
+        let mut out = Vec::new();
+        if !self.model.surface.as_os_str().is_empty() {
+            out.push(("model.surface".to_string(), self.model.surface.clone()));
+        }
+        if let Some(p) = &self.model.segmentation {
+            out.push(("model.segmentation".to_string(), p.clone()));
+        }
+        for (i, st) in self.model.structures.iter().enumerate() {
+            if let Some(p) = &st.points {
+                out.push((format!("model.structures[{i}].points"), p.clone()));
+            }
+            if let Some(p) = &st.mesh {
+                out.push((format!("model.structures[{i}].mesh"), p.clone()));
+            }
+        }
+        for (i, f) in self.boundary.fixed.iter().enumerate() {
+            if let Some(PointSource::File(p)) = &f.points {
+                out.push((format!("boundary.fixed[{i}].points"), p.clone()));
+            }
+        }
+        for (i, p) in self.probe.iter().enumerate() {
+            if let PointSource::File(f) = &p.points {
+                out.push((format!("probe[{i}].points"), f.clone()));
+            }
+        }
+        out
+    }
+}
+
 /// `[model]`: the pre-operative model.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]

@@ -4,14 +4,14 @@
 
 use std::collections::BTreeMap;
 use std::fmt::Write;
-use std::path::{Component, Path, PathBuf};
+use std::path::{Component, Path};
 
 use serde::{Deserialize, Serialize};
 
 use super::config::LimitsConfig;
 use super::error::ApiError;
 use super::limits::{check_scene_size, check_scene_work};
-use crate::scene::{load_scene, parse_scene, LoadedScene, PointSource, Scene, SceneFormat};
+use crate::scene::{load_scene, parse_scene, LoadedScene, SceneFormat};
 use crate::session::Session;
 
 /// A scene and its files, however they arrived.
@@ -157,29 +157,6 @@ impl CreateSessionJson {
 }
 
 /// Every file path a scene names, with its key.
-fn scene_paths(scene: &Scene) -> Vec<(String, PathBuf)> {
-    let mut out = vec![("model.surface".to_string(), scene.model.surface.clone())];
-    for (i, s) in scene.model.structures.iter().enumerate() {
-        if let Some(p) = &s.points {
-            out.push((format!("model.structures[{i}].points"), p.clone()));
-        }
-        if let Some(p) = &s.mesh {
-            out.push((format!("model.structures[{i}].mesh"), p.clone()));
-        }
-    }
-    for (i, f) in scene.boundary.fixed.iter().enumerate() {
-        if let Some(PointSource::File(p)) = &f.points {
-            out.push((format!("boundary.fixed[{i}].points"), p.clone()));
-        }
-    }
-    for (i, pr) in scene.probe.iter().enumerate() {
-        if let PointSource::File(p) = &pr.points {
-            out.push((format!("probe[{i}].points"), p.clone()));
-        }
-    }
-    out
-}
-
 fn plain_name(p: &Path) -> Option<&str> {
     let mut comps = p.components();
     match (comps.next(), comps.next()) {
@@ -220,7 +197,7 @@ pub fn materialize(
             )));
         }
     }
-    for (key, p) in scene_paths(&scene) {
+    for (key, p) in scene.file_keys() {
         let name = plain_name(&p).ok_or_else(|| {
             ApiError::invalid_scene(format!(
                 "{key} = {:?}: uploaded scenes may only name files uploaded with them (a plain file name, no directories)",

@@ -7,6 +7,7 @@
 //! its [`FrameResult`] carries the last good state, flagged, with the cause.
 
 pub mod frame;
+pub mod observer;
 pub mod registration_session;
 pub mod settings;
 
@@ -14,5 +15,6 @@ pub mod settings;
 mod tests;
 
 pub use frame::{Frame, FrameError, FrameResult, StageTimes};
+pub use observer::FrameObserver;
 pub use registration_session::{recovery_settings, robust_law, Session, BEFORE_RECOVERY};
 pub use settings::SessionSettings;

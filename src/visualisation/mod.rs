@@ -22,8 +22,8 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Point3;
 use rerun::{Color, LineStrips3D, Mesh3D, Points3D, RecordingStream, Scalars};
 
-use crate::cli::register::FrameObserver;
 use crate::evaluation::TruthRecord;
+use crate::session::FrameObserver;
 use crate::session::{Frame, FrameResult, Session};
 
 /// Opens a rerun stream `app` writing to `save` (an `.rrd` file) or connected to a viewer at
