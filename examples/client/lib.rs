@@ -1126,6 +1126,23 @@ pub struct MovingSession {
     pub pace: Duration,
 }
 
+/// Whether a gRPC status means the session's backend went away (drained, restarted) rather
+/// than a refusal: unavailable, not found, unknown or cancelled, or the proxy's own gateway
+/// error page (502/503/504) in place of a gRPC response, which tonic reports as an internal
+/// protocol error.
+pub fn grpc_means_moved(st: &tonic::Status) -> bool {
+    match st.code() {
+        tonic::Code::Unavailable
+        | tonic::Code::NotFound
+        | tonic::Code::Unknown
+        | tonic::Code::Cancelled => true,
+        tonic::Code::Internal => ["status: 502", "status: 503", "status: 504"]
+            .iter()
+            .any(|s| st.message().contains(s)),
+        _ => false,
+    }
+}
+
 impl MovingSession {
     /// Creates the session over HTTP with a new client-chosen id.
     pub async fn create(ep: impl Into<Endpoint>, token: &str, scene: &SceneFiles) -> Res<Self> {
@@ -1253,15 +1270,7 @@ impl MovingSession {
                         }
                         break;
                     }
-                    Err(st)
-                        if matches!(
-                            st.code(),
-                            tonic::Code::Unavailable
-                                | tonic::Code::NotFound
-                                | tonic::Code::Unknown
-                                | tonic::Code::Cancelled
-                        ) =>
-                    {
+                    Err(st) if grpc_means_moved(&st) => {
                         attempts += 1;
                         if attempts > 200 {
                             return Err(format!("frame {k}: {st}"));
