@@ -103,18 +103,26 @@ impl PolyDataMessage {
     /// A triangle surface as points and triangular polygons (coordinates taken as mm). Errors
     /// when an index is out of range or does not fit in u32.
     pub fn from_tri_surface(surface: &TriSurface) -> Result<Self, IgtlError> {
-        let polygons = surface
-            .triangles
+        Self::from_triangles(surface.vertices.clone(), &surface.triangles)
+    }
+
+    /// [`PolyDataMessage::from_tri_surface`] of `points` (taken as mm) and `triangles`
+    /// indexing them, without building a surface.
+    pub fn from_triangles(
+        points: Vec<Point3<f64>>,
+        triangles: &[[usize; 3]],
+    ) -> Result<Self, IgtlError> {
+        let polygons = triangles
             .iter()
             .map(|triangle| {
                 triangle
                     .iter()
-                    .map(|&i| check_index(i, surface.vertices.len(), "TriSurface triangle index"))
+                    .map(|&i| check_index(i, points.len(), "TriSurface triangle index"))
                     .collect::<Result<Vec<u32>, IgtlError>>()
             })
             .collect::<Result<Vec<_>, _>>()?;
         Ok(Self {
-            points: surface.vertices.clone(),
+            points,
             polygons,
             ..Self::default()
         })

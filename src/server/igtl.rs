@@ -38,7 +38,6 @@ use super::error::ApiError;
 use super::service::AppState;
 use super::upload::SceneUpload;
 use super::worker::{Completed, Job, Reply, SessionHandle, StreamEvent, StreamSink};
-use crate::mesh::TriSurface;
 use crate::openigtlink::conventions::{
     DEFORMED_LIVER_DEVICE, LIVER_TO_REFERENCE_DEVICE, METADATA_FRAME, METADATA_SESSION,
     METADATA_UNITS, TARGETS_DEVICE, UNITS_MM,
@@ -530,16 +529,14 @@ pub fn result_messages(c: &Completed, handle: &SessionHandle, ras: bool) -> Vec<
         TransformMessage::from_isometry(&iso),
     ));
     let meshes = &handle.info.meshes;
-    let surface = TriSurface::new(mm(&r.surface), meshes.surface.clone());
-    if let Ok(p) = PolyDataMessage::from_tri_surface(&surface) {
+    if let Ok(p) = PolyDataMessage::from_triangles(mm(&r.surface), &meshes.surface) {
         out.push(Message::new(DEFORMED_LIVER_DEVICE, p));
     }
     let mut targets = Vec::new();
     for (k, (name, points)) in r.structures.iter().enumerate() {
         match meshes.structures.get(k).and_then(|t| t.as_ref()) {
             Some(tris) => {
-                let s = TriSurface::new(mm(points), tris.clone());
-                if let Ok(p) = PolyDataMessage::from_tri_surface(&s) {
+                if let Ok(p) = PolyDataMessage::from_triangles(mm(points), tris) {
                     out.push(Message::new(device_name(name), p));
                 }
             }

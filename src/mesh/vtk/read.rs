@@ -134,10 +134,10 @@ fn strip(points: &[usize], out: &mut Vec<[usize; 3]>) {
 fn import(path: &Path, bytes: &[u8]) -> Result<Vec<PieceData>, MeshError> {
     let ext = extension(path);
     if ext.as_deref() == Some("vtp") {
-        return parse_xml_polydata(path, bytes)?
+        return Ok(parse_xml_polydata(path, bytes)?
             .into_iter()
-            .map(|p| xml_piece(path, p))
-            .collect();
+            .map(xml_piece)
+            .collect());
     }
     let parsed = catch_unwind(AssertUnwindSafe(|| match ext.as_deref() {
         Some("vtk") => Vtk::parse_legacy_be(bytes).map_err(|e| e.to_string()),
@@ -355,7 +355,7 @@ fn grid_piece(path: &Path, p: vtkio::model::UnstructuredGridPiece) -> Result<Pie
 }
 
 /// A piece of a `.vtp` file: its points, polygons and strips.
-fn xml_piece(_path: &Path, p: XmlPiece) -> Result<PieceData, MeshError> {
+fn xml_piece(p: XmlPiece) -> PieceData {
     let cells = p
         .polys
         .into_iter()
@@ -376,8 +376,8 @@ fn xml_piece(_path: &Path, p: XmlPiece) -> Result<PieceData, MeshError> {
                 }),
         )
         .collect();
-    Ok(PieceData {
+    PieceData {
         points: p.points,
         cells,
-    })
+    }
 }
