@@ -39,7 +39,9 @@ pub use nested_dissection::{
     expand_node_permutation, inverse_permutation, nested_dissection,
     nested_dissection_with_leaf_size, ND_LEAF_NODES,
 };
-pub use solver::{SolveStats, SolverKind, SparseSolver, AUTO_DIRECT_MAX_DOFS};
+pub use solver::{
+    predicted_factor_len, SolveStats, SolverKind, SparseSolver, AUTO_DIRECT_MAX_DOFS,
+};
 
 /// Errors reported by the sparse linear algebra layer.
 #[derive(thiserror::Error, Debug, Clone, PartialEq)]

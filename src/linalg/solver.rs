@@ -417,33 +417,8 @@ impl SparseSolver {
 
     fn analyse_direct(&mut self, k: &SymmetricCsc, key: PatternKey) -> Result<(), LinalgError> {
         self.direct = None;
-        k.validate()?;
-        let a = faer_view(k);
-        let params = CholeskySymbolicParams {
-            // Always supernodal: the intranodal Bunch–Kaufman fallback only
-            // pivots in the supernodal code path (the simplicial LDLᵀ has no
-            // pivoting), and 3-dof elasticity patterns favour supernodes.
-            supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SUPERNODAL,
-            ..Default::default()
-        };
+        let (symbolic, nested) = symbolic_cholesky(k, self.node_coords.as_deref())?;
         let n = k.n;
-        // Geometric nested dissection if node coordinates match the matrix.
-        // faer's `Custom(PermRef)` takes `fwd[new] = old`, `inv[old] = new`.
-        let nd_perm = self
-            .node_coords
-            .as_ref()
-            .filter(|c| !c.is_empty() && 3 * c.len() == n)
-            .map(|c| {
-                let fwd = expand_node_permutation(&nested_dissection(c), 3);
-                let inv = inverse_permutation(&fwd);
-                (fwd, inv)
-            });
-        let ordering = match &nd_perm {
-            Some((fwd, inv)) => SymmetricOrdering::Custom(PermRef::new_checked(fwd, inv, n)),
-            None => SymmetricOrdering::Amd,
-        };
-        let symbolic = factorize_symbolic_cholesky(a.symbolic(), Side::Lower, ordering, params)
-            .map_err(|e| LinalgError::Faer(format!("symbolic analysis: {e:?}")))?;
         self.analyses += 1;
         let mut l_values = Vec::new();
         l_values
@@ -465,7 +440,7 @@ impl SparseSolver {
             perm_inv: vec![0; n],
             mem,
             factor: None,
-            nested_dissection: nd_perm.is_some(),
+            nested_dissection: nested,
         });
         Ok(())
     }
@@ -756,6 +731,58 @@ impl Direct {
 }
 
 /// Makes `mem` at least as large as `req` (kept across factorisations; only grows).
+/// Symbolic supernodal Cholesky analysis of `k`'s pattern, ordered by geometric nested
+/// dissection when `node_coords` matches the matrix (3 dofs per node), else by AMD; also
+/// whether nested dissection was used.
+fn symbolic_cholesky(
+    k: &SymmetricCsc,
+    node_coords: Option<&[[usize; 3]]>,
+) -> Result<(SymbolicCholesky<usize>, bool), LinalgError> {
+    k.validate()?;
+    let a = faer_view(k);
+    let params = CholeskySymbolicParams {
+        // Always supernodal: the intranodal Bunch–Kaufman fallback only
+        // pivots in the supernodal code path (the simplicial LDLᵀ has no
+        // pivoting), and 3-dof elasticity patterns favour supernodes.
+        supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SUPERNODAL,
+        ..Default::default()
+    };
+    let n = k.n;
+    // Geometric nested dissection if node coordinates match the matrix.
+    // faer's `Custom(PermRef)` takes `fwd[new] = old`, `inv[old] = new`.
+    let nd_perm = node_coords
+        .filter(|c| !c.is_empty() && 3 * c.len() == n)
+        .map(|c| {
+            let fwd = expand_node_permutation(&nested_dissection(c), 3);
+            let inv = inverse_permutation(&fwd);
+            (fwd, inv)
+        });
+    let ordering = match &nd_perm {
+        Some((fwd, inv)) => SymmetricOrdering::Custom(PermRef::new_checked(fwd, inv, n)),
+        None => SymmetricOrdering::Amd,
+    };
+    let symbolic = factorize_symbolic_cholesky(a.symbolic(), Side::Lower, ordering, params)
+        .map_err(|e| LinalgError::Faer(format!("symbolic analysis: {e:?}")))?;
+    Ok((symbolic, nd_perm.is_some()))
+}
+
+/// Number of values the direct factor `L` of a matrix with `k`'s pattern will store (8 bytes
+/// each in f64), from the same symbolic analysis [`SparseSolver::factorize`] makes with the
+/// node-coordinate hint `node_coords` (see [`SparseSolver::with_node_coordinates`]); 0 when
+/// `kind` resolves to the conjugate gradient for this size (which stores no factor). Only the
+/// pattern of `k` is read; no values are allocated. Used to estimate a model's memory before
+/// its first frame.
+pub fn predicted_factor_len(
+    k: &SymmetricCsc,
+    node_coords: Option<&[[usize; 3]]>,
+    kind: SolverKind,
+) -> Result<usize, LinalgError> {
+    if SparseSolver::new(kind).chosen_method(k.n) == SolverKind::JacobiCg {
+        return Ok(0);
+    }
+    Ok(symbolic_cholesky(k, node_coords)?.0.len_val())
+}
+
 fn grow_scratch(mem: &mut MemBuffer, req: StackReq) -> Result<(), LinalgError> {
     if req.unaligned_bytes_required() > mem.len() {
         *mem = MemBuffer::try_new(req)

@@ -7,6 +7,7 @@
 //! its [`FrameResult`] carries the last good state, flagged, with the cause.
 
 pub mod frame;
+pub mod memory_estimate;
 pub mod observer;
 pub mod registration_session;
 pub mod settings;
@@ -15,6 +16,7 @@ pub mod settings;
 mod tests;
 
 pub use frame::{Frame, FrameError, FrameResult, StageTimes};
+pub use memory_estimate::ModelSize;
 pub use observer::FrameObserver;
 pub use registration_session::{recovery_settings, robust_law, Session, BEFORE_RECOVERY};
 pub use settings::SessionSettings;

@@ -5,6 +5,7 @@ use std::time::{Duration, Instant};
 use nalgebra::Point3;
 
 use super::frame::{Frame, FrameError, FrameResult, StageTimes};
+use super::memory_estimate::ModelSize;
 use super::settings::SessionSettings;
 use crate::geometry::Camera;
 use crate::mechanics::LawKind;
@@ -122,6 +123,29 @@ impl Session {
             prolongation,
         });
         Ok(self)
+    }
+
+    /// Sizes of the models this session registers with, the fine model first, then the coarse
+    /// one of a coarse-to-fine start (see [`super::memory_estimate`]).
+    pub fn model_sizes(&self) -> Result<Vec<ModelSize>, String> {
+        let mut sizes = vec![ModelSize::of(&self.model, self.model.newton.linear_solver)?];
+        if let Some(c) = &self.coarse {
+            sizes.push(ModelSize::of(&c.model, c.model.newton.linear_solver)?);
+        }
+        Ok(sizes)
+    }
+
+    /// Estimated peak memory of this session's registration, bytes: the fine model's
+    /// [`ModelSize::estimated_bytes`] plus the coarse model's
+    /// [`ModelSize::estimated_grid_bytes`] (see [`Session::model_sizes`]). Made before the
+    /// first frame, so that a server can refuse a session its memory budget cannot hold.
+    pub fn memory_estimate_bytes(&self) -> Result<u64, String> {
+        let sizes = self.model_sizes()?;
+        Ok(sizes[0].estimated_bytes()
+            + sizes[1..]
+                .iter()
+                .map(ModelSize::estimated_grid_bytes)
+                .sum::<u64>())
     }
 
     /// Whether cold frames start on a coarse grid.
