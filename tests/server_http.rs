@@ -757,3 +757,111 @@ async fn frame_rate_limit_and_loopback_dev_mode() {
     assert_eq!(statuses, [200, 429, 429]);
     server.shutdown().await.unwrap();
 }
+
+/// A session's memory estimate (`Session::memory_estimate_bytes`, itself checked against a
+/// counting allocator in `tests/session_memory.rs`) is what the server's budget admits by:
+/// with room for two phantom sessions the third is refused with 429 `memory_budget` (another
+/// replica may take it), a closed session gives its share back, a budget smaller than one
+/// session refuses with 413 `model_too_large`, and the metrics report both numbers. A refused
+/// session leaves no recording and no upload behind.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_memory_budget_admits_sessions_by_their_estimates() {
+    let dir = temp_dir("membudget-case");
+    phantom_case(&dir, 1);
+    let loaded = livereg::scene::load_scene(&dir.join("scene.toml")).unwrap();
+    let estimate = livereg::session::Session::from_scene(&loaded)
+        .unwrap()
+        .memory_estimate_bytes()
+        .unwrap();
+    let mib = (1u64 << 20) as f64;
+    assert!(
+        estimate > 1 << 20,
+        "a phantom session needs megabytes: {estimate} B"
+    );
+    // Room for 2.5 sessions, in whole MiB.
+    let budget_mb = (2.5 * estimate as f64 / mib).floor() as u64;
+    assert!((2 * estimate..3 * estimate).contains(&(budget_mb << 20)));
+    let mut cfg = test_config("membudget");
+    cfg.limits.max_memory_mb = budget_mb;
+    let data_dir = cfg.data_dir.clone();
+    let server = start(cfg).await;
+    let addr = server.http_addr;
+    let scene = SceneFiles::read(&dir.join("scene.toml")).unwrap();
+    let first = http_create_session_info(addr, TOKEN_A, &scene)
+        .await
+        .unwrap();
+    let mb = first["memory_estimate_mb"].as_f64().unwrap();
+    assert!((mb - estimate as f64 / mib).abs() < 1e-9, "{first}");
+    let second = http_create_session(addr, TOKEN_B, &scene).await.unwrap();
+
+    let (boundary, body) = scene.multipart();
+    let ct = format!("multipart/form-data; boundary={boundary}");
+    let create = |token: &'static str| {
+        let (ct, body) = (ct.clone(), body.clone());
+        async move {
+            let a = auth(token);
+            http(
+                addr,
+                "POST",
+                "/v1/sessions",
+                &[("Content-Type", &ct), ("Authorization", &a)],
+                &body,
+            )
+            .await
+            .unwrap()
+        }
+    };
+    let sessions_on_disk = || {
+        std::fs::read_dir(data_dir.join("sessions"))
+            .unwrap()
+            .count()
+    };
+    let recordings = || {
+        std::fs::read_dir(data_dir.join("recordings"))
+            .unwrap()
+            .count()
+    };
+    let (disk, recorded) = (sessions_on_disk(), recordings());
+    let r = create(TOKEN_A).await;
+    assert_error(&r, 429, "memory_budget");
+    let msg = r.json()["error"]["message"].as_str().unwrap().to_string();
+    assert!(msg.contains(&format!("{budget_mb} MiB")), "{msg}");
+    assert_eq!((sessions_on_disk(), recordings()), (disk, recorded));
+
+    let metrics = http(addr, "GET", "/metrics", &[], b"").await.unwrap();
+    let text = String::from_utf8_lossy(&metrics.body).to_string();
+    let gauge = |name: &str| -> u64 {
+        text.lines()
+            .find_map(|l| l.strip_prefix(&format!("{name} ")))
+            .unwrap_or_else(|| panic!("{name} missing from /metrics"))
+            .parse()
+            .unwrap()
+    };
+    assert_eq!(gauge("livereg_memory_budget_bytes"), budget_mb << 20);
+    assert_eq!(gauge("livereg_memory_estimated_bytes"), 2 * estimate);
+
+    // Closing a session gives its share back.
+    http_close_session(addr, TOKEN_B, &second).await.unwrap();
+    let r = create(TOKEN_B).await;
+    assert_eq!(r.status, 201, "{}", String::from_utf8_lossy(&r.body));
+    server.shutdown().await.unwrap();
+
+    // A budget smaller than one session: no server like this one can hold it.
+    let mut cfg = test_config("membudget-small");
+    cfg.limits.max_memory_mb = (estimate >> 20) / 2;
+    let server = start(cfg).await;
+    let r = {
+        let a = auth(TOKEN_A);
+        http(
+            server.http_addr,
+            "POST",
+            "/v1/sessions",
+            &[("Content-Type", &ct), ("Authorization", &a)],
+            &body,
+        )
+        .await
+        .unwrap()
+    };
+    assert_error(&r, 413, "model_too_large");
+    server.shutdown().await.unwrap();
+}

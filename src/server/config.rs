@@ -71,6 +71,10 @@ pub struct LimitsConfig {
     /// A WebSocket or gRPC stream that receives nothing (no frame, no pong) for this long is
     /// closed, seconds; the server pings WebSockets every third of it.
     pub stream_idle_timeout_s: f64,
+    /// Memory the open sessions may hold together, MiB, by their estimates made at creation
+    /// (docs/server.md, "Memory budget"); a session that does not fit is refused. 0 (the
+    /// default): 75 % of the container's memory limit, or of the machine's memory.
+    pub max_memory_mb: u64,
 }
 
 impl Default for LimitsConfig {
@@ -91,6 +95,7 @@ impl Default for LimitsConfig {
             body_timeout_s: 30.0,
             max_connections: 1024,
             max_connections_per_address: 64,
+            max_memory_mb: 0,
             stream_idle_timeout_s: 120.0,
         }
     }

@@ -192,9 +192,17 @@ async fn metrics(State(state): State<Arc<AppState>>) -> Response {
         "# HELP livereg_registration_slots Registration slots (worker_threads).\n# TYPE livereg_registration_slots gauge\nlivereg_registration_slots {slots}\n\
          # HELP livereg_registration_slots_busy Registration slots registering a frame now.\n# TYPE livereg_registration_slots_busy gauge\nlivereg_registration_slots_busy {busy}\n\
          # HELP livereg_registration_waiting Sessions with a frame waiting for a slot.\n# TYPE livereg_registration_waiting gauge\nlivereg_registration_waiting {}\n\
-         # HELP livereg_draining 1 while the server drains (refuses new work before it stops).\n# TYPE livereg_draining gauge\nlivereg_draining {}\n",
+         # HELP livereg_draining 1 while the server drains (refuses new work before it stops).\n# TYPE livereg_draining gauge\nlivereg_draining {}\n\
+         # HELP livereg_memory_budget_bytes Memory the open sessions' estimates may hold together (limits.max_memory_mb).\n# TYPE livereg_memory_budget_bytes gauge\nlivereg_memory_budget_bytes {}\n\
+         # HELP livereg_memory_estimated_bytes Estimated memory of the open sessions and those being created.\n# TYPE livereg_memory_estimated_bytes gauge\nlivereg_memory_estimated_bytes {}\n",
         state.slots.waiting(),
-        u8::from(state.is_draining())
+        u8::from(state.is_draining()),
+        // (no budget known: reported as 0 = none, rather than 2^64 - 1)
+        match state.registry.memory_budget() {
+            u64::MAX => 0,
+            b => b,
+        },
+        state.registry.memory_in_use()
     ));
     ([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], text).into_response()
 }

@@ -23,6 +23,7 @@ pub mod grpc;
 pub mod http;
 pub mod igtl;
 pub mod limits;
+pub mod memory_budget;
 pub mod metrics;
 pub mod openapi;
 pub mod registry;
@@ -268,6 +269,12 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
             }
         });
     }
+    let (budget, budget_source) = memory_budget::memory_budget(config.limits.max_memory_mb);
+    tracing::info!(
+        memory_budget_mb = memory_budget::mib(budget).round(),
+        source = ?budget_source,
+        "session memory budget"
+    );
     tracing::info!(%http_addr, grpc_addr = ?grpc_addr, igtl_addr = ?igtl_addr, tls = tls.is_some(), "listening");
     Ok(RunningServer {
         http_addr,

@@ -100,7 +100,9 @@ pub fn document() -> Value {
               "frames_skipped": {"type": "integer"}, "frames_rejected": {"type": "integer"},
               "age_s": {"type": "number"}, "warm": {"type": "boolean"},
               "stream": {"type": "string", "description": "Relative URL of the session's WebSocket."},
-              "recording": {"type": ["string", "null"], "description": "File name of the session's MCAP recording in the server's recordings directory (never a server path); null when not recorded."}
+              "recording": {"type": ["string", "null"], "description": "File name of the session's MCAP recording in the server's recordings directory (never a server path); null when not recorded."},
+              "recording_error": {"type": "string", "description": "Why the recording stopped while the session went on; absent while it records."},
+              "memory_estimate_mb": {"type": "number", "description": "The session's estimated peak memory, MiB, counted against the server's memory budget (limits.max_memory_mb)."}
             }
           },
           "SessionList": {"type": "object", "required": ["sessions"],
@@ -171,10 +173,10 @@ pub fn document() -> Value {
             "responses": auth_errors(m(json!({
               "201": json_response("Created.", "SessionInfo"),
               "400": error_response("Malformed request (JSON or multipart syntax)."),
-              "413": error_response("Body, mesh or grid over a limit (payload_too_large, mesh_too_large, grid_too_large)."),
+              "413": error_response("Body, mesh, grid or work over a limit (payload_too_large, mesh_too_large, grid_too_large, work_too_large), or a model needing more memory than the server's whole budget (model_too_large)."),
               "415": error_response("Neither JSON nor multipart."),
               "422": error_response("The scene does not load (invalid_scene; the message names key and file)."),
-              "429": error_response("Session limit of the token or the server reached (too_many_sessions)."),
+              "429": error_response("Session limit of the token or the server reached (too_many_sessions), or the server's memory budget is held by open sessions (memory_budget): try another replica or later."),
               "503": error_response("Shutting down.")
             })))
           },

@@ -1,5 +1,6 @@
 //! Open sessions: unguessable ids, ownership (a session is visible only to the token that
-//! created it; to every other token it does not exist), and the per-token and global limits.
+//! created it; to every other token it does not exist), the per-token and global limits, and
+//! the memory budget the open sessions' estimates share.
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
@@ -9,6 +10,7 @@ use serde::{Deserialize, Serialize};
 use super::auth::Owner;
 use super::config::LimitsConfig;
 use super::error::ApiError;
+use super::memory_budget::{memory_budget, mib};
 use super::worker::SessionHandle;
 
 /// A new session id: 128 random bits from the operating system, 32 lowercase hex digits.
@@ -80,6 +82,10 @@ pub struct SessionInfo {
     /// absent while it records.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub recording_error: Option<String>,
+    /// The session's estimated peak memory, MiB, counted against the server's memory budget
+    /// (docs/server.md, "Memory budget").
+    #[serde(default)]
+    pub memory_estimate_mb: f64,
 }
 
 impl SessionInfo {
@@ -106,6 +112,7 @@ impl SessionInfo {
                 .and_then(|p| p.file_name())
                 .map(|n| n.to_string_lossy().into_owned()),
             recording_error: h.recording_failure(),
+            memory_estimate_mb: mib(h.info.memory_estimate_bytes),
         }
     }
 }
@@ -117,6 +124,20 @@ struct Inner {
     reserved: HashMap<Owner, usize>,
     /// Ids of the sessions being created.
     reserved_ids: std::collections::HashSet<String>,
+    /// Estimated memory claimed by sessions being created, bytes.
+    reserved_memory: u64,
+}
+
+impl Inner {
+    /// Estimated memory of the open sessions and of those being created, bytes.
+    fn memory_in_use(&self) -> u64 {
+        self.reserved_memory
+            + self
+                .sessions
+                .values()
+                .map(|h| h.info.memory_estimate_bytes)
+                .sum::<u64>()
+    }
 }
 
 /// The open sessions.
@@ -124,6 +145,8 @@ struct Inner {
 pub struct Registry {
     inner: Mutex<Inner>,
     limits: LimitsConfig,
+    /// Bytes of estimated session memory the open sessions may hold together.
+    memory_budget: u64,
 }
 
 /// A place and an id reserved for a session being created; released on drop unless
@@ -134,18 +157,57 @@ pub struct Reservation<'a> {
     owner: Owner,
     /// The new session's id.
     pub id: String,
+    /// Estimated memory claimed for the new session, bytes ([`Reservation::claim_memory`]).
+    memory: u64,
     done: bool,
 }
 
 impl Drop for Reservation<'_> {
     fn drop(&mut self) {
         if !self.done {
-            self.registry.release(&self.owner, &self.id);
+            self.registry.release(&self.owner, &self.id, self.memory);
         }
     }
 }
 
 impl Reservation<'_> {
+    /// Claims `bytes` of the server's memory budget for the new session (its estimate,
+    /// `Session::memory_estimate_bytes`). 413 `model_too_large` when it exceeds the whole
+    /// budget (no server configured like this one can hold it); 429 `memory_budget` when the
+    /// open sessions leave too little (another replica, or later, may). Claiming again
+    /// replaces the earlier claim.
+    pub fn claim_memory(&mut self, bytes: u64) -> Result<(), ApiError> {
+        let budget = self.registry.memory_budget;
+        let mut g = self.registry.lock()?;
+        g.reserved_memory -= self.memory;
+        self.memory = 0;
+        if bytes > budget {
+            return Err(ApiError::too_large(
+                "model_too_large",
+                format!(
+                    "the scene's model needs about {:.0} MiB, more than this server's whole memory budget of {:.0} MiB (limits.max_memory_mb); use a larger grid.cell_size",
+                    mib(bytes),
+                    mib(budget)
+                ),
+            ));
+        }
+        let in_use = g.memory_in_use();
+        if in_use.saturating_add(bytes) > budget {
+            return Err(ApiError::too_many(
+                "memory_budget",
+                format!(
+                    "the scene's model needs about {:.0} MiB and the open sessions hold {:.0} MiB of this server's {:.0} MiB memory budget (limits.max_memory_mb); try another replica or later",
+                    mib(bytes),
+                    mib(in_use),
+                    mib(budget)
+                ),
+            ));
+        }
+        g.reserved_memory += bytes;
+        self.memory = bytes;
+        Ok(())
+    }
+
     /// Registers the created session (its id must be [`Reservation::id`]) in place of the
     /// reservation.
     pub fn commit(mut self, handle: Arc<SessionHandle>) {
@@ -156,18 +218,37 @@ impl Reservation<'_> {
                 *n = n.saturating_sub(1);
             }
             g.reserved_ids.remove(&self.id);
+            g.reserved_memory -= self.memory;
             g.sessions.insert(handle.id.clone(), handle);
         }
     }
 }
 
 impl Registry {
-    /// An empty registry enforcing `limits`.
+    /// An empty registry enforcing `limits`, with the memory budget they give
+    /// ([`memory_budget`]).
     pub fn new(limits: LimitsConfig) -> Self {
+        let (memory_budget, _) = memory_budget(limits.max_memory_mb);
+        Self::with_memory_budget(limits, memory_budget)
+    }
+
+    /// An empty registry enforcing `limits` with a memory budget of `bytes`.
+    pub fn with_memory_budget(limits: LimitsConfig, bytes: u64) -> Self {
         Self {
             inner: Mutex::new(Inner::default()),
             limits,
+            memory_budget: bytes,
         }
+    }
+
+    /// The memory budget of the open sessions' estimates, bytes (`u64::MAX`: none known).
+    pub fn memory_budget(&self) -> u64 {
+        self.memory_budget
+    }
+
+    /// Estimated memory of the open sessions and of those being created, bytes.
+    pub fn memory_in_use(&self) -> u64 {
+        self.inner.lock().map(|g| g.memory_in_use()).unwrap_or(0)
     }
 
     fn lock(&self) -> Result<std::sync::MutexGuard<'_, Inner>, ApiError> {
@@ -176,8 +257,9 @@ impl Registry {
             .map_err(|_| ApiError::internal("session registry poisoned"))
     }
 
-    fn release(&self, owner: &Owner, id: &str) {
+    fn release(&self, owner: &Owner, id: &str, memory: u64) {
         if let Ok(mut g) = self.inner.lock() {
+            g.reserved_memory -= memory;
             if let Some(n) = g.reserved.get_mut(owner) {
                 *n = n.saturating_sub(1);
             }
@@ -238,6 +320,7 @@ impl Registry {
             registry: self,
             owner: owner.clone(),
             id,
+            memory: 0,
             done: false,
         })
     }
@@ -377,5 +460,32 @@ mod tests {
         }
         let fresh = r.reserve(&a, None).unwrap();
         assert!(is_session_id(&fresh.id) && fresh.id != id);
+    }
+
+    /// Claims in flight count against the budget like open sessions; a reservation dropped
+    /// without commit (a failed build) gives its claim back, a re-claim replaces the earlier
+    /// one, and an estimate above the whole budget is refused as such.
+    #[test]
+    fn memory_claims_share_the_budget() {
+        let r = Registry::with_memory_budget(LimitsConfig::default(), 100);
+        let a = Owner("a".into());
+        let mut first = r.reserve(&a, None).unwrap();
+        first.claim_memory(60).unwrap();
+        let mut second = r.reserve(&a, None).unwrap();
+        assert_eq!(second.claim_memory(50).unwrap_err().code, "memory_budget");
+        assert_eq!(r.memory_in_use(), 60);
+        second.claim_memory(40).unwrap();
+        assert_eq!(r.memory_in_use(), 100);
+        first.claim_memory(10).unwrap();
+        assert_eq!(r.memory_in_use(), 50);
+        drop(first);
+        assert_eq!(r.memory_in_use(), 40);
+        let mut third = r.reserve(&a, None).unwrap();
+        let e = third.claim_memory(101).unwrap_err();
+        assert_eq!((e.code, e.status.as_u16()), ("model_too_large", 413));
+        third.claim_memory(60).unwrap();
+        drop(second);
+        drop(third);
+        assert_eq!(r.memory_in_use(), 0);
     }
 }

@@ -196,7 +196,7 @@ impl AppState {
         if self.is_draining() {
             return Err(ApiError::shutting_down());
         }
-        let reservation = self.registry.reserve(owner, requested_id)?;
+        let mut reservation = self.registry.reserve(owner, requested_id)?;
         let id = reservation.id.clone();
         let dir = self.config.data_dir.join("sessions").join(&id);
         let _permit = self
@@ -211,37 +211,18 @@ impl AppState {
             .config
             .record
             .then(|| self.config.recordings_path().join(format!("{id}.mcap")));
-        let (sid, metrics) = (id.clone(), self.metrics.clone());
         let (rec_owner, fsync) = (
             owner.clone(),
             std::time::Duration::from_millis(self.config.recordings_fsync_ms),
         );
+        let (sid, metrics) = (id.clone(), self.metrics.clone());
         let built = tokio::task::spawn_blocking(move || {
             std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
                 let (loaded, session) = prepare_session(&upload, &d, &limits)?;
-                let recorder = record_to.and_then(|path| {
-                    open_recording(&path, &loaded, &upload, &sid, &rec_owner, fsync)
-                        .inspect_err(|e| {
-                            metrics.inc("livereg_recording_errors_total", "create", 1);
-                            tracing::error!(session = %sid, error = %e, "cannot record the session; it is served unrecorded");
-                        })
-                        .ok()
-                });
-                let info = ModelInfo {
-                    recording: recorder.as_ref().map(|r| r.path().to_path_buf()),
-                    units: loaded.scene.units.as_str().to_string(),
-                    length_scale: loaded.length_scale(),
-                    surface_vertices: session.model.surface.vertices.len(),
-                    surface_triangles: session.model.surface.triangles.len(),
-                    structures: session
-                        .model
-                        .structures
-                        .iter()
-                        .map(|s| s.name.clone())
-                        .collect(),
-                    meshes: Arc::new(crate::server::worker::ModelMeshes::of(&session.model)),
-                };
-                Ok::<_, ApiError>((session, recorder, info))
+                let estimate = session.memory_estimate_bytes().map_err(|e| {
+                    ApiError::internal(format!("the model's memory cannot be estimated: {e}"))
+                })?;
+                Ok::<_, ApiError>((loaded, session, upload, estimate))
             }))
             .unwrap_or_else(|_| {
                 Err(ApiError::internal(
@@ -252,11 +233,47 @@ impl AppState {
         .await
         .map_err(|e| ApiError::internal(format!("session build task: {e}")))
         .and_then(|r| r);
-        let (session, recorder, info) = match built {
+        // The memory budget is claimed before anything lasting (a recording) is made.
+        let (loaded, session, upload, estimate) =
+            match built.and_then(|b| reservation.claim_memory(b.3).map(|_| b)) {
+                Ok(x) => x,
+                Err(e) => {
+                    let _ = std::fs::remove_dir_all(&dir);
+                    return Err(e);
+                }
+            };
+        let opened = tokio::task::spawn_blocking(move || {
+            let recorder = record_to.and_then(|path| {
+                open_recording(&path, &loaded, &upload, &sid, &rec_owner, fsync)
+                    .inspect_err(|e| {
+                        metrics.inc("livereg_recording_errors_total", "create", 1);
+                        tracing::error!(session = %sid, error = %e, "cannot record the session; it is served unrecorded");
+                    })
+                    .ok()
+            });
+            let info = ModelInfo {
+                recording: recorder.as_ref().map(|r| r.path().to_path_buf()),
+                units: loaded.scene.units.as_str().to_string(),
+                length_scale: loaded.length_scale(),
+                surface_vertices: session.model.surface.vertices.len(),
+                surface_triangles: session.model.surface.triangles.len(),
+                structures: session
+                    .model
+                    .structures
+                    .iter()
+                    .map(|s| s.name.clone())
+                    .collect(),
+                meshes: Arc::new(crate::server::worker::ModelMeshes::of(&session.model)),
+                memory_estimate_bytes: estimate,
+            };
+            (session, recorder, info)
+        })
+        .await;
+        let (session, recorder, info) = match opened {
             Ok(x) => x,
             Err(e) => {
                 let _ = std::fs::remove_dir_all(&dir);
-                return Err(e);
+                return Err(ApiError::internal(format!("session start task: {e}")));
             }
         };
         self.metrics

@@ -273,6 +273,7 @@ mod tests {
             structures: Vec::new(),
             meshes: Default::default(),
             recording: None,
+            memory_estimate_bytes: 0,
         };
         Arc::new(SessionHandle::new(
             name.into(),

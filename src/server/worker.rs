@@ -113,6 +113,9 @@ pub struct ModelInfo {
     pub meshes: std::sync::Arc<ModelMeshes>,
     /// The session's recording (`None` when not recorded).
     pub recording: Option<std::path::PathBuf>,
+    /// The session's estimated peak memory, bytes (`Session::memory_estimate_bytes`),
+    /// counted against the server's memory budget while it is open.
+    pub memory_estimate_bytes: u64,
 }
 
 /// The triangles of a session's model, indexing the positions of its results.

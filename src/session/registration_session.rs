@@ -139,8 +139,13 @@ impl Session {
     /// [`ModelSize::estimated_bytes`] plus the coarse model's
     /// [`ModelSize::estimated_grid_bytes`] (see [`Session::model_sizes`]). Made before the
     /// first frame, so that a server can refuse a session its memory budget cannot hold.
+    /// A rigid-only session (`settings.non_rigid` false) never factorises: its factors are
+    /// not counted.
     pub fn memory_estimate_bytes(&self) -> Result<u64, String> {
-        let sizes = self.model_sizes()?;
+        let mut sizes = self.model_sizes()?;
+        if !self.settings.non_rigid {
+            sizes.iter_mut().for_each(|s| s.factor_values = 0);
+        }
         Ok(sizes[0].estimated_bytes()
             + sizes[1..]
                 .iter()
