@@ -622,10 +622,11 @@ fn status(code: u16, name: &str, message: impl Into<String>) -> StatusMessage {
 /// The STATUS answering an API error: its stable code as the error name.
 fn api_status(e: &ApiError) -> StatusMessage {
     let code = match e.code {
-        "rate_limited" | "too_many_sessions" | "server_busy" => status_code::BUSY,
+        "rate_limited" | "too_many_sessions" | "server_busy" | "memory_budget" => status_code::BUSY,
         "shutting_down" => status_code::SHUT_DOWN,
         "not_found" | "unknown_session" => status_code::NOT_FOUND,
-        "payload_too_large" | "frame_too_large" | "work_too_large" => status_code::OVERFLOW,
+        "payload_too_large" | "frame_too_large" | "work_too_large" | "model_too_large"
+        | "too_many_points" | "mesh_too_large" | "grid_too_large" => status_code::OVERFLOW,
         "invalid_frame" | "bad_request" | "invalid_scene" => status_code::CONFIG_ERROR,
         _ => status_code::UNKNOWN_ERROR,
     };
