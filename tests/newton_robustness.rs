@@ -67,7 +67,7 @@ fn bisection_rescues_a_single_large_increment() {
         max_iterations: 8,
         ..NewtonSettings::default()
     };
-    let r = NewtonSolver::new(settings).solve(&mut p, &u0);
+    let r = NewtonSolver::new(settings).solve(&mut p, &[], &u0);
     assert_eq!(r.outcome, Outcome::Converged, "{:?}", r.message);
     assert!(
         r.bisections > 0,
@@ -90,7 +90,7 @@ fn capped_solve_reports_its_cause_and_the_last_equilibrium() {
         max_bisections: 2,
         ..NewtonSettings::default()
     };
-    let r = NewtonSolver::new(settings).solve(&mut p, &u0);
+    let r = NewtonSolver::new(settings).solve(&mut p, &[], &u0);
     assert_ne!(r.outcome, Outcome::Converged);
     let msg = r.message.clone().expect("a failure says why");
     assert!(msg.contains("failed after 2 bisections"), "{msg}");
@@ -134,7 +134,7 @@ fn without_line_search_inversion_is_caught_and_survived() {
         max_bisections: 3,
         ..NewtonSettings::default()
     };
-    let r = NewtonSolver::new(settings).solve(&mut p, &u0);
+    let r = NewtonSolver::new(settings).solve(&mut p, &[], &u0);
     assert!(r.u.iter().all(|v| v.is_finite()));
     if r.outcome != Outcome::Converged {
         assert!(r.message.is_some());
@@ -157,7 +157,7 @@ fn indefinite_tangents_are_shifted_into_descent_directions() {
     loaded.scene.grid.cell_size = 16.0;
     let mut model = livereg::simulation::SceneModel::build(&loaded).unwrap();
     let u0 = vec![0.0; model.problem.dofs()];
-    let r = NewtonSolver::new(model.newton).solve(&mut model.problem, &u0);
+    let r = NewtonSolver::new(model.newton).solve(&mut model.problem, &[], &u0);
     assert_eq!(r.outcome, Outcome::Converged, "{:?}", r.message);
     let shifted = r.history.iter().filter(|h| h.regularization > 0.0).count();
     println!(
@@ -175,7 +175,7 @@ fn indefinite_tangents_are_shifted_into_descent_directions() {
 /// (updated); each must succeed and leave a finite state.
 fn improve_steps(solver: &mut NewtonSolver, p: &mut StaticProblem, u: &mut [f64], steps: usize) {
     for _ in 0..steps {
-        let r = solver.improve(p, u, 1);
+        let r = solver.improve(p, &[], u, 1);
         assert!(r.failure.is_none(), "{:?}", r.failure);
         assert!(u.iter().all(|v| v.is_finite()));
     }
@@ -196,7 +196,7 @@ fn modified_newton(p: &mut StaticProblem, lag: usize, steps: usize) -> (Vec<f64>
 /// more than a millimetre).
 fn equilibrium(p: &mut StaticProblem) -> (Vec<f64>, f64) {
     let u0 = vec![0.0; p.dofs()];
-    let reference = NewtonSolver::new(NewtonSettings::default()).solve(p, &u0);
+    let reference = NewtonSolver::new(NewtonSettings::default()).solve(p, &[], &u0);
     assert_eq!(
         reference.outcome,
         Outcome::Converged,
