@@ -11,7 +11,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let loaded = load_scene(std::path::Path::new(&path))?;
     let mut model = SceneModel::build(&loaded)?;
     let u0 = vec![0.0; model.problem.dofs()];
-    let r = NewtonSolver::new(model.newton).solve(&mut model.problem, &u0);
+    let r = NewtonSolver::new(model.newton).solve(&mut model.problem, &[], &u0);
     for it in &r.history {
         println!(
             "load {:.4}  residual {:.3e}  step {:.4}  {} shift {:.0e}",

@@ -132,7 +132,7 @@ fn solve_and_measure(
         ..NewtonSettings::default()
     };
     let u0 = vec![0.0; p.dofs()];
-    let report = NewtonSolver::new(settings).solve(&mut p, &u0);
+    let report = NewtonSolver::new(settings).solve(&mut p, &[], &u0);
     assert_eq!(report.outcome, Outcome::Converged, "{:?}", report.message);
     let emb = Embedding::new(&p.grid, samples).unwrap();
     let uh = emb.interpolate(&report.u);

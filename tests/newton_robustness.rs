@@ -3,16 +3,20 @@
 //! in equilibrium at the load it reports), and nothing non-finite ever comes out; modified
 //! Newton with refactorisation on a helper thread (`NewtonSolver::set_background_lag`) ends
 //! at plain Newton's equilibrium, independently of thread timing; so does modified Newton
-//! with the cut-cell step stabilisation on badly cut cells.
+//! with the cut-cell step stabilisation on badly cut cells. Springs passed to the solver for
+//! one call act as the problem's own, and the solver records which of them its factorisation
+//! in use was made with.
 
 mod common;
 
 use common::*;
+use livereg::grid::Embedding;
 use livereg::grid::IntegrationMode;
 use livereg::mechanics::loads::traction_forces;
 use livereg::mechanics::newton::norm;
 use livereg::mechanics::{
-    LawKind, Need, NewtonSettings, NewtonSolver, Outcome, StaticProblem, VolumetricIntegration,
+    LawKind, Need, NewtonSettings, NewtonSolver, Outcome, PenaltySprings, StaticProblem,
+    VolumetricIntegration,
 };
 use livereg::mesh::primitives::box_surface;
 use nalgebra::{Point3, Vector3};
@@ -67,7 +71,7 @@ fn bisection_rescues_a_single_large_increment() {
         max_iterations: 8,
         ..NewtonSettings::default()
     };
-    let r = NewtonSolver::new(settings).solve(&mut p, &u0);
+    let r = NewtonSolver::new(settings).solve(&mut p, &[], &u0);
     assert_eq!(r.outcome, Outcome::Converged, "{:?}", r.message);
     assert!(
         r.bisections > 0,
@@ -90,7 +94,7 @@ fn capped_solve_reports_its_cause_and_the_last_equilibrium() {
         max_bisections: 2,
         ..NewtonSettings::default()
     };
-    let r = NewtonSolver::new(settings).solve(&mut p, &u0);
+    let r = NewtonSolver::new(settings).solve(&mut p, &[], &u0);
     assert_ne!(r.outcome, Outcome::Converged);
     let msg = r.message.clone().expect("a failure says why");
     assert!(msg.contains("failed after 2 bisections"), "{msg}");
@@ -134,7 +138,7 @@ fn without_line_search_inversion_is_caught_and_survived() {
         max_bisections: 3,
         ..NewtonSettings::default()
     };
-    let r = NewtonSolver::new(settings).solve(&mut p, &u0);
+    let r = NewtonSolver::new(settings).solve(&mut p, &[], &u0);
     assert!(r.u.iter().all(|v| v.is_finite()));
     if r.outcome != Outcome::Converged {
         assert!(r.message.is_some());
@@ -157,7 +161,7 @@ fn indefinite_tangents_are_shifted_into_descent_directions() {
     loaded.scene.grid.cell_size = 16.0;
     let mut model = livereg::simulation::SceneModel::build(&loaded).unwrap();
     let u0 = vec![0.0; model.problem.dofs()];
-    let r = NewtonSolver::new(model.newton).solve(&mut model.problem, &u0);
+    let r = NewtonSolver::new(model.newton).solve(&mut model.problem, &[], &u0);
     assert_eq!(r.outcome, Outcome::Converged, "{:?}", r.message);
     let shifted = r.history.iter().filter(|h| h.regularization > 0.0).count();
     println!(
@@ -175,7 +179,7 @@ fn indefinite_tangents_are_shifted_into_descent_directions() {
 /// (updated); each must succeed and leave a finite state.
 fn improve_steps(solver: &mut NewtonSolver, p: &mut StaticProblem, u: &mut [f64], steps: usize) {
     for _ in 0..steps {
-        let r = solver.improve(p, u, 1);
+        let r = solver.improve(p, &[], u, 1);
         assert!(r.failure.is_none(), "{:?}", r.failure);
         assert!(u.iter().all(|v| v.is_finite()));
     }
@@ -196,7 +200,7 @@ fn modified_newton(p: &mut StaticProblem, lag: usize, steps: usize) -> (Vec<f64>
 /// more than a millimetre).
 fn equilibrium(p: &mut StaticProblem) -> (Vec<f64>, f64) {
     let u0 = vec![0.0; p.dofs()];
-    let reference = NewtonSolver::new(NewtonSettings::default()).solve(p, &u0);
+    let reference = NewtonSolver::new(NewtonSettings::default()).solve(p, &[], &u0);
     assert_eq!(
         reference.outcome,
         Outcome::Converged,
@@ -304,4 +308,100 @@ fn step_stabilisation_keeps_the_equilibrium_and_slows_only_badly_cut_cells() {
         "badly cut cells' nodes {loose:.2e} m from it"
     );
     assert!(held < loose, "the damping is where the cells are badly cut");
+}
+
+/// Springs at four points near the column's top pulling them by `d` (m), 50 N/m each.
+fn top_pull(p: &StaticProblem, d: Vector3<f64>) -> PenaltySprings {
+    let points = [
+        Point3::new(0.005, 0.005, 0.075),
+        Point3::new(0.015, 0.005, 0.075),
+        Point3::new(0.005, 0.015, 0.075),
+        Point3::new(0.015, 0.015, 0.075),
+    ];
+    let embedding = Embedding::new(&p.grid, &points).unwrap();
+    PenaltySprings {
+        target: vec![d; points.len()],
+        stiffness: vec![50.0; points.len()],
+        embedding,
+        follows_load: false,
+        normals: None,
+    }
+}
+
+#[test]
+fn extra_springs_act_as_the_problems_own_and_the_factorisation_records_them() {
+    // The seam between registration and mechanics: springs passed to the solver for one call
+    // are the same physics as springs stored in the problem, bit for bit.
+    let mut p = column(20.0);
+    let pull = top_pull(&p, Vector3::new(0.0, 0.01, 0.0));
+    let u0 = vec![0.0; p.dofs()];
+    let passed = NewtonSolver::new(NewtonSettings::default()).solve(
+        &mut p,
+        std::slice::from_ref(&pull),
+        &u0,
+    );
+    let mut stored = p.clone();
+    stored.springs.push(pull.clone());
+    let reference = NewtonSolver::new(NewtonSettings::default()).solve(&mut stored, &[], &u0);
+    assert_eq!(passed.outcome, Outcome::Converged, "{:?}", passed.message);
+    assert!(
+        passed.u == reference.u,
+        "extra springs differ from stored ones"
+    );
+    assert_eq!(p.springs.len(), 1, "the problem keeps only its own springs");
+    // The pull moves the top sideways in y (the traction pushes in x only).
+    let without = NewtonSolver::new(NewtonSettings::default()).solve(&mut p, &[], &u0);
+    let dy: f64 = passed
+        .u
+        .iter()
+        .zip(&without.u)
+        .skip(1)
+        .step_by(3)
+        .map(|(a, b)| a - b)
+        .fold(0.0, f64::max);
+    assert!(dy > 1e-4, "the extra springs act: {dy:.2e} m");
+
+    // Modified Newton with background refactorisation, the extra springs changing at every
+    // call (as a registration re-pairs): the solver says which of them the factorisation in
+    // use was made with. The expectation is kept here from what the solver reports after each
+    // call: a factorisation made in place is made with this call's springs, one asked of the
+    // helper with the springs of the call that asked, and swapped in some calls later.
+    let sets: Vec<PenaltySprings> = (0..40)
+        .map(|i| top_pull(&p, Vector3::new(0.0, 0.01 * (i as f64).cos(), 0.0)))
+        .collect();
+    let mut solver = NewtonSolver::new(NewtonSettings::default()).with_factor_reuse(3);
+    solver.set_background_lag(2);
+    let mut u = vec![0.0; p.dofs()];
+    let (mut factored, mut requested): (Option<usize>, Option<usize>) = (None, None);
+    let (mut in_place_made, mut helper_made) = (0, 0);
+    for (i, springs) in sets.iter().enumerate() {
+        let (own, helper, pending) = (
+            solver.factorizations() - solver.background_factorizations(),
+            solver.background_factorizations(),
+            solver.background_pending(),
+        );
+        let r = solver.improve(&mut p, std::slice::from_ref(springs), &mut u, 1);
+        assert!(r.failure.is_none(), "call {i}: {:?}", r.failure);
+        assert!(u.iter().all(|v| v.is_finite()));
+        if solver.background_factorizations() != helper {
+            factored = requested.take();
+            helper_made += 1;
+        }
+        if solver.factorizations() - solver.background_factorizations() != own {
+            factored = Some(i);
+            in_place_made += 1;
+        }
+        if solver.background_pending() && !pending {
+            requested = Some(i);
+        }
+        if let Some(f) = solver.factorization_springs() {
+            let expected = &sets[factored.expect("a factorisation was made")];
+            assert_eq!(f, std::slice::from_ref(expected), "call {i}");
+        }
+    }
+    println!("{in_place_made} calls factorised in place, {helper_made} swapped one in");
+    assert!(
+        in_place_made > 0 && helper_made > 0,
+        "both kinds of factorisation"
+    );
 }

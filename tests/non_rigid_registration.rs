@@ -39,7 +39,7 @@ fn truth(dir: &std::path::Path) -> (Vec<Point3<f64>>, Vec<Point3<f64>>, f64) {
     m.problem.external = f;
     let u0 = vec![0.0; m.problem.dofs()];
     let t = std::time::Instant::now();
-    let r = NewtonSolver::new(m.newton).solve(&mut m.problem, &u0);
+    let r = NewtonSolver::new(m.newton).solve(&mut m.problem, &[], &u0);
     println!(
         "truth: {} nodes, {} Newton iterations, {:.0} ms",
         m.problem.grid.node_count(),

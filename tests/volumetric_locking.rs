@@ -47,7 +47,7 @@ fn tip_deflection(nu: f64, vol: VolumetricIntegration, h: f64) -> f64 {
         load_steps: 1,
         ..NewtonSettings::default()
     })
-    .solve(&mut p, &u0);
+    .solve(&mut p, &[], &u0);
     assert_eq!(r.outcome, Outcome::Converged);
     let e = Embedding::new(&p.grid, &[Point3::new(L - 1e-6, 0.5 * T, 0.5 * T)]).unwrap();
     -e.interpolate(&r.u)[0].z

@@ -27,19 +27,28 @@ pub struct Factored {
     pub matrix: SymmetricCsc,
 }
 
+/// A factorisation the helper made, and the extra spring sets (beyond the problem's own) whose
+/// stiffness its tangent includes.
+pub struct Made {
+    /// The factorisation and its matrix.
+    pub factored: Factored,
+    /// The extra springs of the request (N/m), as given to [`BackgroundFactorizer::request`].
+    pub extra: Vec<PenaltySprings>,
+}
+
 /// What the helper is asked to factorise: the projected tangent at `u` (m) and `load` with
-/// these spring sets.
+/// the problem's own springs and these extra spring sets.
 struct Job {
     u: Vec<f64>,
     load: f64,
-    springs: Vec<PenaltySprings>,
+    extra: Vec<PenaltySprings>,
     /// Buffers to factorise into (a solver with its symbolic analysis, and a matrix of the
     /// tangent's pattern), when the caller has spare ones.
     spare: Option<Factored>,
 }
 
 /// The helper's answer: the factorisation, or why there is none.
-type Answer = Result<Factored, String>;
+type Answer = Result<Made, String>;
 
 /// A helper thread that assembles and factorises the projected tangent of one problem.
 pub struct BackgroundFactorizer {
@@ -54,8 +63,9 @@ pub struct BackgroundFactorizer {
 }
 
 impl BackgroundFactorizer {
-    /// Starts a helper with its own copy of `problem` (grid, material, loads; the springs come
-    /// with each request) and a `kind` solver ordered with `node_coords`; a requested
+    /// Starts a helper with its own copy of `problem` (grid, material, loads and its own
+    /// springs, as they are now: the helper does not see later changes to `problem`; the extra
+    /// springs come with each request) and a `kind` solver ordered with `node_coords`; a requested
     /// factorisation is swapped in `lag` steps after the request; `single_precision` as in
     /// [`SparseSolver::set_single_precision`]; the tangents get the cut-cell step
     /// stabilisation of coefficient `stabilization`
@@ -79,10 +89,9 @@ impl BackgroundFactorizer {
                     let Job {
                         u,
                         load,
-                        springs,
+                        extra,
                         spare,
                     } = job;
-                    own.springs = springs;
                     let Factored {
                         mut linear,
                         mut matrix,
@@ -92,7 +101,14 @@ impl BackgroundFactorizer {
                     });
                     linear.set_single_precision(single_precision);
                     let answer = own
-                        .evaluate(&u, load, Need::ProjectedTangent, None, Some(&mut matrix))
+                        .evaluate_with(
+                            &u,
+                            load,
+                            &extra,
+                            Need::ProjectedTangent,
+                            None,
+                            Some(&mut matrix),
+                        )
                         .map(|_| own.add_cut_cell_stabilization(stabilization, &mut matrix))
                         .map_err(|f| format!("cell {}: {}", f.cell, f.error))
                         .and_then(|_| linear.factorize(&matrix).map_err(|e| e.to_string()))
@@ -100,7 +116,10 @@ impl BackgroundFactorizer {
                             if linear.fell_back_to_indefinite() {
                                 Err("the projected tangent was not positive definite".into())
                             } else {
-                                Ok(Factored { linear, matrix })
+                                Ok(Made {
+                                    factored: Factored { linear, matrix },
+                                    extra,
+                                })
                             }
                         });
                     if ans_tx.send(answer).is_err() {
@@ -129,16 +148,11 @@ impl BackgroundFactorizer {
         self.due.is_some()
     }
 
-    /// Asks for the projected tangent at `u`, `load` with `springs` to be factorised, to be
-    /// swapped in at step `step + lag`. Ignored while another request is pending. `false`
-    /// when the helper has gone (the caller factorises itself).
-    pub fn request(
-        &mut self,
-        u: &[f64],
-        load: f64,
-        springs: &[PenaltySprings],
-        step: usize,
-    ) -> bool {
+    /// Asks for the projected tangent at `u` (m), `load` with the problem's own springs and
+    /// the `extra` spring sets (N/m) to be factorised, to be swapped in at step `step + lag`.
+    /// Ignored while another request is pending. `false` when the helper has gone (the caller
+    /// factorises itself).
+    pub fn request(&mut self, u: &[f64], load: f64, extra: &[PenaltySprings], step: usize) -> bool {
         if self.due.is_some() {
             return true;
         }
@@ -148,7 +162,7 @@ impl BackgroundFactorizer {
         let job = Job {
             u: u.to_vec(),
             load,
-            springs: springs.to_vec(),
+            extra: extra.to_vec(),
             spare: self.spare.take(),
         };
         if tx.send(job).is_err() {
@@ -160,8 +174,9 @@ impl BackgroundFactorizer {
     }
 
     /// At step `step`: the requested factorisation when it is due (waiting for it if the
-    /// helper is still at work), `None` before. `Some(Err)` when the helper failed or is gone.
-    pub fn take_due(&mut self, step: usize) -> Option<Result<Factored, String>> {
+    /// helper is still at work), with the extra springs it was asked with; `None` before.
+    /// `Some(Err)` when the helper failed or is gone.
+    pub fn take_due(&mut self, step: usize) -> Option<Result<Made, String>> {
         if self.due.is_none_or(|d| step < d) {
             return None;
         }
@@ -179,8 +194,8 @@ impl BackgroundFactorizer {
     /// not confused with it).
     pub fn cancel(&mut self) {
         if self.due.take().is_some() {
-            if let Ok(Ok(f)) = self.answers.recv() {
-                self.spare = Some(f);
+            if let Ok(Ok(made)) = self.answers.recv() {
+                self.spare = Some(made.factored);
             }
         }
     }

@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 use super::assembly::CellFailure;
 use super::background_factorization::{BackgroundFactorizer, Factored};
 use super::cell_kernel::Need;
+use super::penalty::PenaltySprings;
 use super::static_problem::StaticProblem;
 use crate::linalg::{LinalgError, SolverKind, SparseSolver, SymmetricCsc};
 
@@ -181,6 +182,12 @@ impl From<LinalgError> for StepFailure {
 
 /// Newton–Raphson solver for a [`StaticProblem`], keeping its linear solver (and so the
 /// symbolic factorisation) and work buffers across solves.
+///
+/// [`NewtonSolver::solve`] and [`NewtonSolver::improve`] take, besides the problem, spring
+/// sets that act on the body for that call only (`extra`: a registration's data term;
+/// [`StaticProblem::evaluate_with`]). The solver owns its factorisation state, including which
+/// `extra` springs the factorisation in use was made with
+/// ([`NewtonSolver::factorization_springs`]).
 pub struct NewtonSolver {
     /// Settings.
     pub settings: NewtonSettings,
@@ -200,6 +207,8 @@ pub struct NewtonSolver {
     last_shift: f64,
     /// Whether `linear` holds a factorisation of the current problem's pattern (stale or not).
     has_factor: bool,
+    /// The `extra` springs whose stiffness the factorisation in `linear` includes.
+    factored_with: Vec<PenaltySprings>,
     /// Steps a refactorisation may lag behind its request (0: refactorise in place).
     background_lag: usize,
     /// The helper thread that refactorises while steps go on with the old factorisation.
@@ -225,6 +234,7 @@ impl NewtonSolver {
             factorizations: 0,
             last_shift: 0.0,
             has_factor: false,
+            factored_with: Vec::new(),
             background_lag: 0,
             background: None,
             improve_steps: 0,
@@ -297,14 +307,31 @@ impl NewtonSolver {
         self.background.as_ref().is_some_and(|b| b.pending())
     }
 
+    /// The `extra` springs (see [`NewtonSolver::improve`]) whose stiffness the kept
+    /// factorisation includes, while the next step of [`NewtonSolver::improve`] would reuse
+    /// it ([`NewtonSolver::reuses_factorization`]); `None` when that step refactorises. A
+    /// caller may restrict its next springs to these: a spring the factorisation lacks, at a
+    /// point the body barely holds, makes a modified-Newton step overshoot.
+    pub fn factorization_springs(&self) -> Option<&[PenaltySprings]> {
+        self.reuses_factorization()
+            .then_some(self.factored_with.as_slice())
+    }
+
     /// Factorisations of the tangent done so far (each costs far more than a step),
     /// including the helper thread's.
     pub fn factorizations(&self) -> usize {
         self.factorizations
     }
 
-    /// Solves from the state `u0` (m; load factor 0 is assumed to hold there) up to full load.
-    pub fn solve(&mut self, problem: &mut StaticProblem, u0: &[f64]) -> SolveReport {
+    /// Solves from the state `u0` (m; load factor 0 is assumed to hold there) up to full load,
+    /// with the spring sets `extra` (N/m) acting on the body besides its own
+    /// ([`StaticProblem::evaluate_with`]; `&[]`: none).
+    pub fn solve(
+        &mut self,
+        problem: &mut StaticProblem,
+        extra: &[PenaltySprings],
+        u0: &[f64],
+    ) -> SolveReport {
         let start = Instant::now();
         self.prepare_for(problem);
         self.linear.set_single_precision(None);
@@ -330,9 +357,10 @@ impl NewtonSolver {
         let mut previous: Option<(Vec<f64>, f64)> = None;
         while load < 1.0 - 1e-12 {
             let target = (load + step).min(1.0);
-            let mut trial = self.predict(problem, &u, load, previous.as_ref(), target);
+            let mut trial = self.predict(problem, extra, &u, load, previous.as_ref(), target);
             match self.increment(
                 problem,
+                extra,
                 &mut trial,
                 target,
                 &mut report.newton_iterations,
@@ -370,10 +398,16 @@ impl NewtonSolver {
     /// Improves the state `u` (m, updated in place) of a problem at full load by at most
     /// `max_iterations` Newton iterations with line search, stopping early when converged:
     /// what each iteration of non-rigid ICP needs (a few iterations, not full equilibrium).
+    /// `extra`: spring sets (N/m) acting on the body for this call besides its own
+    /// ([`StaticProblem::evaluate_with`]; a registration's data term). A kept factorisation
+    /// may have been made with earlier `extra` springs
+    /// ([`NewtonSolver::factorization_springs`]): the steps then follow the new springs'
+    /// forces with the old springs' stiffness, and the line search guarantees the decrease.
     /// The state stays valid whatever happens; the report says how far it got.
     pub fn improve(
         &mut self,
         problem: &mut StaticProblem,
+        extra: &[PenaltySprings],
         u: &mut [f64],
         max_iterations: usize,
     ) -> ImproveReport {
@@ -383,6 +417,7 @@ impl NewtonSolver {
         let mut history = Vec::new();
         let result = self.iterate(
             problem,
+            extra,
             u,
             1.0,
             max_iterations,
@@ -442,6 +477,7 @@ impl NewtonSolver {
     fn predict(
         &self,
         problem: &mut StaticProblem,
+        extra: &[PenaltySprings],
         u: &[f64],
         load: f64,
         previous: Option<&(Vec<f64>, f64)>,
@@ -460,7 +496,7 @@ impl NewtonSolver {
             .map(|(a, b)| a + ratio * (a - b))
             .collect();
         let energy = |v: &[f64], p: &mut StaticProblem| {
-            p.evaluate(v, target, Need::Energy, None, None)
+            p.evaluate_with(v, target, extra, Need::Energy, None, None)
                 .map(|e| e.potential)
         };
         match (energy(&guess, problem), energy(u, problem)) {
@@ -474,6 +510,7 @@ impl NewtonSolver {
     fn increment(
         &mut self,
         problem: &mut StaticProblem,
+        extra: &[PenaltySprings],
         u: &mut [f64],
         load: f64,
         iterations: &mut usize,
@@ -481,7 +518,7 @@ impl NewtonSolver {
     ) -> Result<f64, StepFailure> {
         let cap = self.settings.max_iterations;
         self.factor_age = None;
-        self.iterate(problem, u, load, cap, iterations, history, 1)
+        self.iterate(problem, extra, u, load, cap, iterations, history, 1)
     }
 
     /// At most `max_iterations` Newton iterations at load factor `load` from `u` (updated in
@@ -493,6 +530,7 @@ impl NewtonSolver {
     fn iterate(
         &mut self,
         problem: &mut StaticProblem,
+        extra: &[PenaltySprings],
         u: &mut [f64],
         load: f64,
         max_iterations: usize,
@@ -522,7 +560,7 @@ impl NewtonSolver {
                 if !reuse
                     && max_uses > 1
                     && self.has_factor
-                    && self.request_background(problem, u, load)
+                    && self.request_background(problem, extra, u, load)
                 {
                     // The old factorisation serves until the new one is due.
                     reuse = true;
@@ -530,14 +568,15 @@ impl NewtonSolver {
                 // A kept factorisation keeps `k` as the matrix it factorised (the direct solver
                 // refines against it), so only the residual is evaluated.
                 let e = if reuse {
-                    problem.evaluate(u, load, Need::Force, Some(&mut r), None)?
+                    problem.evaluate_with(u, load, extra, Need::Force, Some(&mut r), None)?
                 } else {
                     let need = if s.projected_tangent {
                         Need::ProjectedTangent
                     } else {
                         Need::Tangent
                     };
-                    let e = problem.evaluate(u, load, need, Some(&mut r), Some(&mut k))?;
+                    let e =
+                        problem.evaluate_with(u, load, extra, need, Some(&mut r), Some(&mut k))?;
                     problem.add_cut_cell_stabilization(stabilization, &mut k);
                     e
                 };
@@ -569,6 +608,8 @@ impl NewtonSolver {
                     let tau = self.factorize_descent(&mut k)?;
                     self.factor_age = Some(0);
                     self.has_factor = true;
+                    self.factored_with.clear();
+                    self.factored_with.extend_from_slice(extra);
                     tau
                 };
                 for v in r.iter_mut() {
@@ -584,6 +625,7 @@ impl NewtonSolver {
                     let with_force = max_uses > 1;
                     match self.line_search(
                         problem,
+                        extra,
                         u,
                         &du,
                         &r,
@@ -629,7 +671,7 @@ impl NewtonSolver {
                 let dn = alpha * norm(&du);
                 if alpha == 1.0 && dn <= s.displacement_tolerance * norm(u) {
                     // Converged in displacement; report the residual of the new state.
-                    problem.evaluate(u, load, Need::Force, Some(&mut r), None)?;
+                    problem.evaluate_with(u, load, extra, Need::Force, Some(&mut r), None)?;
                     return Ok(norm(&r) / reference);
                 }
             }
@@ -649,11 +691,13 @@ impl NewtonSolver {
             return;
         };
         match bg.take_due(self.improve_steps) {
-            Some(Ok(f)) => {
+            Some(Ok(made)) => {
+                let f = made.factored;
                 let old = Factored {
                     linear: std::mem::replace(&mut self.linear, f.linear),
                     matrix: std::mem::replace(k, f.matrix),
                 };
+                self.factored_with = made.extra;
                 bg.give_back(old);
                 self.factorizations += 1;
                 self.helper_factorizations += 1;
@@ -668,9 +712,15 @@ impl NewtonSolver {
         }
     }
 
-    /// Asks the helper (started on first use) to refactorise at `u`; `false` when background
-    /// refactorisation is off or unavailable.
-    fn request_background(&mut self, problem: &StaticProblem, u: &[f64], load: f64) -> bool {
+    /// Asks the helper (started on first use) to refactorise at `u` with the `extra` springs;
+    /// `false` when background refactorisation is off or unavailable.
+    fn request_background(
+        &mut self,
+        problem: &StaticProblem,
+        extra: &[PenaltySprings],
+        u: &[f64],
+        load: f64,
+    ) -> bool {
         if self.background_lag == 0 {
             return false;
         }
@@ -686,7 +736,7 @@ impl NewtonSolver {
         }
         let step = self.improve_steps;
         match self.background.as_mut() {
-            Some(bg) => bg.request(u, load, &problem.springs, step),
+            Some(bg) => bg.request(u, load, extra, step),
             None => false,
         }
     }
@@ -736,6 +786,7 @@ impl NewtonSolver {
     fn line_search(
         &self,
         problem: &mut StaticProblem,
+        extra: &[PenaltySprings],
         u: &[f64],
         du: &[f64],
         r: &[f64],
@@ -761,7 +812,7 @@ impl NewtonSolver {
             }
             let accepted = if descent {
                 let residual = with_force.then_some(&mut scratch[..]);
-                match problem.evaluate(trial, load, energy_need, residual, None) {
+                match problem.evaluate_with(trial, load, extra, energy_need, residual, None) {
                     Ok(e) => {
                         let tol = 1e-12 * (potential.abs() + 1e-300);
                         e.potential.is_finite()
@@ -773,7 +824,14 @@ impl NewtonSolver {
                     }
                 }
             } else {
-                match problem.evaluate(trial, load, Need::Force, Some(&mut scratch), None) {
+                match problem.evaluate_with(
+                    trial,
+                    load,
+                    extra,
+                    Need::Force,
+                    Some(&mut scratch),
+                    None,
+                ) {
                     Ok(_) => norm(&scratch) < r_norm,
                     Err(f) => {
                         last_failure = Some(f.into());

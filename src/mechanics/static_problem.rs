@@ -12,6 +12,10 @@ use crate::linalg::SymmetricCsc;
 /// Hyperelastic body on a [`WeightedCellGrid`] under dead loads and penalty springs, in SI units
 /// (m, N, Pa, J). At load factor `s` the total potential energy is
 /// `Π(u) = W_int(u) + W_springs(u; s) − s f_extᵀ u`; the residual is `∇Π` and the tangent `∇²Π`.
+///
+/// The problem holds the body and its own conditions only (fixed regions, supports, dead
+/// loads). Springs a caller adds for one solve — registration's data term — are passed to
+/// [`StaticProblem::evaluate_with`] (and to the Newton solver) as arguments, never stored here.
 #[derive(Clone)]
 pub struct StaticProblem {
     /// The grid (its lengths are metres).
@@ -22,7 +26,9 @@ pub struct StaticProblem {
     pub volumetric: VolumetricIntegration,
     /// Dead external forces at full load, N (3 per node).
     pub external: Vec<f64>,
-    /// Penalty spring sets (fixed regions, registration targets).
+    /// The body's own penalty spring sets: fixed regions and elastic supports (N/m per
+    /// spring). Not the springs of a registration's data term: those are arguments of
+    /// [`StaticProblem::evaluate_with`].
     pub springs: Vec<PenaltySprings>,
     assembler: Assembler,
     body_cache: Option<BodyCache>,
@@ -115,15 +121,32 @@ impl StaticProblem {
 
     /// Evaluates Π at displacements `u` (m) and load factor `load`; writes the residual
     /// `∇Π` (N) into `residual` and the tangent (N/m) into `tangent` when `need` asks for them
-    /// (both are overwritten). Fails on the first inverted cell.
-    ///
-    /// The cells' energy and force at the last state whose force was assembled are kept: an
-    /// energy or residual evaluation at exactly that state (bit for bit, same material) adds
-    /// only the springs and loads to them.
+    /// (both are overwritten). Fails on the first inverted cell. The body's own springs only:
+    /// [`StaticProblem::evaluate_with`] with no extra springs.
     pub fn evaluate(
         &mut self,
         u: &[f64],
         load: f64,
+        need: Need,
+        residual: Option<&mut [f64]>,
+        tangent: Option<&mut SymmetricCsc>,
+    ) -> Result<Evaluation, CellFailure> {
+        self.evaluate_with(u, load, &[], need, residual, tangent)
+    }
+
+    /// [`StaticProblem::evaluate`] with the spring sets `extra` (N/m; e.g. a registration's
+    /// data term) added to the body's own: their energy (J) enters Π, their forces (N) the
+    /// residual and their stiffness (N/m) the tangent, exactly as if they were in
+    /// [`StaticProblem::springs`] after the body's own sets.
+    ///
+    /// The cells' energy and force at the last state whose force was assembled are kept: an
+    /// energy or residual evaluation at exactly that state (bit for bit, same material) adds
+    /// only the springs and loads to them.
+    pub fn evaluate_with(
+        &mut self,
+        u: &[f64],
+        load: f64,
+        extra: &[PenaltySprings],
         need: Need,
         residual: Option<&mut [f64]>,
         tangent: Option<&mut SymmetricCsc>,
@@ -175,7 +198,7 @@ impl StaticProblem {
             strain
         };
         let mut potential = strain;
-        for s in &self.springs {
+        for s in self.springs.iter().chain(extra) {
             potential += s.accumulate(
                 &self.assembler,
                 u,

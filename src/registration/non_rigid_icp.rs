@@ -2,6 +2,7 @@
 //! visible surface towards the intra-operative cloud while the hyperelastic grid decides how
 //! the whole volume follows.
 
+use std::collections::HashSet;
 use std::time::Instant;
 
 use nalgebra::{Point3, Vector3};
@@ -12,7 +13,7 @@ use super::correspondences::{
 use super::surface_anchors::{incident_triangles, pair_cloud_to_surface, AnchoredPairs};
 use crate::geometry::{Camera, VisibleSurface};
 use crate::grid::Embedding;
-use crate::mechanics::{NewtonSettings, NewtonSolver, PenaltySprings};
+use crate::mechanics::{NewtonSettings, NewtonSolver, PenaltySprings, StaticProblem};
 use crate::mesh::TriSurface;
 pub use crate::scene::DataTerm;
 use crate::simulation::SceneModel;
@@ -299,7 +300,8 @@ fn ms(t: Instant) -> f64 {
 }
 
 /// The non-rigid stage with the state worth keeping between frames: the Newton solver (its
-/// fill-reducing ordering, symbolic analysis and, with factor reuse, its last factorisation).
+/// fill-reducing ordering, symbolic analysis and, with factor reuse, its last factorisation
+/// and the data-term springs it was made with).
 pub struct NonRigidIcp {
     /// Settings used by [`NonRigidIcp::register`].
     pub settings: NonRigidSettings,
@@ -307,13 +309,89 @@ pub struct NonRigidIcp {
     /// Candidate source vertices of the last visibility test, ICP iterations since, and the
     /// camera it was made for.
     visible: Option<(Vec<usize>, usize, Option<Camera>)>,
-    /// Which surface vertices carried a pull spring in the kept factorisation, and in the
-    /// background one asked for (indexed by surface vertex).
-    factored: Option<Vec<bool>>,
-    requested: Option<Vec<bool>>,
     /// The model surface's triangles around each vertex (cloud → surface pairing), with the
     /// vertex and triangle counts it was built for: the topology never changes between frames.
     incident: Option<(usize, usize, Vec<Vec<usize>>)>,
+}
+
+/// The cloud a registration pulls towards, prepared once per call: indexed, its rim points
+/// flagged, and the pairing rule.
+struct Target {
+    /// The cloud (m, model frame), with its k-d tree.
+    cloud: IndexedPoints,
+    /// Which cloud points lie on the rim of the seen patch (`reject_rim`).
+    rim: Option<Vec<bool>>,
+    /// Blending and pruning of the pairs.
+    rule: PairingRule,
+}
+
+impl Target {
+    /// Checks `cloud` (m; not empty, finite) and prepares it with `settings`.
+    fn new(cloud: &[Point3<f64>], settings: &NonRigidSettings) -> Result<Self, NonRigidError> {
+        if cloud.is_empty() {
+            return Err(NonRigidError::EmptyCloud);
+        }
+        if let Some(i) = cloud
+            .iter()
+            .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+        {
+            return Err(NonRigidError::NonFinite(i));
+        }
+        let cloud = IndexedPoints::new(cloud.to_vec()).ok_or(NonRigidError::EmptyCloud)?;
+        let rim = settings
+            .reject_rim
+            .then(|| cloud.rim_mask(RIM_NEIGHBOURS, RIM_RATIO));
+        let rule = PairingRule {
+            alpha: settings.alpha,
+            outlier_sigma: settings.outlier_sigma,
+            robust: settings.robust_pruning,
+            max_pair_distance: settings.max_pair_distance,
+        };
+        Ok(Self { cloud, rim, rule })
+    }
+}
+
+/// The penalty stiffness schedule: `steps` values from `k0` to `k1` (N/m per spring),
+/// exponentially spaced (thesis alg. 3).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct PenaltyRamp {
+    k0: f64,
+    k1: f64,
+    steps: usize,
+}
+
+impl PenaltyRamp {
+    /// The ramp of `settings` on `problem`: k₀ = 0.02 E h and k₁ = 2 E h unless set (E the
+    /// Young's modulus, Pa; h the cell size, m).
+    fn new(settings: &NonRigidSettings, problem: &StaticProblem) -> Self {
+        let h = problem.grid.grid.cell_size;
+        let young = young_modulus(&problem.material);
+        Self {
+            k0: settings.penalty_start.unwrap_or(0.02 * young * h),
+            k1: settings.penalty_end.unwrap_or(2.0 * young * h),
+            steps: settings.penalty_steps.max(1),
+        }
+    }
+
+    /// Stiffness of step `step` (0-based), N/m: k₁ when there is one step.
+    fn stiffness(&self, step: usize) -> f64 {
+        if self.steps == 1 {
+            self.k1
+        } else {
+            self.k0 * (self.k1 / self.k0).powf(step as f64 / (self.steps - 1) as f64)
+        }
+    }
+}
+
+/// How a penalty step ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum StepEnd {
+    /// The surface stopped moving ([`surface_settled`]).
+    Converged,
+    /// The ICP iterations ran out first.
+    IterationCap,
+    /// The deadline stopped it (the state is the last valid one).
+    Deadline,
 }
 
 impl NonRigidIcp {
@@ -324,8 +402,6 @@ impl NonRigidIcp {
             settings,
             newton: NewtonSolver::new(newton).with_factor_reuse(settings.factor_reuse),
             visible: None,
-            factored: None,
-            requested: None,
             incident: None,
         }
     }
@@ -334,8 +410,6 @@ impl NonRigidIcp {
     pub fn invalidate(&mut self) {
         self.newton.invalidate_factorization();
         self.visible = None;
-        self.factored = None;
-        self.requested = None;
     }
 
     /// Registers `model` (its fixed regions stay held) to `cloud` (m, already rigidly aligned
@@ -345,6 +419,11 @@ impl NonRigidIcp {
     /// vertex is a candidate and the outlier rule removes those far from the cloud (the
     /// documented fallback). Stops at `deadline` (checked before each ICP iteration) with the
     /// state reached so far and `deadline_reached` set.
+    ///
+    /// The stages: the cloud's preparation ([`Target`]), the penalty ramp
+    /// ([`NonRigidIcp::penalty_ramp`]: per step, ICP iterations of visibility, pairing, the
+    /// convergence check, spring building and Newton), then the contact force of the last
+    /// springs. The model is not modified: the data term's springs are passed to the solver.
     pub fn register(
         &mut self,
         model: &mut SceneModel,
@@ -357,33 +436,10 @@ impl NonRigidIcp {
         settings.validate()?;
         self.newton.set_factor_reuse(settings.factor_reuse);
         self.newton.set_background_lag(settings.background_lag);
-        if cloud.is_empty() {
-            return Err(NonRigidError::EmptyCloud);
-        }
-        if let Some(i) = cloud
-            .iter()
-            .position(|p| !p.coords.iter().all(|c| c.is_finite()))
-        {
-            return Err(NonRigidError::NonFinite(i));
-        }
-        let cloud = IndexedPoints::new(cloud.to_vec()).ok_or(NonRigidError::EmptyCloud)?;
         let t = Instant::now();
-        let rim = settings
-            .reject_rim
-            .then(|| cloud.rim_mask(RIM_NEIGHBOURS, RIM_RATIO));
-        let rim_ms = ms(t);
-        let rule = PairingRule {
-            alpha: settings.alpha,
-            outlier_sigma: settings.outlier_sigma,
-            robust: settings.robust_pruning,
-            max_pair_distance: settings.max_pair_distance,
-        };
-        let fixed_sets = model.problem.springs.len();
-        let h = model.problem.grid.grid.cell_size;
-        let young = young_modulus(&model.problem.material);
-        let k0 = settings.penalty_start.unwrap_or(0.02 * young * h);
-        let k1 = settings.penalty_end.unwrap_or(2.0 * young * h);
-        let steps = settings.penalty_steps.max(1);
+        let target = Target::new(cloud, &settings)?;
+        let prepare_ms = ms(t);
+        let ramp = PenaltyRamp::new(&settings, &model.problem);
         let factorizations_before = self.newton.factorizations();
         let mut report = NonRigidReport {
             icp_iterations: 0,
@@ -395,226 +451,303 @@ impl NonRigidIcp {
             deadline_reached: false,
             warnings: Vec::new(),
             timings: NonRigidTimings {
-                pairing_ms: rim_ms,
+                pairing_ms: prepare_ms,
                 ..NonRigidTimings::default()
             },
             contact_force: None,
         };
-        let emb = &model.surface_embedding;
-        let interval = settings.visibility_interval.max(1);
-        let result = (|| {
-            'steps: for step in 0..steps {
-                let k = if steps == 1 {
-                    k1
-                } else {
-                    k0 * (k1 / k0).powf(step as f64 / (steps - 1) as f64)
-                };
-                // Surface positions at the start of the previous ICP iteration.
-                let mut previous: Option<Vec<Point3<f64>>> = None;
-                let mut solver_settled = false;
-                let mut step_converged = false;
-                for _ in 0..settings.max_icp_iterations {
-                    if deadline.is_some_and(|d| Instant::now() >= d) && report.icp_iterations > 0 {
-                        report.deadline_reached = true;
-                        report.converged = false;
-                        break 'steps;
-                    }
-                    report.icp_iterations += 1;
-                    let x = emb.positions(u);
-                    let stale = match &mut self.visible {
-                        Some((v, age, cam))
-                            if *age < interval
-                                && cam.as_ref() == camera
-                                && v.iter().all(|&i| i < x.len()) =>
-                        {
-                            *age += 1;
-                            false
-                        }
-                        _ => true,
-                    };
-                    if stale {
-                        let t = Instant::now();
-                        let candidates = match camera {
-                            Some(cam) => {
-                                let deformed =
-                                    TriSurface::new(x.clone(), model.surface.triangles.clone());
-                                let vis = VisibleSurface::new(&deformed)
-                                    .map_err(|e| NonRigidError::Visibility(e.to_string()))?;
-                                let mask = vis.visible_vertices(cam);
-                                (0..x.len()).filter(|&i| mask[i]).collect()
-                            }
-                            None => (0..x.len()).collect(),
-                        };
-                        self.visible = Some((candidates, 1, camera.copied()));
-                        report.timings.visibility_ms += ms(t);
-                    }
-                    let candidates = &self.visible.as_ref().expect("set above").0;
-                    let t = Instant::now();
-                    let paired = match settings.data_term {
-                        DataTerm::SurfaceToCloud => {
-                            let normals = settings.point_to_plane.then(|| {
-                                TriSurface::vertex_normals_at(&x, &model.surface.triangles)
-                            });
-                            let pairs = pair(
-                                &x,
-                                normals.as_deref(),
-                                candidates,
-                                &cloud,
-                                rim.as_deref(),
-                                &rule,
-                            )
-                            .ok_or(NonRigidError::NoCorrespondence)?;
-                            Paired::Vertices(pairs)
-                        }
-                        DataTerm::CloudToSurface => {
-                            let triangles = &model.surface.triangles;
-                            if self
-                                .incident
-                                .as_ref()
-                                .is_none_or(|(n, t, _)| (*n, *t) != (x.len(), triangles.len()))
-                            {
-                                self.incident = Some((
-                                    x.len(),
-                                    triangles.len(),
-                                    incident_triangles(x.len(), triangles),
-                                ));
-                            }
-                            let incident = &self.incident.as_ref().expect("set above").2;
-                            let normals = TriSurface::vertex_normals_at(&x, triangles);
-                            let allowed = camera.map(|_| {
-                                let mut m = vec![false; x.len()];
-                                for &i in candidates {
-                                    m[i] = true;
-                                }
-                                m
-                            });
-                            let pairs = pair_cloud_to_surface(
-                                &x,
-                                triangles,
-                                incident,
-                                &normals,
-                                allowed.as_deref(),
-                                &cloud,
-                                &rule,
-                            )
-                            .ok_or(NonRigidError::NoCorrespondence)?;
-                            Paired::Anchors(
-                                Pulled::from_anchors(
-                                    pairs,
-                                    &x,
-                                    triangles,
-                                    &cloud,
-                                    &model.problem.grid,
-                                    emb,
-                                    u,
-                                    k,
-                                    settings.point_to_plane,
-                                )
-                                .ok_or(NonRigidError::NoCorrespondence)?,
-                            )
-                        }
-                    };
-                    let (sources, rms) = paired.sources_and_rms();
-                    report.sources = sources.len();
-                    report.surface_rms = rms;
-                    // Convergence: the pulled surface stopped moving during the last iteration
-                    // (RMS and largest motion of the pulled points). A solver that only made
-                    // shortened steps has not moved the surface because it could not, not
-                    // because it is done.
-                    let converged = solver_settled
-                        && previous.as_ref().is_some_and(|prev| {
-                            let n = sources.len().max(1) as f64;
-                            let (sum, max) = sources.iter().fold((0.0, 0.0f64), |(s, m), &i| {
-                                let d2 = (x[i] - prev[i]).norm_squared();
-                                (s + d2, m.max(d2))
-                            });
-                            (sum / n).sqrt() <= settings.tolerance
-                                && max.sqrt() <= LOCAL_MOTION_FACTOR * settings.tolerance
-                        });
-                    report.timings.pairing_ms += ms(t);
-                    if converged {
-                        step_converged = true;
-                        break;
-                    }
-                    // Springs towards the targets, expressed as displacements from rest.
-                    let t = Instant::now();
-                    // A step with a kept factorisation pulls only sources that had a spring
-                    // when it was made: at a point the body barely holds (a badly cut cell) a
-                    // spring the factorisation lacks makes its step overshoot by orders of
-                    // magnitude (measured: a node moved by 2 m), and the line search then
-                    // cuts the whole step to 1/16. Newly paired sources join at the next
-                    // factorisation. Not with the cloud → surface term: its anchors move with
-                    // each frame's noise, the restriction dropped a changing part of them, and
-                    // a still scene drifted (tests/session_stability.rs: targets 1.40 mm from
-                    // frame 25 to 49 with it, 0.31 mm without; phantom TRE 0.69 → 0.67 mm).
-                    let restriction = match &self.factored {
-                        Some(mask)
-                            if self.newton.reuses_factorization() && mask.len() == x.len() =>
-                        {
-                            Some(mask.as_slice())
-                        }
-                        _ => None,
-                    };
-                    let (sources, springs) = match paired {
-                        Paired::Vertices(pairs) => {
-                            let pairs = match restriction {
-                                Some(mask) => pairs.restricted_to(mask),
-                                None => pairs,
-                            };
-                            (pairs.sources.clone(), vertex_springs(pairs, emb, k))
-                        }
-                        Paired::Anchors(pulled) => (pulled.sources, pulled.springs),
-                    };
-                    let mask = || {
-                        let mut m = vec![false; x.len()];
-                        for &i in &sources {
-                            m[i] = true;
-                        }
-                        m
-                    };
-                    let (own_before, helper_before, pending_before) = (
-                        self.newton.factorizations() - self.newton.background_factorizations(),
-                        self.newton.background_factorizations(),
-                        self.newton.background_pending(),
-                    );
-                    model.problem.springs.truncate(fixed_sets);
-                    model.problem.springs.push(springs);
-                    let r = self
-                        .newton
-                        .improve(&mut model.problem, u, settings.newton_iterations);
-                    report.newton_iterations += r.iterations;
-                    // Which springs the factorisation in use was made with.
-                    if self.newton.background_factorizations() != helper_before {
-                        self.factored = self.requested.take();
-                    }
-                    if self.newton.factorizations() - self.newton.background_factorizations()
-                        != own_before
-                    {
-                        self.factored = Some(mask());
-                    }
-                    if self.newton.background_pending() && !pending_before {
-                        self.requested = Some(mask());
-                    }
-                    solver_settled = r.failure.is_none() && r.steps.iter().all(|&a| a >= 0.5);
-                    if let Some((outcome, msg)) = r.failure {
-                        report.warnings.push(format!("{}: {msg}", outcome.name()));
-                        // A stale factorisation is the first suspect.
-                        self.newton.invalidate_factorization();
-                    }
-                    report.timings.newton_ms += ms(t);
-                    previous = Some(x);
-                }
-                report.converged &= step_converged;
-            }
-            Ok(())
-        })();
-        if model.problem.springs.len() > fixed_sets {
-            report.contact_force = ContactForce::of(&model.problem.springs[fixed_sets], u);
-        }
-        model.problem.springs.truncate(fixed_sets);
+        let mut pull = None;
+        let result = self.penalty_ramp(
+            model,
+            &target,
+            camera,
+            u,
+            deadline,
+            ramp,
+            &mut report,
+            &mut pull,
+        );
+        report.contact_force = pull.as_ref().and_then(|s| ContactForce::of(s, u));
         report.factorizations = self.newton.factorizations() - factorizations_before;
         result.map(|()| report)
     }
+
+    /// The penalty ramp: one [`NonRigidIcp::penalty_step`] per stiffness of `ramp`, until the
+    /// deadline. `pull` ends as the data term's springs of the last Newton iteration.
+    #[allow(clippy::too_many_arguments)]
+    fn penalty_ramp(
+        &mut self,
+        model: &mut SceneModel,
+        target: &Target,
+        camera: Option<&Camera>,
+        u: &mut [f64],
+        deadline: Option<Instant>,
+        ramp: PenaltyRamp,
+        report: &mut NonRigidReport,
+        pull: &mut Option<PenaltySprings>,
+    ) -> Result<(), NonRigidError> {
+        for step in 0..ramp.steps {
+            let k = ramp.stiffness(step);
+            match self.penalty_step(model, target, camera, u, deadline, k, report, pull)? {
+                StepEnd::Converged => {}
+                StepEnd::IterationCap => report.converged = false,
+                StepEnd::Deadline => {
+                    report.deadline_reached = true;
+                    report.converged = false;
+                    break;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// One penalty step at stiffness `k` (N/m per spring): at most `max_icp_iterations` ICP
+    /// iterations, each of visibility ([`NonRigidIcp::update_visibility`]), pairing
+    /// ([`NonRigidIcp::pair_points`]), the convergence check ([`surface_settled`]), spring
+    /// building ([`NonRigidIcp::data_springs`]) and `newton_iterations` Newton iterations
+    /// ([`NonRigidIcp::newton_stage`]). The deadline is checked before each iteration but the
+    /// first of the call.
+    #[allow(clippy::too_many_arguments)]
+    fn penalty_step(
+        &mut self,
+        model: &mut SceneModel,
+        target: &Target,
+        camera: Option<&Camera>,
+        u: &mut [f64],
+        deadline: Option<Instant>,
+        k: f64,
+        report: &mut NonRigidReport,
+        pull: &mut Option<PenaltySprings>,
+    ) -> Result<StepEnd, NonRigidError> {
+        let settings = self.settings;
+        // Surface positions at the start of the previous ICP iteration.
+        let mut previous: Option<Vec<Point3<f64>>> = None;
+        let mut solver_settled = false;
+        for _ in 0..settings.max_icp_iterations {
+            if deadline.is_some_and(|d| Instant::now() >= d) && report.icp_iterations > 0 {
+                return Ok(StepEnd::Deadline);
+            }
+            report.icp_iterations += 1;
+            let x = model.surface_embedding.positions(u);
+            self.update_visibility(model, &x, camera, &mut report.timings)?;
+            let t = Instant::now();
+            let paired = self.pair_points(model, target, &x, camera, u, k)?;
+            let (sources, rms) = paired.sources_and_rms();
+            report.sources = sources.len();
+            report.surface_rms = rms;
+            // A solver that only made shortened steps has not moved the surface because it
+            // could not, not because it is done.
+            let converged = solver_settled
+                && previous
+                    .as_ref()
+                    .is_some_and(|prev| surface_settled(&sources, &x, prev, settings.tolerance));
+            report.timings.pairing_ms += ms(t);
+            if converged {
+                return Ok(StepEnd::Converged);
+            }
+            let t = Instant::now();
+            let springs = self.data_springs(paired, &model.surface_embedding, k);
+            solver_settled = self.newton_stage(model, &springs, u, report);
+            *pull = Some(springs);
+            report.timings.newton_ms += ms(t);
+            previous = Some(x);
+        }
+        Ok(StepEnd::IterationCap)
+    }
+
+    /// Visibility: the candidate source vertices of the deformed surface at `x` (m), from
+    /// `camera` (ray casts) or every vertex without one, recomputed every
+    /// `visibility_interval` ICP iterations (counted across calls) or when the camera
+    /// changed; kept in `self.visible`.
+    fn update_visibility(
+        &mut self,
+        model: &SceneModel,
+        x: &[Point3<f64>],
+        camera: Option<&Camera>,
+        timings: &mut NonRigidTimings,
+    ) -> Result<(), NonRigidError> {
+        let interval = self.settings.visibility_interval.max(1);
+        if let Some((v, age, cam)) = &mut self.visible {
+            if *age < interval && cam.as_ref() == camera && v.iter().all(|&i| i < x.len()) {
+                *age += 1;
+                return Ok(());
+            }
+        }
+        let t = Instant::now();
+        let candidates = match camera {
+            Some(cam) => {
+                let deformed = TriSurface::new(x.to_vec(), model.surface.triangles.clone());
+                let vis = VisibleSurface::new(&deformed)
+                    .map_err(|e| NonRigidError::Visibility(e.to_string()))?;
+                let mask = vis.visible_vertices(cam);
+                (0..x.len()).filter(|&i| mask[i]).collect()
+            }
+            None => (0..x.len()).collect(),
+        };
+        self.visible = Some((candidates, 1, camera.copied()));
+        timings.visibility_ms += ms(t);
+        Ok(())
+    }
+
+    /// Pairing: the deformed surface at `x` (m; grid displacement `u`) with the target
+    /// cloud, by the data term — candidate vertices to their nearest cloud points (thesis
+    /// alg. 3, eq. 5.4), or every cloud point to its closest surface point, whose springs of
+    /// stiffness `k` (N/m) are made here since they need the anchors' embedding.
+    fn pair_points(
+        &mut self,
+        model: &SceneModel,
+        target: &Target,
+        x: &[Point3<f64>],
+        camera: Option<&Camera>,
+        u: &[f64],
+        k: f64,
+    ) -> Result<Paired, NonRigidError> {
+        let settings = self.settings;
+        let candidates = &self.visible.as_ref().expect("visibility runs first").0;
+        let triangles = &model.surface.triangles;
+        match settings.data_term {
+            DataTerm::SurfaceToCloud => {
+                let normals = settings
+                    .point_to_plane
+                    .then(|| TriSurface::vertex_normals_at(x, triangles));
+                let pairs = pair(
+                    x,
+                    normals.as_deref(),
+                    candidates,
+                    &target.cloud,
+                    target.rim.as_deref(),
+                    &target.rule,
+                )
+                .ok_or(NonRigidError::NoCorrespondence)?;
+                Ok(Paired::Vertices(pairs))
+            }
+            DataTerm::CloudToSurface => {
+                if self
+                    .incident
+                    .as_ref()
+                    .is_none_or(|(n, t, _)| (*n, *t) != (x.len(), triangles.len()))
+                {
+                    self.incident = Some((
+                        x.len(),
+                        triangles.len(),
+                        incident_triangles(x.len(), triangles),
+                    ));
+                }
+                let incident = &self.incident.as_ref().expect("set above").2;
+                let normals = TriSurface::vertex_normals_at(x, triangles);
+                let allowed = camera.map(|_| {
+                    let mut m = vec![false; x.len()];
+                    for &i in candidates {
+                        m[i] = true;
+                    }
+                    m
+                });
+                let pairs = pair_cloud_to_surface(
+                    x,
+                    triangles,
+                    incident,
+                    &normals,
+                    allowed.as_deref(),
+                    &target.cloud,
+                    &target.rule,
+                )
+                .ok_or(NonRigidError::NoCorrespondence)?;
+                let pulled = Pulled::from_anchors(
+                    pairs,
+                    x,
+                    triangles,
+                    &target.cloud,
+                    &model.problem.grid,
+                    &model.surface_embedding,
+                    u,
+                    k,
+                    settings.point_to_plane,
+                )
+                .ok_or(NonRigidError::NoCorrespondence)?;
+                Ok(Paired::Anchors(pulled))
+            }
+        }
+    }
+
+    /// Spring building: the data term's springs of stiffness `k` (N/m) towards the targets,
+    /// as displacements from rest (`emb`: the surface vertices' embedding).
+    ///
+    /// With the vertex data term, a step with a kept factorisation pulls only the vertices
+    /// that had a spring when it was made ([`NewtonSolver::factorization_springs`]): at a
+    /// point the body barely holds (a badly cut cell) a spring the factorisation lacks makes
+    /// its step overshoot by orders of magnitude (measured: a node moved by 2 m), and the line
+    /// search then cuts the whole step to 1/16. Newly paired vertices join at the next
+    /// factorisation. Not with the cloud → surface term: its anchors move with each frame's
+    /// noise, the restriction dropped a changing part of them, and a still scene drifted
+    /// (tests/session_stability.rs: targets 1.40 mm from frame 25 to 49 with it, 0.31 mm
+    /// without; phantom TRE 0.69 → 0.67 mm).
+    fn data_springs(&self, paired: Paired, emb: &Embedding, k: f64) -> PenaltySprings {
+        match paired {
+            Paired::Vertices(pairs) => {
+                let pairs = match self.newton.factorization_springs() {
+                    Some(factored) => pairs.restricted_to(&pulled_vertices(factored, emb)),
+                    None => pairs,
+                };
+                vertex_springs(pairs, emb, k)
+            }
+            Paired::Anchors(pulled) => pulled.springs,
+        }
+    }
+
+    /// Newton: `newton_iterations` iterations on the model with the data term's `springs`
+    /// added to its own; a failure (inversion, divergence) is reported as a warning and drops
+    /// the kept factorisation (a stale one is the first suspect). Returns whether the solver
+    /// settled: no failure and no step shortened below ½ by the line search.
+    fn newton_stage(
+        &mut self,
+        model: &mut SceneModel,
+        springs: &PenaltySprings,
+        u: &mut [f64],
+        report: &mut NonRigidReport,
+    ) -> bool {
+        let r = self.newton.improve(
+            &mut model.problem,
+            std::slice::from_ref(springs),
+            u,
+            self.settings.newton_iterations,
+        );
+        report.newton_iterations += r.iterations;
+        let settled = r.failure.is_none() && r.steps.iter().all(|&a| a >= 0.5);
+        if let Some((outcome, msg)) = r.failure {
+            report.warnings.push(format!("{}: {msg}", outcome.name()));
+            self.newton.invalidate_factorization();
+        }
+        settled
+    }
+}
+
+/// Convergence check of a penalty step: the pulled surface points `sources` (indices into
+/// `x`, m) moved since `previous` by at most `tolerance` (m, root mean square) and none by
+/// more than [`LOCAL_MOTION_FACTOR`] × `tolerance`: the displacement stopped changing.
+fn surface_settled(
+    sources: &[usize],
+    x: &[Point3<f64>],
+    previous: &[Point3<f64>],
+    tolerance: f64,
+) -> bool {
+    let n = sources.len().max(1) as f64;
+    let (sum, max) = sources.iter().fold((0.0, 0.0f64), |(s, m), &i| {
+        let d2 = (x[i] - previous[i]).norm_squared();
+        (s + d2, m.max(d2))
+    });
+    (sum / n).sqrt() <= tolerance && max.sqrt() <= LOCAL_MOTION_FACTOR * tolerance
+}
+
+/// Which surface vertices (`emb`: their embedding) carry a spring in `springs`: those whose
+/// rest position is, bit for bit, a spring's (vertex springs are made at the vertices' own
+/// embedded points, [`vertex_springs`]).
+fn pulled_vertices(springs: &[PenaltySprings], emb: &Embedding) -> Vec<bool> {
+    let key = |p: &Point3<f64>| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
+    let at: HashSet<[u64; 3]> = springs
+        .iter()
+        .flat_map(|s| s.embedding.rest.iter().map(key))
+        .collect();
+    emb.rest.iter().map(|p| at.contains(&key(p))).collect()
 }
 
 /// Registers `model` to `cloud` from `u` (updated in place) with a fresh [`NonRigidIcp`]: the

@@ -90,7 +90,7 @@ fn finish(
     samples: Vec<Point3<f64>>,
 ) -> ScenarioResult {
     let u0 = vec![0.0; p.dofs()];
-    let report = NewtonSolver::new(settings).solve(&mut p, &u0);
+    let report = NewtonSolver::new(settings).solve(&mut p, &[], &u0);
     let displacements = Embedding::new(&p.grid, &samples)
         .expect("samples embed")
         .interpolate(&report.u);

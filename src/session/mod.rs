@@ -18,5 +18,7 @@ mod tests;
 pub use frame::{Frame, FrameError, FrameResult, StageTimes};
 pub use memory_estimate::ModelSize;
 pub use observer::FrameObserver;
-pub use registration_session::{recovery_settings, robust_law, Session, BEFORE_RECOVERY};
+pub use registration_session::{
+    damped_newton, recovery_ladder, recovery_settings, RecoveryRung, Session, BEFORE_RECOVERY,
+};
 pub use settings::SessionSettings;

@@ -8,7 +8,8 @@ use super::frame::{Frame, FrameError, FrameResult, StageTimes};
 use super::memory_estimate::ModelSize;
 use super::settings::SessionSettings;
 use crate::geometry::Camera;
-use crate::mechanics::LawKind;
+use crate::linalg::SolverKind;
+use crate::mechanics::NewtonSettings;
 use crate::mesh::TriSurface;
 use crate::registration::correspondences::rejection_threshold;
 use crate::registration::isolated_points::{
@@ -559,48 +560,67 @@ impl Session {
                 }
             }
         }
-        let (mut u, mut report) =
-            self.non_rigid_attempt(warm, settings, None, start_u, aligned, camera, deadline)?;
+        let (u, mut report) =
+            self.non_rigid_attempt(warm, settings, start_u, aligned, camera, deadline)?;
         report.icp_iterations += coarse_counts.0;
         report.newton_iterations += coarse_counts.1;
         report.factorizations += coarse_counts.2;
         add_timings(&mut spent, &report.timings);
         if self.settings.recovery && (solver_failed(&report) || !all_finite(&u)) {
-            // Recovery ladder from the last good state: smaller penalty increments, then the
-            // same with a more robust law for this frame only.
-            let first = report.warnings.clone();
-            let smaller = recovery_settings(&self.settings.cold);
-            let robust = robust_law(self.model.problem.material.law);
-            let mut recovered = false;
-            for (name, law) in [("smaller-steps", None), ("robust-law", Some(robust))] {
-                if deadline.is_some_and(|d| Instant::now() >= d) {
-                    break;
-                }
-                let (u2, r2) =
-                    self.non_rigid_attempt(true, smaller, law, None, aligned, camera, deadline)?;
-                add_timings(&mut spent, &r2.timings);
-                if !solver_failed(&r2) && all_finite(&u2) {
-                    flags.push(format!("recovered:{name}"));
-                    u = u2;
-                    let mut r2 = r2;
-                    r2.warnings = first
-                        .iter()
-                        .map(|w| format!("{BEFORE_RECOVERY}{w}"))
-                        .chain(r2.warnings)
-                        .collect();
-                    r2.icp_iterations += report.icp_iterations;
-                    r2.newton_iterations += report.newton_iterations;
-                    r2.factorizations += report.factorizations;
-                    report = r2;
-                    recovered = true;
-                    break;
-                }
-            }
-            if !recovered {
-                flags.push("recovery_failed".into());
-            }
+            // The stage's kept factorisation and visible set are those of a failed attempt.
+            self.icp(warm).invalidate();
+            let (u, report) =
+                self.recover(u, report, aligned, camera, deadline, &mut spent, flags)?;
+            return Ok((u, report, spent));
         }
         Ok((u, report, spent))
+    }
+
+    /// The recovery ladder ([`recovery_ladder`]) after a first attempt that ended with
+    /// `first_u` and `first` (a solver failure or a non-finite state): each rung registers
+    /// the frame again from the last good state, with the scene's own material law, until one
+    /// ends without a solver failure and with a finite state (flag `recovered:<rung>`; the
+    /// first attempt's warnings are kept, prefixed [`BEFORE_RECOVERY`]). When none does, or
+    /// the deadline passes first, the first attempt stands, flagged `recovery_failed`, with
+    /// its warnings (the causes).
+    #[allow(clippy::too_many_arguments)]
+    fn recover(
+        &mut self,
+        first_u: Vec<f64>,
+        first: NonRigidReport,
+        aligned: &[Point3<f64>],
+        camera: Option<&Camera>,
+        deadline: Option<Instant>,
+        spent: &mut NonRigidTimings,
+        flags: &mut Vec<String>,
+    ) -> Result<(Vec<f64>, NonRigidReport), FrameError> {
+        for rung in recovery_ladder(&self.settings.cold, &self.model.newton) {
+            if deadline.is_some_and(|d| Instant::now() >= d) {
+                break;
+            }
+            let mut icp = NonRigidIcp::new(rung.settings, rung.newton);
+            let mut u = self.good.u.clone();
+            let r = icp
+                .register(&mut self.model, aligned, camera, &mut u, deadline)
+                .map_err(|e| FrameError::NonRigid(e.to_string()))?;
+            add_timings(spent, &r.timings);
+            if !solver_failed(&r) && all_finite(&u) {
+                flags.push(format!("recovered:{}", rung.name));
+                let mut r = r;
+                r.warnings = first
+                    .warnings
+                    .iter()
+                    .map(|w| format!("{BEFORE_RECOVERY}{w}"))
+                    .chain(r.warnings)
+                    .collect();
+                r.icp_iterations += first.icp_iterations;
+                r.newton_iterations += first.newton_iterations;
+                r.factorizations += first.factorizations;
+                return Ok((u, r));
+            }
+        }
+        flags.push("recovery_failed".into());
+        Ok((first_u, first))
     }
 }
 
@@ -608,15 +628,22 @@ impl Session {
 pub const BEFORE_RECOVERY: &str = "before recovery: ";
 
 impl Session {
+    /// The non-rigid stage of warm frames (`warm`) or of cold ones.
+    fn icp(&mut self, warm: bool) -> &mut NonRigidIcp {
+        if warm {
+            &mut self.non_rigid_warm
+        } else {
+            &mut self.non_rigid_cold
+        }
+    }
+
     /// One non-rigid attempt from `start` (default: the last good state) with `settings`
-    /// (the warm stage's solver when `warm`, else the cold one's) and, for this attempt only,
-    /// `law` instead of the model's. Returns the new displacement and the report.
-    #[allow(clippy::too_many_arguments)]
+    /// (the warm stage's solver when `warm`, else the cold one's). Returns the new
+    /// displacement and the report.
     fn non_rigid_attempt(
         &mut self,
         warm: bool,
         settings: NonRigidSettings,
-        law: Option<LawKind>,
         start: Option<Vec<f64>>,
         aligned: &[Point3<f64>],
         camera: Option<&Camera>,
@@ -628,20 +655,11 @@ impl Session {
         } else {
             &mut self.non_rigid_cold
         };
-        let changed = icp.settings != settings || law.is_some();
-        if changed {
+        if icp.settings != settings {
             icp.invalidate();
         }
         icp.settings = settings;
-        let own_law = self.model.problem.material.law;
-        if let Some(l) = law {
-            self.model.problem.material.law = l;
-        }
         let report = icp.register(&mut self.model, aligned, camera, &mut u, deadline);
-        self.model.problem.material.law = own_law;
-        if law.is_some() {
-            icp.invalidate();
-        }
         if !all_finite(&u) {
             icp.invalidate();
         }
@@ -897,8 +915,8 @@ fn add_timings(a: &mut NonRigidTimings, b: &NonRigidTimings) {
     a.newton_ms += b.newton_ms;
 }
 
-/// The recovery attempt's settings: the cold ramp with twice its steps (at least 6), so each
-/// penalty increment is smaller, and fresh factorisations at every Newton step.
+/// The first recovery attempt's settings: the cold ramp with twice its steps (at least 6), so
+/// each penalty increment is smaller, and fresh factorisations at every Newton step.
 pub fn recovery_settings(cold: &NonRigidSettings) -> NonRigidSettings {
     NonRigidSettings {
         penalty_steps: (2 * cold.penalty_steps).max(6),
@@ -908,12 +926,64 @@ pub fn recovery_settings(cold: &NonRigidSettings) -> NonRigidSettings {
     }
 }
 
-/// The law a recovery falls back to: corotated (rotation-invariant, no volumetric blow-up
-/// under compression), or linear elasticity when the model already is corotated.
-pub fn robust_law(law: LawKind) -> LawKind {
-    match law {
-        LawKind::Corotated => LawKind::Linear,
-        _ => LawKind::Corotated,
+/// One rung of the recovery ladder: the frame registered again from the last good state with
+/// these settings; the material law is always the scene's.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RecoveryRung {
+    /// Name in the frame's flag `recovered:<name>`.
+    pub name: &'static str,
+    /// Settings of the non-rigid stage for this attempt.
+    pub settings: NonRigidSettings,
+    /// Settings of its Newton solver.
+    pub newton: NewtonSettings,
+}
+
+/// The recovery ladder of a session whose cold frames use `cold` and whose model solves with
+/// `newton`, in order:
+/// 1. `smaller-steps`: [`recovery_settings`] (twice the cold ramp's steps, at least 6, a
+///    fresh factorisation at every Newton step) with the scene's solver;
+/// 2. `damped-newton`: four times the cold ramp's steps (at least 12), fresh factorisations,
+///    and [`damped_newton`]: a direct factorisation whose indefinite tangent is damped
+///    (Levenberg–Marquardt diagonal shift), so every step is a descent direction and the line
+///    search on the energy always finds a decrease that keeps every cell uninverted.
+///
+/// Until issue 18 the second rung swapped the material law (corotated, or linear for a
+/// corotated model) for the frame. What it rescued was the linear solve, not the law: with
+/// Jacobi-CG, the exact (indefinite) neo-Hookean, Mooney–Rivlin and SVK tangents stopped CG
+/// ("matrix is not positive definite") while the corotated law's projected tangent did not.
+/// The damped direct solve rescues those frames with the scene's law (`src/session/tests.rs`,
+/// `the_recovery_keeps_the_scenes_law`).
+pub fn recovery_ladder(cold: &NonRigidSettings, newton: &NewtonSettings) -> [RecoveryRung; 2] {
+    let smaller = recovery_settings(cold);
+    [
+        RecoveryRung {
+            name: "smaller-steps",
+            settings: smaller,
+            newton: *newton,
+        },
+        RecoveryRung {
+            name: "damped-newton",
+            settings: NonRigidSettings {
+                penalty_steps: (4 * cold.penalty_steps).max(12),
+                ..smaller
+            },
+            newton: damped_newton(newton),
+        },
+    ]
+}
+
+/// `newton` made robust for a recovery: a direct sparse Cholesky factorisation that, on an
+/// indefinite tangent, raises its diagonal until it factorises (Levenberg–Marquardt; never the
+/// explicitly indefinite LDLᵀ or Jacobi-CG, which stops on an indefinite matrix), the
+/// projected tangent (positive semi-definite for the corotated law), the energy line search,
+/// and double precision throughout.
+pub fn damped_newton(newton: &NewtonSettings) -> NewtonSettings {
+    NewtonSettings {
+        linear_solver: SolverKind::Cholesky,
+        projected_tangent: true,
+        line_search: true,
+        mixed_precision: false,
+        ..*newton
     }
 }
 

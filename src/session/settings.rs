@@ -63,7 +63,8 @@ pub struct SessionSettings {
     pub remove_isolated_points: bool,
     /// When a frame's non-rigid stage reports a solver failure (diverged, inverted element,
     /// Newton iteration cap) or a non-finite state, retry it from the last good state with
-    /// smaller penalty increments, then also with a more robust law for that frame; the frame
+    /// smaller penalty increments, then also with a damped direct Newton solver
+    /// ([`recovery_ladder`](super::recovery_ladder)), always with the scene's law; the frame
     /// is flagged `recovered:<how>` or `recovery_failed` (default true).
     pub recovery: bool,
     /// Coarse-to-fine start of cold frames: the factor on the cell size of the coarse grid

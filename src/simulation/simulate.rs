@@ -33,7 +33,7 @@ pub fn simulate_scene(
     let mut model = SceneModel::build(loaded)?;
     let mut solver = NewtonSolver::new(model.newton);
     let u0 = vec![0.0; model.problem.dofs()];
-    let result = solver.solve(&mut model.problem, &u0);
+    let result = solver.solve(&mut model.problem, &[], &u0);
     let scale = model.length_scale;
     let probes = model
         .probes

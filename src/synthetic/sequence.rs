@@ -731,7 +731,7 @@ fn continue_load(
         };
         model.problem.external = f_full.iter().map(|f| f * target).collect();
         let mut trial = u.clone();
-        let r = solver.improve(&mut model.problem, &mut trial, settings.max_iterations);
+        let r = solver.improve(&mut model.problem, &[], &mut trial, settings.max_iterations);
         iterations += r.iterations;
         let stalled_at_roundoff =
             r.failure.is_none() && r.relative_residual <= TRUTH_STALL_TOLERANCE;

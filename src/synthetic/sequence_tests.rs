@@ -156,7 +156,7 @@ fn truth_differs_from_the_registration_models_own_solution() {
         .forces(&model.problem.grid, &model.surface)
         .unwrap();
     let u0 = vec![0.0; model.problem.dofs()];
-    let report = NewtonSolver::new(NewtonSettings::default()).solve(&mut model.problem, &u0);
+    let report = NewtonSolver::new(NewtonSettings::default()).solve(&mut model.problem, &[], &u0);
     assert_eq!(report.outcome, Outcome::Converged, "{:?}", report.message);
     let own = model.surface_embedding.positions(&report.u);
     let last = seq.frames.last().unwrap();
