@@ -36,6 +36,7 @@ pub mod non_rigid_icp;
 pub mod rigid_icp;
 pub mod rigid_transform;
 pub mod surface_anchors;
+pub mod surface_normals;
 
 #[cfg(test)]
 mod test_support;

@@ -10,7 +10,10 @@ use nalgebra::{Point3, Vector3};
 use super::correspondences::{
     pair, Correspondences, IndexedPoints, PairingRule, RIM_NEIGHBOURS, RIM_RATIO,
 };
-use super::surface_anchors::{incident_triangles, pair_cloud_to_surface, AnchoredPairs};
+use super::surface_anchors::{
+    incident_triangles, pair_cloud_to_surface, AnchorNormals, AnchoredPairs,
+};
+use super::surface_normals::NormalsAtScale;
 use crate::geometry::{Camera, VisibleSurface};
 use crate::grid::Embedding;
 use crate::mechanics::{NewtonSettings, NewtonSolver, PenaltySprings, StaticProblem};
@@ -81,6 +84,23 @@ pub struct NonRigidSettings {
     /// (thesis alg. 3), or every cloud point to its closest point on the model surface
     /// ([`DataTerm::CloudToSurface`]).
     pub data_term: DataTerm,
+    /// The scale of the surface normals the cloud → surface term's point-to-plane springs
+    /// pull along ([`NormalScale`]).
+    pub normal_scale: NormalScale,
+}
+
+/// The scale at which the cloud → surface term takes the surface normal at an anchor.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum NormalScale {
+    /// Interpolated vertex normals: the scale of the mesh's triangles (before session 25;
+    /// the registration then depended on the triangulation, docs/registration.md).
+    Vertex,
+    /// Averaged over a ball whose radius follows the organ's size
+    /// ([`NormalsAtScale::default_radius`]: 0.125 × ∛volume, about 1.3 cm for a liver).
+    #[default]
+    OrganSize,
+    /// Averaged over a ball of this radius, m.
+    Radius(f64),
 }
 
 impl Default for NonRigidSettings {
@@ -102,6 +122,7 @@ impl Default for NonRigidSettings {
             point_to_plane: true,
             background_lag: 0,
             data_term: DataTerm::default(),
+            normal_scale: NormalScale::default(),
         }
     }
 }
@@ -312,6 +333,10 @@ pub struct NonRigidIcp {
     /// The model surface's triangles around each vertex (cloud → surface pairing), with the
     /// vertex and triangle counts it was built for: the topology never changes between frames.
     incident: Option<(usize, usize, Vec<Vec<usize>>)>,
+    /// Normals at a fixed scale of the model surface at rest (cloud → surface pairing with
+    /// [`NormalScale::OrganSize`] or [`NormalScale::Radius`]), and the setting they were made
+    /// for.
+    normals: Option<(NormalScale, NormalsAtScale)>,
 }
 
 /// The cloud a registration pulls towards, prepared once per call: indexed, its rim points
@@ -403,6 +428,7 @@ impl NonRigidIcp {
             newton: NewtonSolver::new(newton).with_factor_reuse(settings.factor_reuse),
             visible: None,
             incident: None,
+            normals: None,
         }
     }
 
@@ -633,8 +659,33 @@ impl NonRigidIcp {
                         incident_triangles(x.len(), triangles),
                     ));
                 }
+                let rest = &model.surface.vertices;
+                let scale = settings.normal_scale;
+                let radius = match scale {
+                    NormalScale::Vertex => None,
+                    NormalScale::OrganSize => NormalsAtScale::default_radius(rest, triangles),
+                    NormalScale::Radius(r) => Some(r),
+                };
+                if radius.is_some()
+                    && self
+                        .normals
+                        .as_ref()
+                        .is_none_or(|(s, n)| *s != scale || !n.fits(triangles.len()))
+                {
+                    self.normals = radius
+                        .and_then(|r| NormalsAtScale::new(rest, triangles, r))
+                        .map(|n| (scale, n));
+                }
                 let incident = &self.incident.as_ref().expect("set above").2;
-                let normals = TriSurface::vertex_normals_at(x, triangles);
+                let vertex_normals = TriSurface::vertex_normals_at(x, triangles);
+                let normals = match (&self.normals, radius) {
+                    (Some((_, n)), Some(_)) => AnchorNormals::AtScale {
+                        normals: n,
+                        rest,
+                        fallback: &vertex_normals,
+                    },
+                    _ => AnchorNormals::Interpolated(&vertex_normals),
+                };
                 let allowed = camera.map(|_| {
                     let mut m = vec![false; x.len()];
                     for &i in candidates {

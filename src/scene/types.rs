@@ -659,6 +659,12 @@ pub struct RegistrationSpec {
     /// point to its closest point on the deformed model surface).
     #[serde(default)]
     pub data_term: DataTerm,
+    /// Radius of the ball the cloud → surface term averages the surface normal over, scene
+    /// units; 0: interpolated vertex normals (the mesh's own scale, before session 25).
+    /// Omitted: 0.125 × the cube root of the surface's volume, about 1.3 cm for a liver
+    /// (docs/registration.md, "Normals at the organ's scale").
+    #[serde(default)]
+    pub normal_radius: Option<f64>,
 }
 
 impl Default for RegistrationSpec {
@@ -680,6 +686,7 @@ impl Default for RegistrationSpec {
             background_factorization: false,
             remove_isolated_points: defaults::remove_isolated_points(),
             data_term: DataTerm::default(),
+            normal_radius: None,
         }
     }
 }

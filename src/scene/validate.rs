@@ -402,6 +402,14 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
         if let Some(b) = r.time_budget_ms {
             c.positive("registration.time_budget_ms", b, " ms");
         }
+        if let Some(d) = r.normal_radius {
+            if !(d.is_finite() && d >= 0.0) {
+                c.fail(
+                    "registration.normal_radius",
+                    format!("must be a length >= 0 scene units (0: vertex normals), got {d}"),
+                );
+            }
+        }
         if let Some(f) = r.coarse_to_fine {
             if !(f.is_finite() && f > 1.0 && f <= 4.0) {
                 c.fail(

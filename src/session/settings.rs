@@ -1,6 +1,7 @@
 //! What a session does per frame, and its limits.
 
 use crate::mechanics::LawKind;
+use crate::registration::non_rigid_icp::NormalScale;
 use crate::registration::{NonRigidSettings, RigidIcp};
 use crate::scene::{DataTerm, PoseUpdate, RigidMode, Scene};
 
@@ -127,6 +128,11 @@ impl SessionSettings {
                 n.penalty_end = r.penalty_end;
                 n.max_pair_distance = r.max_pair_distance.map(|d| d * scale);
                 n.data_term = r.data_term;
+                n.normal_scale = match r.normal_radius {
+                    None => NormalScale::OrganSize,
+                    Some(d) if d == 0.0 => NormalScale::Vertex,
+                    Some(d) => NormalScale::Radius(d * scale),
+                };
             }
             s.rigid.robust_pruning = r.robust_pruning;
             // Warm frames prune at median/MAD with the cloud → surface term (measured in
