@@ -47,9 +47,9 @@ impl SurfaceAnchor {
 pub enum AnchorNormals<'a> {
     /// Interpolated from unit vertex normals at the current positions (barycentric weights).
     Interpolated(&'a [Vector3<f64>]),
-    /// Averaged over a ball of the surface at a fixed radius ([`NormalsAtScale`]) around the
-    /// anchor's rest position (`rest`: the vertices' rest positions); the interpolated vertex
-    /// normals (`fallback`) where no triangle lies that close.
+    /// The interpolated vertex normals (`fallback`) averaged over a ball of the surface at a
+    /// fixed radius ([`NormalsAtScale`]) around the anchor's rest position (`rest`: the
+    /// vertices' rest positions); the interpolated normal where no sample lies that close.
     AtScale {
         /// The averaging.
         normals: &'a NormalsAtScale,
@@ -81,7 +81,7 @@ impl AnchorNormals<'_> {
                 fallback,
             } => {
                 let local = interpolate(fallback)?;
-                Some(normals.at(&a.position(rest, triangles), x, triangles, local))
+                Some(normals.at(&a.position(rest, triangles), fallback, triangles, local))
             }
         }
     }

@@ -10,12 +10,14 @@
 //! triangulated (issue 19: the same phantom geometry, midpoint-subdivided from 5,120 to
 //! 81,920 triangles, registered 23 % worse on the pneumoperitoneum).
 //!
-//! [`NormalsAtScale`] averages the surface's normal over a ball of fixed radius around the
-//! point instead: the surface is sampled at rest at a quarter of the radius (a triangle larger
-//! than that is split, [`samples_by_triangle`]), the samples inside the ball are chosen at rest
-//! (the deformation is smooth at that scale), and each adds its share of its triangle's
-//! current area vector. So the average is over the *area* inside the ball whatever the size
-//! of the triangles that make it up. The radius is a length of
+//! [`NormalsAtScale`] averages the interpolated vertex-normal field over a ball of fixed
+//! radius around the point instead: the surface is sampled at rest at a quarter of the radius
+//! (a triangle larger than that is split, [`samples_by_triangle`]), the samples inside the
+//! ball are chosen at rest (the deformation is smooth at that scale), and each adds the
+//! current interpolated normal at its place times the area it stands for. So the average is
+//! over the *area* inside the ball whatever the size of the triangles that make it up; on a
+//! mesh whose triangles are larger than the ball it is the interpolated normal itself (a
+//! facet's own normal would be worse: measured in docs/registration.md). The radius is a length of
 //! the organ, not of its mesh: [`NormalsAtScale::default_radius`], 0.125 × the cube root of
 //! the enclosed volume (about 1.3 cm for a liver), chosen on two liver surfaces and five
 //! scenario classes in docs/registration.md ("Normals at the organ's scale"). Lengths in
@@ -28,6 +30,8 @@ use crate::geometry::Aabb;
 use crate::mechanics::loads::samples_by_triangle;
 use crate::mesh::TriSurface;
 
+use super::model_target::closest_barycentric;
+
 /// The radius as a fraction of the cube root of the surface's enclosed volume.
 pub const RADIUS_PER_VOLUME_ROOT: f64 = 0.125;
 
@@ -37,8 +41,9 @@ pub struct NormalsAtScale {
     radius: f64,
     /// Rest positions of the surface samples, indexed.
     samples: ImmutableKdTree<f64, 3>,
-    /// Per sample: its triangle and the share of the triangle's area it stands for.
-    shares: Vec<(usize, f64)>,
+    /// Per sample: its triangle, its barycentric weights there, and the area it stands for
+    /// (m²).
+    shares: Vec<(usize, [f64; 3], f64)>,
     triangles: usize,
 }
 
@@ -69,9 +74,13 @@ impl NormalsAtScale {
         let shares = samples
             .iter()
             .map(|&(t, s)| {
-                let [a, b, c] = surface.corners(t);
-                let area = 0.5 * (b - a).cross(&(c - a)).norm();
-                (t, if area > 0.0 { s.area / area } else { 0.0 })
+                let (w, _) = closest_barycentric(&s.point, &surface.corners(t));
+                let w = if w.iter().all(|v| v.is_finite()) {
+                    w
+                } else {
+                    [1.0 / 3.0; 3]
+                };
+                (t, w, s.area)
             })
             .collect();
         let samples = ImmutableKdTree::new_from_slice(&coords).ok()?;
@@ -105,14 +114,14 @@ impl NormalsAtScale {
     }
 
     /// The unit normal at the surface point whose rest position is `rest_point`, with the
-    /// vertices now at `x`: the normalised sum, over the samples whose rest position lies
-    /// within the radius, of their share of their triangle's `(x_b − x_a) × (x_c − x_a)`;
-    /// `fallback` (the caller's local normal) when that sum vanishes or no sample is that
-    /// close.
+    /// unit vertex normals now `vertex_normals`: the normalised sum, over the samples whose
+    /// rest position lies within the radius, of the normal interpolated at the sample times
+    /// its area; `fallback` (the caller's local normal) when that sum vanishes or no sample is
+    /// that close.
     pub fn at(
         &self,
         rest_point: &Point3<f64>,
-        x: &[Point3<f64>],
+        vertex_normals: &[Vector3<f64>],
         triangles: &[[usize; 3]],
         fallback: Vector3<f64>,
     ) -> Vector3<f64> {
@@ -121,10 +130,11 @@ impl NormalsAtScale {
             .query(&[rest_point.x, rest_point.y, rest_point.z])
             .within::<SquaredEuclidean<f64>>(self.radius * self.radius)
             .execute();
+        let n = vertex_normals;
         let sum = near.iter().fold(Vector3::zeros(), |s, nb| {
-            let (t, share) = self.shares[nb.item as usize];
+            let (t, w, area) = self.shares[nb.item as usize];
             let [a, b, c] = triangles[t];
-            s + (x[b] - x[a]).cross(&(x[c] - x[a])) * share
+            s + (n[a] * w[0] + n[b] * w[1] + n[c] * w[2]) * area
         });
         sum.try_normalize(0.0).unwrap_or(fallback)
     }
@@ -184,6 +194,7 @@ mod tests {
         let n_coarse = NormalsAtScale::new(&coarse.vertices, &coarse.triangles, r).unwrap();
         let n_fine = NormalsAtScale::new(&fine.vertices, &fine.triangles, r).unwrap();
         let vertex_normals = fine.vertex_normals();
+        let coarse_normals = coarse.vertex_normals();
         let (mut worst_scale, mut worst_between, mut worst_vertex) = (0.0f64, 0.0f64, 0.0f64);
         for &[a, b, c] in fine.triangles.iter().step_by(7) {
             // A point inside the fine triangle, off its corners.
@@ -195,15 +206,15 @@ mod tests {
             );
             let radial = p.coords;
             let z = Vector3::zeros();
-            let from_coarse = n_coarse.at(&p, &coarse.vertices, &coarse.triangles, z);
-            let from_fine = n_fine.at(&p, &fine.vertices, &fine.triangles, z);
+            let from_coarse = n_coarse.at(&p, &coarse_normals, &coarse.triangles, z);
+            let from_fine = n_fine.at(&p, &vertex_normals, &fine.triangles, z);
             let interpolated =
                 vertex_normals[a] * w[0] + vertex_normals[b] * w[1] + vertex_normals[c] * w[2];
             worst_scale = worst_scale.max(angle_deg(&from_fine, &radial));
             worst_between = worst_between.max(angle_deg(&from_fine, &from_coarse));
             worst_vertex = worst_vertex.max(angle_deg(&interpolated, &radial));
         }
-        // Measured: 1.08° from radial (the 320-face polyhedron is not a sphere), 0.48°
+        // Measured: 0.92° from radial (the 320-face polyhedron is not a sphere), 0.71°
         // between the triangulations (4.2° when whole triangles were counted by their
         // centroids), 4.07° for the fine mesh's interpolated vertex normals.
         assert!(worst_scale < 1.5, "{worst_scale}° from radial");
@@ -217,8 +228,8 @@ mod tests {
         );
     }
 
-    /// A flat square stays flat: every normal is the plane's, and the triangles' current
-    /// positions (here the square rotated) decide it, not their rest positions.
+    /// A flat square stays flat: every normal is the plane's, and the current vertex normals
+    /// (here of the square rotated) decide it, not the rest ones.
     #[test]
     fn the_current_state_turns_the_normals() {
         let mut vertices = Vec::new();
@@ -239,12 +250,13 @@ mod tests {
         let rot = nalgebra::Rotation3::from_euler_angles(0.4, -0.2, 0.9);
         let moved: Vec<Point3<f64>> = vertices.iter().map(|p| rot * p).collect();
         let p = Point3::new(0.05, 0.05, 0.0);
-        let got = n.at(&p, &moved, &triangles, Vector3::zeros());
+        let normals = crate::mesh::TriSurface::vertex_normals_at(&moved, &triangles);
+        let got = n.at(&p, &normals, &triangles, Vector3::zeros());
         assert!(angle_deg(&got, &(rot * Vector3::z())) < 1e-9);
         // Far from every sample: the fallback.
         let far = n.at(
             &Point3::new(1.0, 1.0, 1.0),
-            &moved,
+            &normals,
             &triangles,
             Vector3::x(),
         );
