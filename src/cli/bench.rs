@@ -404,7 +404,9 @@ fn parse_truth_law(name: &str) -> Result<String, String> {
 fn truth_law_kind(args: &BenchArgs) -> Result<Option<LawKind>, String> {
     args.truth_law
         .as_deref()
-        .map(|l| parse_law(l).map_err(|e| format!("--truth-law: {e} (`{l}` only with --indentation)")))
+        .map(|l| {
+            parse_law(l).map_err(|e| format!("--truth-law: {e} (`{l}` only with --indentation)"))
+        })
         .transpose()
 }
 
