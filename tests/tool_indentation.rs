@@ -97,3 +97,30 @@ fn the_default_follows_a_deep_indentation_without_camera_and_the_old_pairing_did
         m.mean_mm
     );
 }
+
+/// The sticking-tool truths (`--truth-law linear-sticking | neo-hookean-sticking`) load with
+/// the same loader; the neo-Hookean one goes to the nominal 70 mm at site C (its last frame
+/// moves a node about that far), and its press-slide holds the 12 press frames only (to
+/// 42.3 mm; see the fixture's README.md).
+#[test]
+fn the_sticking_truths_load_and_the_neo_hookean_one_goes_deep() {
+    use livereg::synthetic::indentation::{IndentationTruth, INDENTATION_STICKING_LAWS};
+    let dir = bundled_fixture_dir();
+    for law in INDENTATION_STICKING_LAWS {
+        for seq in ["press-slide", "two-sites"] {
+            let t = IndentationTruth::load(&dir, seq, law).expect("truth");
+            assert!(!t.is_empty(), "{seq}/{law}");
+            assert_eq!(t.displacements.len(), t.len(), "{seq}/{law}");
+        }
+    }
+    let deepest = |t: &IndentationTruth| t.frames.iter().map(|f| f.depth).fold(0.0, f64::max);
+    let t = IndentationTruth::load(&dir, "two-sites", "neo-hookean-sticking").expect("truth");
+    assert_eq!(t.len(), 50);
+    assert!((deepest(&t) - 0.070).abs() < 1e-9, "{}", deepest(&t));
+    let last = &t.displacements[t.len() - 1];
+    let umax = last.iter().map(|u| u.norm()).fold(0.0, f64::max);
+    assert!(umax > 0.065, "largest displacement at 70 mm: {umax} m");
+    let p = IndentationTruth::load(&dir, "press-slide", "neo-hookean-sticking").expect("truth");
+    assert_eq!(p.len(), 12);
+    assert!((deepest(&p) - 0.0423).abs() < 1e-9, "{}", deepest(&p));
+}

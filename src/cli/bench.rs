@@ -23,7 +23,9 @@ use crate::charts::pareto::write_chart;
 use crate::evaluation::read_truth;
 use crate::mechanics::LawKind;
 use crate::scene::{load_scene, LoadedScene};
-use crate::synthetic::indentation::{bundled_fixture_dir, INDENTATION_LAWS, INDENTATION_SEQUENCES};
+use crate::synthetic::indentation::{
+    bundled_fixture_dir, INDENTATION_LAWS, INDENTATION_SEQUENCES, INDENTATION_STICKING_LAWS,
+};
 use crate::synthetic::{generate_sequence, ScenarioKind, SequenceSpec};
 
 /// Arguments of `livereg bench`.
@@ -60,9 +62,10 @@ pub struct BenchArgs {
     pub repeats: Option<u32>,
     /// Constitutive law of the synthetic ground truth (default neo-Hookean, the truth of
     /// every recorded table; `mooney-rivlin` is none of the registration laws, so no law is
-    /// graded against itself).
-    #[arg(long, value_name = "LAW", value_parser = parse_law)]
-    pub truth_law: Option<LawKind>,
+    /// graded against itself). With `--indentation` also `linear-sticking` and
+    /// `neo-hookean-sticking`: the fixture's truths with a no-slip tool.
+    #[arg(long, value_name = "LAW", value_parser = parse_truth_law)]
+    pub truth_law: Option<String>,
     /// Run the stability matrix instead of the sweep (writes stability.json and
     /// stability.md); with `--quick`, its reduced form (two values per axis).
     #[arg(long, conflicts_with_all = ["frames", "only"])]
@@ -125,7 +128,7 @@ pub fn run(args: &BenchArgs) -> Result<Option<BenchReport>, String> {
             frame_count(args)?,
             args.quick,
             0,
-            args.truth_law,
+            truth_law_kind(args)?,
         )?,
     };
     let repeats = args
@@ -161,7 +164,7 @@ pub fn run(args: &BenchArgs) -> Result<Option<BenchReport>, String> {
 /// `stability.md` in the output directory.
 pub fn run_stability(args: &BenchArgs, scene: &LoadedScene) -> Result<StabilityReport, String> {
     let mut options = StabilityOptions::standard(args.quick);
-    options.truth_law = args.truth_law;
+    options.truth_law = truth_law_kind(args)?;
     if let Some(n) = args.frame_count {
         if n == 0 {
             return Err("--frame-count must be >= 1".into());
@@ -221,15 +224,16 @@ pub fn run_indentation_bench(args: &BenchArgs) -> Result<Vec<IndentationMetrics>
             })
             .collect::<Result<_, _>>()?
     };
-    let laws: Vec<&str> = match args.truth_law {
-        Some(l) => vec![law_name(l)],
+    let laws: Vec<&str> = match &args.truth_law {
+        Some(l) => vec![l.as_str()],
         None => INDENTATION_LAWS.to_vec(),
     };
     for l in &laws {
-        if !INDENTATION_LAWS.contains(l) {
+        if !INDENTATION_LAWS.contains(l) && !INDENTATION_STICKING_LAWS.contains(l) {
             return Err(format!(
-                "--truth-law {l}: the indentation truth exists for {}",
-                INDENTATION_LAWS.join(", ")
+                "--truth-law {l}: the indentation truth exists for {}, {}",
+                INDENTATION_LAWS.join(", "),
+                INDENTATION_STICKING_LAWS.join(", ")
             ));
         }
     }
@@ -387,6 +391,25 @@ pub fn user_workload(frames: &Path, truth: &Path) -> Result<Workload, String> {
 }
 
 /// A law by its scene-file name (`--truth-law`).
+/// `--truth-law`: a law's name, or one of the indentation fixture's sticking-tool truths.
+fn parse_truth_law(name: &str) -> Result<String, String> {
+    if INDENTATION_STICKING_LAWS.contains(&name) {
+        return Ok(name.to_string());
+    }
+    parse_law(name).map(|_| name.to_string())
+}
+
+/// `--truth-law` as a law, for the sweep and the stability matrix (the sticking-tool truths
+/// exist only for `--indentation`).
+fn truth_law_kind(args: &BenchArgs) -> Result<Option<LawKind>, String> {
+    args.truth_law
+        .as_deref()
+        .map(|l| {
+            parse_law(l).map_err(|e| format!("--truth-law: {e} (`{l}` only with --indentation)"))
+        })
+        .transpose()
+}
+
 fn parse_law(name: &str) -> Result<LawKind, String> {
     LawKind::ALL
         .into_iter()

@@ -33,8 +33,14 @@ const MM: f64 = 1e-3;
 /// Sequences of the bundled fixture.
 pub const INDENTATION_SEQUENCES: [&str; 2] = ["press-slide", "two-sites"];
 
-/// Truth laws of the bundled fixture (scene-file names).
+/// Truth laws of the bundled fixture (scene-file names), frictionless tool; the default set of
+/// `bench --indentation`.
 pub const INDENTATION_LAWS: [&str; 2] = ["linear", "neo-hookean"];
+
+/// The bundled fixture's truths with a sticking (no-slip) tool, the neo-Hookean one at the
+/// nominal depths (`bench --indentation --truth-law neo-hookean-sticking`; see the fixture's
+/// README.md).
+pub const INDENTATION_STICKING_LAWS: [&str; 2] = ["linear-sticking", "neo-hookean-sticking"];
 
 /// The bundled fixture's directory (relative to the repository root).
 pub fn bundled_fixture_dir() -> PathBuf {
@@ -90,7 +96,8 @@ pub struct ToolFrame {
 pub struct IndentationTruth {
     /// Sequence name (e.g. `press-slide`).
     pub sequence: String,
-    /// Constitutive law of the truth (scene-file name: `linear`, `neo-hookean`).
+    /// Constitutive law of the truth (scene-file name: `linear`, `neo-hookean`, or either with
+    /// `-sticking` for the no-slip tool).
     pub law: String,
     /// Rest positions of the tet mesh's vertices, m (surface vertices first).
     pub nodes: Vec<Point3<f64>>,
