@@ -3,6 +3,7 @@
 //! the whole volume follows.
 
 use std::collections::HashSet;
+use std::sync::Arc;
 use std::time::Instant;
 
 use nalgebra::{Point3, Vector3};
@@ -101,6 +102,19 @@ pub enum NormalScale {
     OrganSize,
     /// Averaged over a ball of this radius, m.
     Radius(f64),
+}
+
+impl NormalScale {
+    /// The averaging for a surface whose rest vertices are `rest` (m) and triangles
+    /// `triangles`; `None` for [`NormalScale::Vertex`] (or a surface without a volume).
+    pub fn build(self, rest: &[Point3<f64>], triangles: &[[usize; 3]]) -> Option<NormalsAtScale> {
+        let radius = match self {
+            NormalScale::Vertex => None,
+            NormalScale::OrganSize => NormalsAtScale::default_radius(rest, triangles),
+            NormalScale::Radius(r) => Some(r),
+        }?;
+        NormalsAtScale::new(rest, triangles, radius)
+    }
 }
 
 impl Default for NonRigidSettings {
@@ -336,7 +350,7 @@ pub struct NonRigidIcp {
     /// Normals at a fixed scale of the model surface at rest (cloud → surface pairing with
     /// [`NormalScale::OrganSize`] or [`NormalScale::Radius`]), and the setting they were made
     /// for.
-    normals: Option<(NormalScale, NormalsAtScale)>,
+    normals: Option<(NormalScale, Arc<NormalsAtScale>)>,
 }
 
 /// The cloud a registration pulls towards, prepared once per call: indexed, its rim points
@@ -430,6 +444,14 @@ impl NonRigidIcp {
             incident: None,
             normals: None,
         }
+    }
+
+    /// Uses `normals` (made by `settings.normal_scale` for the surface of the model this
+    /// registers) instead of building its own on the first pairing, so that the stages of a
+    /// session share one.
+    pub fn with_normals(mut self, normals: Option<Arc<NormalsAtScale>>) -> Self {
+        self.normals = normals.map(|n| (self.settings.normal_scale, n));
+        self
     }
 
     /// Forgets the kept factorisation (call after a reset or a failed frame).
@@ -661,25 +683,18 @@ impl NonRigidIcp {
                 }
                 let rest = &model.surface.vertices;
                 let scale = settings.normal_scale;
-                let radius = match scale {
-                    NormalScale::Vertex => None,
-                    NormalScale::OrganSize => NormalsAtScale::default_radius(rest, triangles),
-                    NormalScale::Radius(r) => Some(r),
-                };
-                if radius.is_some()
+                if scale != NormalScale::Vertex
                     && self
                         .normals
                         .as_ref()
                         .is_none_or(|(s, n)| *s != scale || !n.fits(triangles.len()))
                 {
-                    self.normals = radius
-                        .and_then(|r| NormalsAtScale::new(rest, triangles, r))
-                        .map(|n| (scale, n));
+                    self.normals = scale.build(rest, triangles).map(|n| (scale, Arc::new(n)));
                 }
                 let incident = &self.incident.as_ref().expect("set above").2;
                 let vertex_normals = TriSurface::vertex_normals_at(x, triangles);
-                let normals = match (&self.normals, radius) {
-                    (Some((_, n)), Some(_)) => AnchorNormals::AtScale {
+                let normals = match &self.normals {
+                    Some((_, n)) if scale != NormalScale::Vertex => AnchorNormals::AtScale {
                         normals: n,
                         rest,
                         fallback: &vertex_normals,

@@ -61,13 +61,8 @@ pub enum AnchorNormals<'a> {
 }
 
 impl AnchorNormals<'_> {
-    /// The unit outward normal at `a` with the vertices at `x`; `None` where it vanishes.
-    pub fn at(
-        &self,
-        a: &SurfaceAnchor,
-        x: &[Point3<f64>],
-        triangles: &[[usize; 3]],
-    ) -> Option<Vector3<f64>> {
+    /// The unit outward normal at `a`; `None` where it vanishes.
+    pub fn at(&self, a: &SurfaceAnchor, triangles: &[[usize; 3]]) -> Option<Vector3<f64>> {
         let interpolate = |n: &[Vector3<f64>]| {
             let t = triangles[a.triangle];
             (n[t[0]] * a.weights[0] + n[t[1]] * a.weights[1] + n[t[2]] * a.weights[2])
@@ -187,7 +182,7 @@ pub fn pair_cloud_to_surface(
         if d > limit {
             continue;
         }
-        let Some(n) = normals.at(&a, x, triangles) else {
+        let Some(n) = normals.at(&a, triangles) else {
             continue;
         };
         out.offsets

@@ -11,7 +11,7 @@
 //! 81,920 triangles, registered 23 % worse on the pneumoperitoneum).
 //!
 //! [`NormalsAtScale`] averages the interpolated vertex-normal field over a ball of fixed
-//! radius around the point instead: the surface is sampled at rest at a quarter of the radius
+//! radius around the point instead: the surface is sampled at rest at half the radius
 //! (a triangle larger than that is split, [`samples_by_triangle`]), the samples inside the
 //! ball are chosen at rest (the deformation is smooth at that scale), and each adds the
 //! current interpolated normal at its place times the area it stands for. So the average is
@@ -47,8 +47,11 @@ pub struct NormalsAtScale {
     triangles: usize,
 }
 
-/// Sample spacing as a fraction of the radius.
-const SPACING_PER_RADIUS: f64 = 0.25;
+/// Sample spacing as a fraction of the radius: a ball holds a dozen samples or more.
+const SPACING_PER_RADIUS: f64 = 0.5;
+
+/// Heap bytes per surface sample (its k-d tree entry and its triangle, weights and area).
+pub const BYTES_PER_SAMPLE: usize = 72;
 
 impl NormalsAtScale {
     /// Averages over balls of `radius` (m) around rest positions of the surface whose rest
@@ -101,6 +104,11 @@ impl NormalsAtScale {
             .map(|&[a, b, c]| rest[a].coords.dot(&rest[b].coords.cross(&rest[c].coords)) / 6.0)
             .sum();
         (volume.is_finite() && volume > 0.0).then(|| RADIUS_PER_VOLUME_ROOT * volume.cbrt())
+    }
+
+    /// Surface samples held (their heap is about [`BYTES_PER_SAMPLE`] each).
+    pub fn samples(&self) -> usize {
+        self.shares.len()
     }
 
     /// The averaging radius, m.

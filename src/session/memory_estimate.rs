@@ -12,6 +12,7 @@
 //! | active grid cell | 20 KiB | assembly slots, cell tangents and caches of its integration points |
 //! | embedded point (surface vertex, structure point, probe) | 420 | embedding, k-d trees, correspondences |
 //! | triangle (surface, structure meshes) | 600 | adjacency, surface samples of the rigid and data terms |
+//! | sample of the normals' averaging | 72 | its k-d tree entry, triangle, weights and area (counted, not fitted) |
 //!
 //! The factor's size comes from the same symbolic analysis the solver makes (fill-reducing
 //! ordering included), without allocating the factor: it grows faster than the grid (about
@@ -22,6 +23,7 @@
 //! `tests/session_memory.rs` checks all four against the allocator.
 
 use crate::linalg::{predicted_factor_len, SolverKind};
+use crate::registration::surface_normals::BYTES_PER_SAMPLE;
 use crate::simulation::SceneModel;
 
 /// Sizes of one model that drive a session's memory.
@@ -42,6 +44,9 @@ pub struct ModelSize {
     pub embedded_points: usize,
     /// Surface and structure triangles.
     pub triangles: usize,
+    /// Surface samples of the normals' averaging (`NormalsAtScale`; set by the session,
+    /// which shares one between its stages).
+    pub normal_samples: usize,
 }
 
 /// Bytes per value of the direct factor `L`.
@@ -58,7 +63,8 @@ impl ModelSize {
     /// module's table).
     pub fn estimated_bytes(&self) -> u64 {
         let surface = BYTES_PER_EMBEDDED_POINT * self.embedded_points as f64
-            + BYTES_PER_TRIANGLE * self.triangles as f64;
+            + BYTES_PER_TRIANGLE * self.triangles as f64
+            + (BYTES_PER_SAMPLE * self.normal_samples) as f64;
         self.estimated_grid_bytes() + surface.ceil() as u64
     }
 
@@ -99,6 +105,7 @@ impl ModelSize {
                 + structure_points
                 + model.probes.points.len(),
             triangles: model.surface.triangles.len() + structure_triangles,
+            normal_samples: 0,
         })
     }
 }

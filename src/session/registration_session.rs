@@ -16,6 +16,7 @@ use crate::registration::isolated_points::{
     isolated_mask, ISOLATION_MEDIAN_FACTOR, ISOLATION_NEIGHBOURS, ISOLATION_SIGMA,
 };
 use crate::registration::non_rigid_icp::{ContactForce, NonRigidReport, NonRigidTimings};
+use crate::registration::surface_normals::NormalsAtScale;
 use crate::registration::{
     IcpResult, IndexedPoints, ModelTarget, NonRigidIcp, NonRigidSettings, Prolongation, RigidIcp,
     RigidTransform,
@@ -63,6 +64,8 @@ pub struct Session {
     /// displacement it was built for: rebuilt only when the good state changed, so
     /// rigid-only sessions (the state never changes) build it once.
     rigid_target: Option<(Vec<f64>, ModelTarget)>,
+    /// The surface normals' averaging the non-rigid stages share (`None`: vertex normals).
+    normals: Option<std::sync::Arc<NormalsAtScale>>,
 }
 
 /// The coarse model of a coarse-to-fine start and its prolongation to the fine grid.
@@ -119,7 +122,8 @@ impl Session {
         let prolongation = Prolongation::new(&coarse.problem.grid, &self.model.problem.grid)
             .map_err(|e| ModelError::Invalid(format!("coarse-to-fine prolongation: {e}")))?;
         self.coarse = Some(CoarseStart {
-            icp: NonRigidIcp::new(self.settings.cold, coarse.newton),
+            icp: NonRigidIcp::new(self.settings.cold, coarse.newton)
+                .with_normals(self.normals.clone()),
             model: coarse,
             prolongation,
         });
@@ -130,6 +134,7 @@ impl Session {
     /// one of a coarse-to-fine start (see [`super::memory_estimate`]).
     pub fn model_sizes(&self) -> Result<Vec<ModelSize>, String> {
         let mut sizes = vec![ModelSize::of(&self.model, self.model.newton.linear_solver)?];
+        sizes[0].normal_samples = self.normals.as_ref().map_or(0, |n| n.samples());
         if let Some(c) = &self.coarse {
             sizes.push(ModelSize::of(&c.model, c.model.newton.linear_solver)?);
         }
@@ -163,9 +168,18 @@ impl Session {
     /// frame brings none.
     pub fn new(model: SceneModel, settings: SessionSettings, camera: Option<Camera>) -> Self {
         let u = vec![0.0; model.problem.dofs()];
+        // One averaging of the surface normals for every stage (cold, warm, coarse, recovery).
+        let normals = settings
+            .cold
+            .normal_scale
+            .build(&model.surface.vertices, &model.surface.triangles)
+            .map(std::sync::Arc::new);
         Self {
-            non_rigid_cold: NonRigidIcp::new(settings.cold, model.newton),
-            non_rigid_warm: NonRigidIcp::new(settings.warm, model.newton),
+            non_rigid_cold: NonRigidIcp::new(settings.cold, model.newton)
+                .with_normals(normals.clone()),
+            non_rigid_warm: NonRigidIcp::new(settings.warm, model.newton)
+                .with_normals(normals.clone()),
+            normals,
             model,
             settings,
             scene_camera: camera,
@@ -598,7 +612,8 @@ impl Session {
             if deadline.is_some_and(|d| Instant::now() >= d) {
                 break;
             }
-            let mut icp = NonRigidIcp::new(rung.settings, rung.newton);
+            let mut icp =
+                NonRigidIcp::new(rung.settings, rung.newton).with_normals(self.normals.clone());
             let mut u = self.good.u.clone();
             let r = icp
                 .register(&mut self.model, aligned, camera, &mut u, deadline)
