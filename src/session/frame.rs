@@ -82,6 +82,22 @@ pub enum FrameError {
         /// The limit, mm.
         limit_mm: f64,
     },
+    /// A pose re-acquired by rigid ICP fits only with a jump of the deformation: the
+    /// registration moved the surface by more than
+    /// [`crate::session::SessionSettings::pose_reacquire_rms`] (RMS) from the last good
+    /// frame. The organ seen again after a camera move has not changed shape that much
+    /// between two frames, so the pose is taken to be a wrong minimum of rigid ICP (on a
+    /// partial view one fits nearly as well) and the frame is refused; the last good state
+    /// is kept.
+    #[error(
+        "the re-acquired pose fits only with the surface moved {change_mm:.1} mm (RMS) from the last good frame, more than {limit_mm:.1} mm: the pose is likely wrong"
+    )]
+    ImplausibleReacquisition {
+        /// RMS change of the surface vertices from the last good frame, mm.
+        change_mm: f64,
+        /// The limit, mm.
+        limit_mm: f64,
+    },
     /// The non-rigid stage failed.
     #[error("non-rigid registration: {0}")]
     NonRigid(String),
@@ -99,9 +115,10 @@ impl FrameError {
             FrameError::Empty => "empty",
             FrameError::NonFinite { .. } => "non-finite",
             FrameError::Rigid(_) => "rigid",
-            FrameError::NoMatch { .. } | FrameError::PoseLost { .. } | FrameError::NoFit { .. } => {
-                "no-match"
-            }
+            FrameError::NoMatch { .. }
+            | FrameError::PoseLost { .. }
+            | FrameError::NoFit { .. }
+            | FrameError::ImplausibleReacquisition { .. } => "no-match",
             FrameError::NonRigid(_) => "non-rigid",
             FrameError::NonFiniteState => "non-finite-state",
         }
