@@ -796,7 +796,7 @@ async fn the_memory_budget_admits_sessions_by_their_estimates() {
 
     let (boundary, body) = scene.multipart();
     let ct = format!("multipart/form-data; boundary={boundary}");
-    let create = |token: &'static str| {
+    let create = |addr: SocketAddr, token: &'static str| {
         let (ct, body) = (ct.clone(), body.clone());
         async move {
             let a = auth(token);
@@ -822,7 +822,7 @@ async fn the_memory_budget_admits_sessions_by_their_estimates() {
             .count()
     };
     let (disk, recorded) = (sessions_on_disk(), recordings());
-    let r = create(TOKEN_A).await;
+    let r = create(addr, TOKEN_A).await;
     assert_error(&r, 429, "memory_budget");
     let msg = r.json()["error"]["message"].as_str().unwrap().to_string();
     assert!(msg.contains(&format!("{budget_mb} MiB")), "{msg}");
@@ -842,7 +842,7 @@ async fn the_memory_budget_admits_sessions_by_their_estimates() {
 
     // Closing a session gives its share back.
     http_close_session(addr, TOKEN_B, &second).await.unwrap();
-    let r = create(TOKEN_B).await;
+    let r = create(addr, TOKEN_B).await;
     assert_eq!(r.status, 201, "{}", String::from_utf8_lossy(&r.body));
     server.shutdown().await.unwrap();
 
@@ -850,18 +850,7 @@ async fn the_memory_budget_admits_sessions_by_their_estimates() {
     let mut cfg = test_config("membudget-small");
     cfg.limits.max_memory_mb = (estimate >> 20) / 2;
     let server = start(cfg).await;
-    let r = {
-        let a = auth(TOKEN_A);
-        http(
-            server.http_addr,
-            "POST",
-            "/v1/sessions",
-            &[("Content-Type", &ct), ("Authorization", &a)],
-            &body,
-        )
-        .await
-        .unwrap()
-    };
+    let r = create(server.http_addr, TOKEN_A).await;
     assert_error(&r, 413, "model_too_large");
     server.shutdown().await.unwrap();
 }

@@ -130,7 +130,7 @@ impl SessionSettings {
                 n.data_term = r.data_term;
                 n.normal_scale = match r.normal_radius {
                     None => NormalScale::OrganSize,
-                    Some(d) if d == 0.0 => NormalScale::Vertex,
+                    Some(0.0) => NormalScale::Vertex,
                     Some(d) => NormalScale::Radius(d * scale),
                 };
             }
