@@ -11,9 +11,7 @@ use nalgebra::{Point3, Vector3};
 use super::correspondences::{
     pair, Correspondences, IndexedPoints, PairingRule, RIM_NEIGHBOURS, RIM_RATIO,
 };
-use super::surface_anchors::{
-    incident_triangles, pair_cloud_to_surface, AnchorNormals, AnchoredPairs,
-};
+use super::surface_anchors::{incident_triangles, pair_cloud_to_surface, AnchoredPairs};
 use super::surface_normals::NormalsAtScale;
 use crate::geometry::{Camera, VisibleSurface};
 use crate::grid::Embedding;
@@ -693,14 +691,13 @@ impl NonRigidIcp {
                 }
                 let incident = &self.incident.as_ref().expect("set above").2;
                 let vertex_normals = TriSurface::vertex_normals_at(x, triangles);
-                let normals = match &self.normals {
-                    Some((_, n)) if scale != NormalScale::Vertex => AnchorNormals::AtScale {
-                        normals: n,
-                        rest,
-                        fallback: &vertex_normals,
-                    },
-                    _ => AnchorNormals::Interpolated(&vertex_normals),
+                let smoothed = match &self.normals {
+                    Some((_, n)) if scale != NormalScale::Vertex => {
+                        Some(n.smooth(&vertex_normals, triangles))
+                    }
+                    _ => None,
                 };
+                let normals = smoothed.as_deref().unwrap_or(&vertex_normals);
                 let allowed = camera.map(|_| {
                     let mut m = vec![false; x.len()];
                     for &i in candidates {

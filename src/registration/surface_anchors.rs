@@ -10,7 +10,6 @@ use nalgebra::{Point3, Vector3};
 
 use super::correspondences::{rejection_threshold, robust_threshold, IndexedPoints, PairingRule};
 use super::model_target::closest_barycentric;
-use super::surface_normals::NormalsAtScale;
 
 /// A point of the model surface: a triangle and barycentric weights of its corners.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -39,46 +38,6 @@ impl SurfaceAnchor {
             .max_by(|&a, &b| self.weights[a].total_cmp(&self.weights[b]))
             .unwrap_or(0);
         t[k]
-    }
-}
-
-/// How the normal at an anchor is found.
-#[derive(Debug, Clone, Copy)]
-pub enum AnchorNormals<'a> {
-    /// Interpolated from unit vertex normals at the current positions (barycentric weights).
-    Interpolated(&'a [Vector3<f64>]),
-    /// The interpolated vertex normals (`fallback`) averaged over a ball of the surface at a
-    /// fixed radius ([`NormalsAtScale`]) around the anchor's rest position (`rest`: the
-    /// vertices' rest positions); the interpolated normal where no sample lies that close.
-    AtScale {
-        /// The averaging.
-        normals: &'a NormalsAtScale,
-        /// Rest positions of the vertices, m.
-        rest: &'a [Point3<f64>],
-        /// Unit vertex normals at the current positions.
-        fallback: &'a [Vector3<f64>],
-    },
-}
-
-impl AnchorNormals<'_> {
-    /// The unit outward normal at `a`; `None` where it vanishes.
-    pub fn at(&self, a: &SurfaceAnchor, triangles: &[[usize; 3]]) -> Option<Vector3<f64>> {
-        let interpolate = |n: &[Vector3<f64>]| {
-            let t = triangles[a.triangle];
-            (n[t[0]] * a.weights[0] + n[t[1]] * a.weights[1] + n[t[2]] * a.weights[2])
-                .try_normalize(1e-12)
-        };
-        match self {
-            Self::Interpolated(n) => interpolate(n),
-            Self::AtScale {
-                normals,
-                rest,
-                fallback,
-            } => {
-                let local = interpolate(fallback)?;
-                Some(normals.at(&a.position(rest, triangles), fallback, triangles, local))
-            }
-        }
     }
 }
 
@@ -119,16 +78,16 @@ pub struct AnchoredPairs {
 }
 
 /// Pairs every point of `cloud` with its closest point on the surface (`x`: current vertex
-/// positions, `triangles`, `incident`: [`incident_triangles`], `normals`: how the unit
-/// outward normal at an anchor is found), looking only at triangles with a corner flagged in
-/// `allowed` when given (the vertices the camera sees). Pairs farther than the rule's threshold (mean + kσ, or
+/// positions, `triangles`, `incident`: [`incident_triangles`], `vertex_normals`: unit outward
+/// normals at `x`), looking only at triangles with a corner flagged in `allowed` when given
+/// (the vertices the camera sees). Pairs farther than the rule's threshold (mean + kσ, or
 /// median + k·1.4826 MAD, of the pair distances, and `max_pair_distance`) are dropped. `None`
 /// when fewer than 3 pairs remain.
 pub fn pair_cloud_to_surface(
     x: &[Point3<f64>],
     triangles: &[[usize; 3]],
     incident: &[Vec<usize>],
-    normals: &AnchorNormals<'_>,
+    vertex_normals: &[Vector3<f64>],
     allowed: Option<&[bool]>,
     cloud: &IndexedPoints,
     rule: &PairingRule,
@@ -182,7 +141,11 @@ pub fn pair_cloud_to_surface(
         if d > limit {
             continue;
         }
-        let Some(n) = normals.at(&a, triangles) else {
+        let tri = triangles[a.triangle];
+        let n = vertex_normals[tri[0]] * a.weights[0]
+            + vertex_normals[tri[1]] * a.weights[1]
+            + vertex_normals[tri[2]] * a.weights[2];
+        let Some(n) = n.try_normalize(1e-12) else {
             continue;
         };
         out.offsets
@@ -244,7 +207,7 @@ mod tests {
             &s.vertices,
             &s.triangles,
             &incident,
-            &AnchorNormals::Interpolated(&normals),
+            &normals,
             None,
             &cloud,
             &loose(),
@@ -287,7 +250,7 @@ mod tests {
             &s.vertices,
             &s.triangles,
             &incident,
-            &AnchorNormals::Interpolated(&normals),
+            &normals,
             Some(&allowed),
             &cloud,
             &loose(),
@@ -304,7 +267,7 @@ mod tests {
             &s.vertices,
             &s.triangles,
             &incident,
-            &AnchorNormals::Interpolated(&normals),
+            &normals,
             None,
             &cloud,
             &capped

@@ -11,17 +11,23 @@
 //! 81,920 triangles, registered 23 % worse on the pneumoperitoneum).
 //!
 //! [`NormalsAtScale`] averages the interpolated vertex-normal field over a ball of fixed
-//! radius around the point instead: the surface is sampled at rest at half the radius
-//! (a triangle larger than that is split, [`samples_by_triangle`]), the samples inside the
-//! ball are chosen at rest (the deformation is smooth at that scale), and each adds the
-//! current interpolated normal at its place times the area it stands for. So the average is
-//! over the *area* inside the ball whatever the size of the triangles that make it up; on a
-//! mesh whose triangles are larger than the ball it is the interpolated normal itself (a
+//! radius around each vertex instead, and the pairing interpolates these smoothed vertex
+//! normals. The surface is sampled at rest at half the radius (a triangle larger than that is
+//! split, [`samples_by_triangle`]) and the samples are gathered into cells of half the radius
+//! (clusters); which clusters lie within the radius of each vertex, and their weights (a
+//! smooth kernel of the distance), are found once, at rest (the
+//! deformation is smooth at that scale). Per evaluation, each cluster sums the current
+//! interpolated normal at its samples times their areas, and each vertex the sums of its
+//! clusters: a cost of samples plus vertices × clusters in reach, whatever the cloud. So the
+//! average is over the *area* near the vertex whatever the size of the triangles that make it
+//! up; on a mesh whose triangles are larger than the ball it is the vertex normal itself (a
 //! facet's own normal would be worse: measured in docs/registration.md). The radius is a length of
 //! the organ, not of its mesh: [`NormalsAtScale::default_radius`], 0.125 × the cube root of
 //! the enclosed volume (about 1.3 cm for a liver), chosen on two liver surfaces and five
 //! scenario classes in docs/registration.md ("Normals at the organ's scale"). Lengths in
 //! metres.
+
+use std::collections::HashMap;
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Point3, Vector3};
@@ -36,27 +42,35 @@ use super::model_target::closest_barycentric;
 pub const RADIUS_PER_VOLUME_ROOT: f64 = 0.125;
 
 /// Normals of a triangulated surface averaged over balls of one radius (see the module).
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub struct NormalsAtScale {
     radius: f64,
-    /// Rest positions of the surface samples, indexed.
-    samples: ImmutableKdTree<f64, 3>,
     /// Per sample: its triangle, its barycentric weights there, and the area it stands for
     /// (m²).
-    shares: Vec<(usize, [f64; 3], f64)>,
+    samples: Vec<(usize, [f64; 3], f64)>,
+    /// Cluster of each sample.
+    sample_cluster: Vec<u32>,
+    clusters: usize,
+    /// Clusters within the radius of each vertex with their kernel weights, compressed: those
+    /// of vertex `v` are `reach[reach_start[v]..reach_start[v + 1]]`.
+    reach_start: Vec<usize>,
+    reach: Vec<(u32, f32)>,
     triangles: usize,
 }
 
-/// Sample spacing as a fraction of the radius: a ball holds a dozen samples or more.
+/// Sample spacing and cluster cell as fractions of the radius.
 const SPACING_PER_RADIUS: f64 = 0.5;
 
-/// Heap bytes per surface sample (its k-d tree entry and its triangle, weights and area).
-pub const BYTES_PER_SAMPLE: usize = 72;
+/// Heap bytes per surface sample (its triangle, weights, area and cluster).
+pub const BYTES_PER_SAMPLE: usize = 48;
+
+/// Heap bytes per entry of a vertex's clusters in reach.
+pub const BYTES_PER_REACH: usize = 8;
 
 impl NormalsAtScale {
-    /// Averages over balls of `radius` (m) around rest positions of the surface whose rest
-    /// vertices are `rest` and triangles `triangles`. `None` without triangles or with a
-    /// radius that is not a positive finite length.
+    /// Averages over balls of `radius` (m) around the rest vertices `rest` of the surface of
+    /// `triangles`. `None` without triangles or with a radius that is not a positive finite
+    /// length.
     pub fn new(rest: &[Point3<f64>], triangles: &[[usize; 3]], radius: f64) -> Option<Self> {
         if triangles.is_empty() || !(radius.is_finite() && radius > 0.0) {
             return None;
@@ -69,28 +83,62 @@ impl NormalsAtScale {
             min: Point3::from([f64::NEG_INFINITY; 3]),
             max: Point3::from([f64::INFINITY; 3]),
         };
-        let samples = samples_by_triangle(&surface, &everywhere, SPACING_PER_RADIUS * radius);
-        let coords: Vec<[f64; 3]> = samples
+        let cell = SPACING_PER_RADIUS * radius;
+        let raw = samples_by_triangle(&surface, &everywhere, cell);
+        // Clusters: the samples' cells, each placed at its samples' area-weighted centre.
+        let mut cell_of: HashMap<[i64; 3], u32> = HashMap::new();
+        let mut centre: Vec<(Vector3<f64>, f64)> = Vec::new();
+        let mut samples = Vec::with_capacity(raw.len());
+        let mut sample_cluster = Vec::with_capacity(raw.len());
+        for &(t, s) in &raw {
+            let key = [0, 1, 2].map(|d| (s.point[d] / cell).floor() as i64);
+            let next = centre.len() as u32;
+            let c = *cell_of.entry(key).or_insert(next);
+            if c == next {
+                centre.push((Vector3::zeros(), 0.0));
+            }
+            centre[c as usize].0 += s.point.coords * s.area;
+            centre[c as usize].1 += s.area;
+            let (w, _) = closest_barycentric(&s.point, &surface.corners(t));
+            let w = if w.iter().all(|v| v.is_finite()) {
+                w
+            } else {
+                [1.0 / 3.0; 3]
+            };
+            samples.push((t, w, s.area));
+            sample_cluster.push(c);
+        }
+        let points: Vec<[f64; 3]> = centre
             .iter()
-            .map(|(_, s)| [s.point.x, s.point.y, s.point.z])
-            .collect();
-        let shares = samples
-            .iter()
-            .map(|&(t, s)| {
-                let (w, _) = closest_barycentric(&s.point, &surface.corners(t));
-                let w = if w.iter().all(|v| v.is_finite()) {
-                    w
-                } else {
-                    [1.0 / 3.0; 3]
-                };
-                (t, w, s.area)
+            .map(|(p, a)| {
+                let p = if *a > 0.0 { p / *a } else { *p };
+                [p.x, p.y, p.z]
             })
             .collect();
-        let samples = ImmutableKdTree::new_from_slice(&coords).ok()?;
+        let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&points).ok()?;
+        let mut reach_start = Vec::with_capacity(rest.len() + 1);
+        let mut reach = Vec::new();
+        reach_start.push(0);
+        for p in rest {
+            for nb in tree
+                .query(&[p.x, p.y, p.z])
+                .within::<SquaredEuclidean<f64>>(radius * radius)
+                .execute()
+            {
+                // A smooth kernel (biweight, (1 − d²/r²)²): a cluster entering or leaving the
+                // ball changes the sum by nothing, so the field is smooth across the cells.
+                let q = 1.0 - nb.distance / (radius * radius);
+                reach.push((nb.item, (q * q) as f32));
+            }
+            reach_start.push(reach.len());
+        }
         Some(Self {
             radius,
             samples,
-            shares,
+            sample_cluster,
+            clusters: centre.len(),
+            reach_start,
+            reach,
             triangles: triangles.len(),
         })
     }
@@ -106,11 +154,6 @@ impl NormalsAtScale {
         (volume.is_finite() && volume > 0.0).then(|| RADIUS_PER_VOLUME_ROOT * volume.cbrt())
     }
 
-    /// Surface samples held (their heap is about [`BYTES_PER_SAMPLE`] each).
-    pub fn samples(&self) -> usize {
-        self.shares.len()
-    }
-
     /// The averaging radius, m.
     pub fn radius(&self) -> f64 {
         self.radius
@@ -121,30 +164,44 @@ impl NormalsAtScale {
         self.triangles == triangles
     }
 
-    /// The unit normal at the surface point whose rest position is `rest_point`, with the
-    /// unit vertex normals now `vertex_normals`: the normalised sum, over the samples whose
-    /// rest position lies within the radius, of the normal interpolated at the sample times
-    /// its area; `fallback` (the caller's local normal) when that sum vanishes or no sample is
-    /// that close.
-    pub fn at(
+    /// Surface samples held.
+    pub fn samples(&self) -> usize {
+        self.samples.len()
+    }
+
+    /// Heap bytes held (about [`BYTES_PER_SAMPLE`] per sample and [`BYTES_PER_REACH`] per
+    /// vertex–cluster entry).
+    pub fn heap_bytes(&self) -> usize {
+        BYTES_PER_SAMPLE * self.samples.len() + BYTES_PER_REACH * self.reach.len()
+    }
+
+    /// The smoothed unit normal at every vertex, given the current unit vertex normals
+    /// `vertex_normals` of the surface of `triangles`: the normalised sum, over the clusters
+    /// within the radius of the vertex at rest, weighted by the biweight kernel of their rest
+    /// distance, of the normal interpolated at their samples times the samples' areas; the
+    /// vertex's own normal where that sum vanishes. Interpolate
+    /// the result with a point's barycentric weights for the normal at the point.
+    pub fn smooth(
         &self,
-        rest_point: &Point3<f64>,
         vertex_normals: &[Vector3<f64>],
         triangles: &[[usize; 3]],
-        fallback: Vector3<f64>,
-    ) -> Vector3<f64> {
-        let near = self
-            .samples
-            .query(&[rest_point.x, rest_point.y, rest_point.z])
-            .within::<SquaredEuclidean<f64>>(self.radius * self.radius)
-            .execute();
+    ) -> Vec<Vector3<f64>> {
         let n = vertex_normals;
-        let sum = near.iter().fold(Vector3::zeros(), |s, nb| {
-            let (t, w, area) = self.shares[nb.item as usize];
-            let [a, b, c] = triangles[t];
-            s + (n[a] * w[0] + n[b] * w[1] + n[c] * w[2]) * area
-        });
-        sum.try_normalize(0.0).unwrap_or(fallback)
+        let mut cluster = vec![Vector3::zeros(); self.clusters];
+        for (&(t, w, area), &c) in self.samples.iter().zip(&self.sample_cluster) {
+            let [a, b, d] = triangles[t];
+            cluster[c as usize] += (n[a] * w[0] + n[b] * w[1] + n[d] * w[2]) * area;
+        }
+        (0..n.len())
+            .map(|v| {
+                let sum = self.reach[self.reach_start[v]..self.reach_start[v + 1]]
+                    .iter()
+                    .fold(Vector3::zeros(), |s, &(c, w)| {
+                        s + cluster[c as usize] * f64::from(w)
+                    });
+                sum.try_normalize(0.0).unwrap_or(n[v])
+            })
+            .collect()
     }
 }
 
@@ -187,11 +244,19 @@ mod tests {
             .to_degrees()
     }
 
-    /// Points on the faces of a coarse sphere (level 2, 320 triangles, radius 0.1 m):
-    /// averaged over a ball of 0.125 × ∛V the normal is within 1.5° of the sphere's radial
-    /// direction, and the same faceted shape triangulated 16 times finer gives the same
-    /// normals within a degree; the interpolated vertex normals of the fine triangulation stay
-    /// more than 3° off (faceted), which is what this type is for.
+    /// The smoothed normals of `s` interpolated at the point `w` of triangle `t`.
+    fn at(n: &NormalsAtScale, s: &TriSurface, t: usize, w: [f64; 3]) -> Vector3<f64> {
+        let smoothed = n.smooth(&s.vertex_normals(), &s.triangles);
+        let [a, b, c] = s.triangles[t];
+        smoothed[a] * w[0] + smoothed[b] * w[1] + smoothed[c] * w[2]
+    }
+
+    /// Points on the faces of a coarse sphere (level 2, 320 triangles, radius 0.1 m), each
+    /// inside one of its triangles and inside one triangle of the same faceted shape
+    /// triangulated 16 times finer: averaged over a ball of 0.125 × ∛V the two normals agree
+    /// within a degree and lie within 1.5° of the sphere's radial direction, while the fine
+    /// mesh's interpolated vertex normals stay more than 3° off (faceted), which is what this
+    /// type is for.
     #[test]
     fn normals_follow_the_shape_not_its_triangulation() {
         let coarse = icosphere(Point3::origin(), 0.1, 2);
@@ -201,30 +266,30 @@ mod tests {
         assert!((r / expected - 1.0).abs() < 0.02, "{r} vs {expected}");
         let n_coarse = NormalsAtScale::new(&coarse.vertices, &coarse.triangles, r).unwrap();
         let n_fine = NormalsAtScale::new(&fine.vertices, &fine.triangles, r).unwrap();
-        let vertex_normals = fine.vertex_normals();
-        let coarse_normals = coarse.vertex_normals();
+        let fine_vertex = fine.vertex_normals();
         let (mut worst_scale, mut worst_between, mut worst_vertex) = (0.0f64, 0.0f64, 0.0f64);
-        for &[a, b, c] in fine.triangles.iter().step_by(7) {
-            // A point inside the fine triangle, off its corners.
+        // Fine triangle 16 k + j lies inside coarse triangle k (two midpoint subdivisions).
+        for (k, &[a, b, c]) in fine.triangles.iter().enumerate().step_by(7) {
             let w = [0.2, 0.3, 0.5];
             let p = Point3::from(
                 fine.vertices[a].coords * w[0]
                     + fine.vertices[b].coords * w[1]
                     + fine.vertices[c].coords * w[2],
             );
-            let radial = p.coords;
-            let z = Vector3::zeros();
-            let from_coarse = n_coarse.at(&p, &coarse_normals, &coarse.triangles, z);
-            let from_fine = n_fine.at(&p, &vertex_normals, &fine.triangles, z);
+            let coarse_t = k / 16;
+            let corners = coarse.corners(coarse_t);
+            let (wc, _) = closest_barycentric(&p, &corners);
+            let from_fine = at(&n_fine, &fine, k, w);
+            let from_coarse = at(&n_coarse, &coarse, coarse_t, wc);
             let interpolated =
-                vertex_normals[a] * w[0] + vertex_normals[b] * w[1] + vertex_normals[c] * w[2];
-            worst_scale = worst_scale.max(angle_deg(&from_fine, &radial));
+                fine_vertex[a] * w[0] + fine_vertex[b] * w[1] + fine_vertex[c] * w[2];
+            worst_scale = worst_scale.max(angle_deg(&from_fine, &p.coords));
             worst_between = worst_between.max(angle_deg(&from_fine, &from_coarse));
-            worst_vertex = worst_vertex.max(angle_deg(&interpolated, &radial));
+            worst_vertex = worst_vertex.max(angle_deg(&interpolated, &p.coords));
         }
-        // Measured: 0.92° from radial (the 320-face polyhedron is not a sphere), 0.71°
-        // between the triangulations (4.2° when whole triangles were counted by their
-        // centroids), 4.07° for the fine mesh's interpolated vertex normals.
+        // Measured: 1.08° from radial (the 320-face polyhedron is not a sphere), 0.89°
+        // between the triangulations (2.5° with a hard cut-off at the ball's edge instead of
+        // the biweight kernel), 4.07° for the fine mesh's interpolated vertex normals.
         assert!(worst_scale < 1.5, "{worst_scale}° from radial");
         assert!(
             worst_between < 1.0,
@@ -236,8 +301,8 @@ mod tests {
         );
     }
 
-    /// A flat square stays flat: every normal is the plane's, and the current vertex normals
-    /// (here of the square rotated) decide it, not the rest ones.
+    /// A flat square stays flat: every smoothed normal is the plane's, and the current vertex
+    /// normals (here of the square rotated) decide it, not the rest ones.
     #[test]
     fn the_current_state_turns_the_normals() {
         let mut vertices = Vec::new();
@@ -257,18 +322,11 @@ mod tests {
         let n = NormalsAtScale::new(&vertices, &triangles, 0.02).unwrap();
         let rot = nalgebra::Rotation3::from_euler_angles(0.4, -0.2, 0.9);
         let moved: Vec<Point3<f64>> = vertices.iter().map(|p| rot * p).collect();
-        let p = Point3::new(0.05, 0.05, 0.0);
-        let normals = crate::mesh::TriSurface::vertex_normals_at(&moved, &triangles);
-        let got = n.at(&p, &normals, &triangles, Vector3::zeros());
-        assert!(angle_deg(&got, &(rot * Vector3::z())) < 1e-9);
-        // Far from every sample: the fallback.
-        let far = n.at(
-            &Point3::new(1.0, 1.0, 1.0),
-            &normals,
-            &triangles,
-            Vector3::x(),
-        );
-        assert_eq!(far, Vector3::x());
+        let normals = TriSurface::vertex_normals_at(&moved, &triangles);
+        let smoothed = n.smooth(&normals, &triangles);
+        for (v, m) in smoothed.iter().enumerate() {
+            assert!(angle_deg(m, &(rot * Vector3::z())) < 1e-9, "vertex {v}");
+        }
         assert!(NormalsAtScale::new(&vertices, &triangles, 0.0).is_none());
     }
 }

@@ -12,7 +12,7 @@
 //! | active grid cell | 20 KiB | assembly slots, cell tangents and caches of its integration points |
 //! | embedded point (surface vertex, structure point, probe) | 420 | embedding, k-d trees, correspondences |
 //! | triangle (surface, structure meshes) | 600 | adjacency, surface samples of the rigid and data terms |
-//! | sample of the normals' averaging | 72 | its k-d tree entry, triangle, weights and area (counted, not fitted) |
+//! | the normals' averaging | its own count | samples and vertex–cluster entries (`NormalsAtScale::heap_bytes`, counted, not fitted) |
 //!
 //! The factor's size comes from the same symbolic analysis the solver makes (fill-reducing
 //! ordering included), without allocating the factor: it grows faster than the grid (about
@@ -23,7 +23,6 @@
 //! `tests/session_memory.rs` checks all four against the allocator.
 
 use crate::linalg::{predicted_factor_len, SolverKind};
-use crate::registration::surface_normals::BYTES_PER_SAMPLE;
 use crate::simulation::SceneModel;
 
 /// Sizes of one model that drive a session's memory.
@@ -44,9 +43,9 @@ pub struct ModelSize {
     pub embedded_points: usize,
     /// Surface and structure triangles.
     pub triangles: usize,
-    /// Surface samples of the normals' averaging (`NormalsAtScale`; set by the session,
-    /// which shares one between its stages).
-    pub normal_samples: usize,
+    /// Heap bytes of the normals' averaging (`NormalsAtScale::heap_bytes`; set by the
+    /// session, which shares one between its stages).
+    pub normal_bytes: usize,
 }
 
 /// Bytes per value of the direct factor `L`.
@@ -64,7 +63,7 @@ impl ModelSize {
     pub fn estimated_bytes(&self) -> u64 {
         let surface = BYTES_PER_EMBEDDED_POINT * self.embedded_points as f64
             + BYTES_PER_TRIANGLE * self.triangles as f64
-            + (BYTES_PER_SAMPLE * self.normal_samples) as f64;
+            + self.normal_bytes as f64;
         self.estimated_grid_bytes() + surface.ceil() as u64
     }
 
@@ -105,7 +104,7 @@ impl ModelSize {
                 + structure_points
                 + model.probes.points.len(),
             triangles: model.surface.triangles.len() + structure_triangles,
-            normal_samples: 0,
+            normal_bytes: 0,
         })
     }
 }

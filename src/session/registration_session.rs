@@ -134,7 +134,7 @@ impl Session {
     /// one of a coarse-to-fine start (see [`super::memory_estimate`]).
     pub fn model_sizes(&self) -> Result<Vec<ModelSize>, String> {
         let mut sizes = vec![ModelSize::of(&self.model, self.model.newton.linear_solver)?];
-        sizes[0].normal_samples = self.normals.as_ref().map_or(0, |n| n.samples());
+        sizes[0].normal_bytes = self.normals.as_ref().map_or(0, |n| n.heap_bytes());
         if let Some(c) = &self.coarse {
             sizes.push(ModelSize::of(&c.model, c.model.newton.linear_solver)?);
         }
