@@ -709,7 +709,7 @@ impl NonRigidIcp {
                     x,
                     triangles,
                     incident,
-                    &normals,
+                    normals,
                     allowed.as_deref(),
                     &target.cloud,
                     &target.rule,
