@@ -420,14 +420,14 @@ fn the_recovery_keeps_the_scenes_law() {
 
     let mut direct = session(&path);
     direct.model.newton.linear_solver = crate::linalg::SolverKind::Cholesky;
-    let mut direct = Session::new(direct.model, direct.settings, None);
+    let mut direct = Session::new(direct.model, vertex_normals(direct.settings), None);
     let expected = direct.register(&frame(cloud.clone(), "direct"));
     assert!(expected.error.is_none(), "{:?}", expected.error);
     assert!(expected.warnings.is_empty(), "{:?}", expected.warnings);
 
     let mut s = session(&path);
     s.model.newton.linear_solver = crate::linalg::SolverKind::JacobiCg;
-    let mut s = Session::new(s.model, s.settings, None);
+    let mut s = Session::new(s.model, vertex_normals(s.settings), None);
     let law = s.model.problem.material.law;
     let r = s.register(&frame(cloud, "cg"));
     println!("flags {:?}\nwarnings {:?}", r.flags, r.warnings);
@@ -459,7 +459,8 @@ fn the_recovery_keeps_the_scenes_law() {
     let gap = max_change(&r, &expected);
     let tip = expected.structures[0].1[3] - rest_tip();
     // What the law swap gave: the corotated law's registration of the same frame.
-    let mut other = session(&path);
+    let other = session(&path);
+    let mut other = Session::new(other.model, vertex_normals(other.settings), None);
     other.model.problem.material.law = crate::mechanics::LawKind::Corotated;
     let swapped = other.register(&frame(bent(&rest, 80.0), "corotated"));
     assert!(swapped.error.is_none(), "{:?}", swapped.error);
@@ -471,6 +472,18 @@ fn the_recovery_keeps_the_scenes_law() {
     assert!(tip.norm() > 40.0, "the frame deforms the body: {tip}");
     assert!(gap < 0.5, "rescued frame {gap:.2} mm from the direct solve");
     assert!(law_gap > 0.5, "the laws' answers differ: {law_gap:.2} mm");
+}
+
+/// `settings` with the data term's normals interpolated from the vertex normals. The recovery
+/// test is about the law the rescue keeps; on its 320-triangle ellipsoid, whose edges are
+/// twice the smoothing radius, the smoothed normals (the default) leave the rescue's longer
+/// ramp unconverged at its ICP cap (`icp_not_converged`, 1.03 mm from the direct solve, which
+/// converges), a difference of convergence, not of law.
+fn vertex_normals(mut settings: SessionSettings) -> SessionSettings {
+    for n in [&mut settings.cold, &mut settings.warm] {
+        n.normal_scale = crate::registration::non_rigid_icp::NormalScale::Vertex;
+    }
+    settings
 }
 
 /// The tip target of [`scene`] at rest, mm.
