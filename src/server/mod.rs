@@ -269,12 +269,6 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
             }
         });
     }
-    let (budget, budget_source) = memory_budget::memory_budget(config.limits.max_memory_mb);
-    tracing::info!(
-        memory_budget_mb = memory_budget::mib(budget).round(),
-        source = ?budget_source,
-        "session memory budget"
-    );
     tracing::info!(%http_addr, grpc_addr = ?grpc_addr, igtl_addr = ?igtl_addr, tls = tls.is_some(), "listening");
     Ok(RunningServer {
         http_addr,

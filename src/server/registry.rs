@@ -226,9 +226,14 @@ impl Reservation<'_> {
 
 impl Registry {
     /// An empty registry enforcing `limits`, with the memory budget they give
-    /// ([`memory_budget`]).
+    /// ([`memory_budget`], logged with where it came from).
     pub fn new(limits: LimitsConfig) -> Self {
-        let (memory_budget, _) = memory_budget(limits.max_memory_mb);
+        let (memory_budget, source) = memory_budget(limits.max_memory_mb);
+        tracing::info!(
+            memory_budget_mb = mib(memory_budget).round(),
+            source = ?source,
+            "session memory budget"
+        );
         Self::with_memory_budget(limits, memory_budget)
     }
 
