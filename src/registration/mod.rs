@@ -33,6 +33,7 @@ pub mod isolated_points;
 pub mod kabsch;
 pub mod model_target;
 pub mod non_rigid_icp;
+pub mod pose_search;
 pub mod rigid_icp;
 pub mod rigid_transform;
 pub mod surface_anchors;
@@ -51,5 +52,6 @@ pub use non_rigid_icp::{
     register_non_rigid, ContactForce, DataTerm, NonRigidError, NonRigidIcp, NonRigidReport,
     NonRigidSettings, NonRigidTimings,
 };
+pub use pose_search::{PoseSearch, PoseSearchResult};
 pub use rigid_icp::{IcpError, IcpMetric, IcpResult, RigidIcp};
 pub use rigid_transform::RigidTransform;

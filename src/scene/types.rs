@@ -643,6 +643,12 @@ pub struct RegistrationSpec {
     /// mean + 2σ: see `NonRigidSettings::robust_pruning`.)
     #[serde(default = "defaults::robust_pruning")]
     pub robust_pruning: bool,
+    /// A frame whose pose is not known from the last one (the first, after a reset or a
+    /// failure, a re-acquisition) has its rigid pose searched from many starts around the
+    /// initial one, every turn up to a half turn (default true since session 26;
+    /// docs/registration.md, "The rigid stage"); false: plain ICP from the initial pose.
+    #[serde(default = "defaults::pose_search")]
+    pub pose_search: bool,
     /// Warm frames refactorise the tangent on a helper thread while their Newton steps go on
     /// with the old factorisation (default false): faster on large grids, slightly less
     /// accurate (docs/registration.md). Results stay deterministic.
@@ -683,6 +689,7 @@ impl Default for RegistrationSpec {
             max_cloud_points: None,
             coarse_to_fine: None,
             robust_pruning: defaults::robust_pruning(),
+            pose_search: defaults::pose_search(),
             background_factorization: false,
             remove_isolated_points: defaults::remove_isolated_points(),
             data_term: DataTerm::default(),
@@ -745,6 +752,10 @@ pub mod defaults {
     /// `registration.alpha`.
     pub fn alpha() -> f64 {
         0.75
+    }
+    /// `registration.pose_search`.
+    pub fn pose_search() -> bool {
+        true
     }
     /// `registration.robust_pruning`.
     pub fn robust_pruning() -> bool {

@@ -16,6 +16,7 @@ use crate::registration::isolated_points::{
     isolated_mask, ISOLATION_MEDIAN_FACTOR, ISOLATION_NEIGHBOURS, ISOLATION_SIGMA,
 };
 use crate::registration::non_rigid_icp::{ContactForce, NonRigidReport, NonRigidTimings};
+use crate::registration::pose_search::centroid;
 use crate::registration::surface_normals::NormalsAtScale;
 use crate::registration::{
     IcpResult, IndexedPoints, ModelTarget, NonRigidIcp, NonRigidSettings, Prolongation, RigidIcp,
@@ -548,7 +549,7 @@ impl Session {
                 (self.good.model_to_cloud, 0)
             } else {
                 flags.push("pose_reacquired".into());
-                self.reacquire_pose(cloud, rms)?
+                self.reacquire_pose(cloud, rms, flags)?
             }
         } else {
             self.track_pose(cloud, self.good.model_to_cloud.inverse(), flags)?
@@ -718,7 +719,7 @@ impl Session {
     ) -> Result<(RigidTransform, usize), FrameError> {
         // Frame to frame (rigid-only or tracked pose): the start is the last pose.
         let tracking = self.good.registered;
-        let r = self.rigid_fit(cloud, start, tracking)?;
+        let r = self.rigid_fit(cloud, start, tracking, !tracking, flags)?;
         // A fit stopped by its iteration cap says so (issue 18: rigid ICP on a partial patch
         // ended 43–88° off while reporting convergence).
         if r.iterations > 0 && !r.converged {
@@ -752,6 +753,7 @@ impl Session {
         &mut self,
         cloud: &[Point3<f64>],
         held_rms: f64,
+        flags: &mut Vec<String>,
     ) -> Result<(RigidTransform, usize), FrameError> {
         let held = self.good.model_to_cloud.inverse();
         let mut starts = vec![held];
@@ -771,23 +773,27 @@ impl Session {
                 starts.push(shifted);
             }
         }
-        let mut best: Option<IcpResult> = None;
+        let mut best: Option<(IcpResult, Vec<String>)> = None;
         let mut iterations = 0;
         let mut last_error = None;
         for start in starts {
-            match self.rigid_fit(cloud, start, false) {
+            let mut start_flags = Vec::new();
+            match self.rigid_fit(cloud, start, false, true, &mut start_flags) {
                 Ok(r) => {
                     iterations += r.iterations;
                     let usable = r.converged && r.rms <= self.settings.max_rigid_rms;
-                    if usable && best.as_ref().is_none_or(|b| r.rms < b.rms) {
-                        best = Some(r);
+                    if usable && best.as_ref().is_none_or(|(b, _)| r.rms < b.rms) {
+                        best = Some((r, start_flags));
                     }
                 }
                 Err(e) => last_error = Some(e),
             }
         }
         match (best, last_error) {
-            (Some(r), _) => Ok((r.model_to_cloud, iterations)),
+            (Some((r, start_flags)), _) => {
+                flags.extend(start_flags);
+                Ok((r.model_to_cloud, iterations))
+            }
             (None, Some(e)) if iterations == 0 => Err(e),
             (None, _) => Err(FrameError::PoseLost {
                 held_rms_mm: held_rms * 1e3,
@@ -796,16 +802,9 @@ impl Session {
         }
     }
 
-    /// Rigid ICP of `cloud` (metres, cloud frame) to the current deformed surface from the
-    /// cloud → model motion `start`; `tracking` (the start is the last frame's pose) stops at
-    /// [`SessionSettings::tracking_relative_tolerance`] if that is looser than the rigid
-    /// settings' own.
-    fn rigid_fit(
-        &mut self,
-        cloud: &[Point3<f64>],
-        start: RigidTransform,
-        tracking: bool,
-    ) -> Result<IcpResult, FrameError> {
+    /// The rigid target of the last good state's deformed surface, rebuilt when that state
+    /// changed.
+    fn rigid_target(&mut self) -> Result<&ModelTarget, FrameError> {
         let fresh = matches!(&self.rigid_target, Some((u, _)) if *u == self.good.u);
         if !fresh {
             let deformed = TriSurface::new(
@@ -816,7 +815,25 @@ impl Session {
                 .map_err(|e| FrameError::Rigid(e.to_string()))?;
             self.rigid_target = Some((self.good.u.clone(), target));
         }
-        let target = &self.rigid_target.as_ref().expect("built above").1;
+        Ok(&self.rigid_target.as_ref().expect("built above").1)
+    }
+
+    /// Rigid ICP of `cloud` (metres, cloud frame) to the current deformed surface from the
+    /// cloud → model motion `start`; `tracking` (the start is the last frame's pose) stops at
+    /// [`SessionSettings::tracking_relative_tolerance`] if that is looser than the rigid
+    /// settings' own. With `search` (a pose not known from the last frame: the first frame, a
+    /// re-acquisition) and [`SessionSettings::pose_search`] set, the multi-start search runs
+    /// around `start` ([`PoseSearch::search`](crate::registration::PoseSearch::search)) and flags `pose_searched` when it found a pose
+    /// plain ICP from `start` missed, `pose_ambiguous` when the cloud fits two poses about as
+    /// well.
+    fn rigid_fit(
+        &mut self,
+        cloud: &[Point3<f64>],
+        start: RigidTransform,
+        tracking: bool,
+        search: bool,
+        flags: &mut Vec<String>,
+    ) -> Result<IcpResult, FrameError> {
         // With no rigid stage the fit of the identity is still checked (0 iterations).
         let (icp, initial) = match self.settings.rigid_mode {
             RigidMode::Identity => (
@@ -836,8 +853,30 @@ impl Session {
                 (icp, start)
             }
         };
-        icp.register(target, cloud, Some(initial))
-            .map_err(|e| FrameError::Rigid(e.to_string()))
+        let pose_search = match self.settings.rigid_mode {
+            RigidMode::Icp if search => self.settings.pose_search.clone(),
+            _ => None,
+        };
+        let target = self.rigid_target()?;
+        match pose_search {
+            Some(p) => {
+                let found = p
+                    .search(&icp, target, cloud, initial)
+                    .map_err(|e| FrameError::Rigid(e.to_string()))?;
+                if found.replaced_plain {
+                    flags.push("pose_searched".into());
+                }
+                if found.ambiguous {
+                    flags.push("pose_ambiguous".into());
+                }
+                let mut best = found.best;
+                best.iterations = found.iterations;
+                Ok(best)
+            }
+            None => icp
+                .register(target, cloud, Some(initial))
+                .map_err(|e| FrameError::Rigid(e.to_string())),
+        }
     }
 
     /// RMS distance (metres) from the points of `cloud` (metres, cloud frame), taken to the
@@ -886,18 +925,6 @@ const SAME_VIEW_FIT_RATIO: f64 = 1.2;
 /// See [`SAME_VIEW_FIT_RATIO`], metres (a new frame's noise changes the fit by a fraction of
 /// a millimetre).
 const SAME_VIEW_FIT_SLACK: f64 = 0.5e-3;
-
-/// Mean of `points` (non-empty).
-fn centroid(points: &[Point3<f64>]) -> Point3<f64> {
-    let n = points.len().max(1) as f64;
-    Point3::from(
-        points
-            .iter()
-            .map(|p| p.coords)
-            .sum::<nalgebra::Vector3<f64>>()
-            / n,
-    )
-}
 
 /// A successful frame's new state and counters.
 struct Done {

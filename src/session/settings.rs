@@ -2,7 +2,7 @@
 
 use crate::mechanics::LawKind;
 use crate::registration::non_rigid_icp::NormalScale;
-use crate::registration::{NonRigidSettings, RigidIcp};
+use crate::registration::{NonRigidSettings, PoseSearch, RigidIcp};
 use crate::scene::{DataTerm, PoseUpdate, RigidMode, Scene};
 
 /// Settings of a [`Session`](super::Session). Lengths in metres.
@@ -21,6 +21,11 @@ pub struct SessionSettings {
     pub pose_reacquire_rms: f64,
     /// Rigid ICP settings.
     pub rigid: RigidIcp,
+    /// The multi-start search of the rigid pose on a frame whose pose is not known from the
+    /// last one (the first frame, after a reset or failure, and a re-acquisition): `None`
+    /// fits by plain ICP from the start alone (`registration.pose_search = false`). Default
+    /// [`PoseSearch::default`] (docs/registration.md, "The rigid stage").
+    pub pose_search: Option<PoseSearch>,
     /// Rigid ICP from the last frame's pose (rigid-only sessions, `pose = "track"`) stops
     /// when the mean squared inlier distance changes by at most this fraction (default 1e-4,
     /// an RMS change of 0.005 %), if looser than `rigid.relative_tolerance` (1e-6, kept for
@@ -99,6 +104,7 @@ impl Default for SessionSettings {
                 robust_pruning: crate::scene::defaults::robust_pruning(),
                 ..RigidIcp::default()
             },
+            pose_search: Some(PoseSearch::default()),
             tracking_relative_tolerance: 1e-4,
             target_spacing: 0.005,
             max_rigid_rms: 0.02,
@@ -135,6 +141,9 @@ impl SessionSettings {
                 };
             }
             s.rigid.robust_pruning = r.robust_pruning;
+            if !r.pose_search {
+                s.pose_search = None;
+            }
             // Warm frames prune at median/MAD with the cloud → surface term (measured in
             // docs/registration.md); the thesis's direction keeps mean + 2σ.
             s.warm.robust_pruning = r.data_term == DataTerm::CloudToSurface;
