@@ -23,6 +23,9 @@ pub struct SceneFiles {
     pub files: Vec<(String, PathBuf, Vec<u8>)>,
 }
 
+/// Files by the names a self-contained scene document gives them, with their bytes.
+pub type NamedFiles<'a> = Vec<(String, &'a [u8])>;
+
 impl SceneFiles {
     /// Reads the scene file of `loaded` and every file it names (surface, structures, point
     /// files of fixed regions and probes).
@@ -101,6 +104,48 @@ impl SceneFiles {
         })
     }
 
+    /// The scene as one self-contained document: the derivation keys of a model derived from
+    /// a labelmap removed (the derived files stand for it), and every file key naming
+    /// `<prefix>NN-<file name>` (NN its index; characters other than `A-Z a-z 0-9 . _ -` in
+    /// the file name become `_`), with those names → bytes.
+    pub fn self_contained(
+        &self,
+        prefix: &str,
+    ) -> Result<(Value, NamedFiles<'_>), RecordingError> {
+        let mut doc: Value = match self.format {
+            SceneFormat::Toml => {
+                let t: toml::Table = toml::from_str(&self.text).map_err(|e| {
+                    RecordingError::Scene(format!("recorded scene `{}`: {e}", self.name))
+                })?;
+                serde_json::to_value(t).map_err(|e| RecordingError::Scene(e.to_string()))?
+            }
+            SceneFormat::Json => serde_json::from_str(&self.text).map_err(|e| {
+                RecordingError::Scene(format!("recorded scene `{}`: {e}", self.name))
+            })?,
+        };
+        // A scene whose model was derived from a labelmap is recorded with the derived files
+        // under the ordinary keys: the derivation keys go (replay uses the recorded model).
+        strip_derivation_keys(&mut doc);
+        let mut files = Vec::with_capacity(self.files.len());
+        for (i, (key, path, bytes)) in self.files.iter().enumerate() {
+            let plain: String = file_name(path)
+                .chars()
+                .map(|c| {
+                    if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') {
+                        c
+                    } else {
+                        '_'
+                    }
+                })
+                .collect();
+            let rel = format!("{prefix}{i:02}-{plain}");
+            set_key(&mut doc, key, Value::String(rel.clone()), true)
+                .map_err(|e| RecordingError::Scene(format!("recorded scene: {e}")))?;
+            files.push((rel, bytes.as_slice()));
+        }
+        Ok((doc, files))
+    }
+
     /// Writes the scene into `dir` (created) as `scene.json` with its files under `files/`,
     /// after setting each `key=value` of `overrides` (dotted keys as in the scene reference,
     /// `[i]` for array entries; the value is read as a TOML value, or else taken as a string),
@@ -118,26 +163,10 @@ impl SceneFiles {
         };
         let files_dir = dir.join("files");
         std::fs::create_dir_all(&files_dir).map_err(|e| io(&files_dir, e))?;
-        let mut doc: Value = match self.format {
-            SceneFormat::Toml => {
-                let t: toml::Table = toml::from_str(&self.text).map_err(|e| {
-                    RecordingError::Scene(format!("recorded scene `{}`: {e}", self.name))
-                })?;
-                serde_json::to_value(t).map_err(|e| RecordingError::Scene(e.to_string()))?
-            }
-            SceneFormat::Json => serde_json::from_str(&self.text).map_err(|e| {
-                RecordingError::Scene(format!("recorded scene `{}`: {e}", self.name))
-            })?,
-        };
-        // A scene whose model was derived from a labelmap is recorded with the derived files
-        // under the ordinary keys: the derivation keys go (replay uses the recorded model).
-        strip_derivation_keys(&mut doc);
-        for (i, (key, path, bytes)) in self.files.iter().enumerate() {
-            let rel = format!("files/{i:02}-{}", file_name(path));
+        let (mut doc, files) = self.self_contained("files/")?;
+        for (rel, bytes) in files {
             let target = dir.join(&rel);
             std::fs::write(&target, bytes).map_err(|e| io(&target, e))?;
-            set_key(&mut doc, key, Value::String(rel), true)
-                .map_err(|e| RecordingError::Scene(format!("recorded scene: {e}")))?;
         }
         for o in overrides {
             let (key, value) = o

@@ -76,26 +76,19 @@ impl IgtlScenes {
         let read = |key: &str, path: &Path| -> Result<Arc<SceneUpload>, String> {
             let loaded = load_scene(path).map_err(|e| format!("{key}: {e}"))?;
             let files = SceneFiles::from_loaded(&loaded).map_err(|e| format!("{key}: {e}"))?;
-            // Sessions are built as uploads are: the scene names its files by plain names,
-            // beside it.
-            let mut named = std::collections::BTreeMap::new();
-            for (file_key, p, bytes) in files.files {
-                let name = p
-                    .file_name()
-                    .filter(|_| p.parent() == Some(loaded.dir.as_path()))
-                    .map(|n| n.to_string_lossy().into_owned())
-                    .ok_or_else(|| {
-                        format!(
-                            "{key}: {file_key} = {}: an OpenIGTLink scene's files must sit \
-                             beside it, named by plain file names",
-                            p.display()
-                        )
-                    })?;
-                named.insert(name, bytes);
-            }
+            // Sessions are built as uploads are, from one self-contained scene: its files by
+            // plain names, wherever they were read from (beside the scene, elsewhere, or the
+            // model derived from a labelmap, `model.segmentation`, once here).
+            let (doc, named) = files
+                .self_contained("")
+                .map_err(|e| format!("{key}: {e}"))?;
+            let named = named
+                .into_iter()
+                .map(|(name, bytes)| (name, bytes.to_vec()))
+                .collect();
             Ok(Arc::new(SceneUpload {
-                scene: files.text,
-                format: Some(files.format),
+                scene: serde_json::to_string(&doc).map_err(|e| format!("{key}: {e}"))?,
+                format: Some(crate::scene::SceneFormat::Json),
                 files: named,
                 budget_ms: None,
                 rigid_only: false,
@@ -650,5 +643,84 @@ async fn send(
 ) {
     if let Ok(bytes) = status_message(device, s, id).encode(current_version(version)) {
         let _ = out.send(bytes).await;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::server::config::{IgtlCoordinates, LimitsConfig};
+
+    /// A 40³ NRRD of 1.5 mm voxels: label 1 a ball of radius 24 mm, label 2 a ball of 5 mm
+    /// inside it (written byte by byte from the NRRD specification).
+    fn write_labelmap(path: &Path) {
+        let n = 40usize;
+        let mut bytes = format!(
+            "NRRD0004\ntype: uint8\ndimension: 3\nspace: left-posterior-superior\nsizes: {n} {n} {n}\n\
+             space directions: (1.5,0,0) (0,1.5,0) (0,0,1.5)\nkinds: domain domain domain\n\
+             encoding: raw\nspace origin: (-30,-30,-30)\n\n"
+        )
+        .into_bytes();
+        for k in 0..n {
+            for j in 0..n {
+                for i in 0..n {
+                    let p = [i, j, k].map(|c| c as f64 * 1.5 - 30.0);
+                    let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                    let t = ((p[0] - 8.0).powi(2) + p[1] * p[1] + p[2] * p[2]).sqrt();
+                    bytes.push(if t <= 5.0 {
+                        2
+                    } else if r <= 24.0 {
+                        1
+                    } else {
+                        0
+                    });
+                }
+            }
+        }
+        std::fs::write(path, bytes).unwrap();
+    }
+
+    #[test]
+    fn a_configured_scene_may_derive_its_model_from_a_labelmap() {
+        let dir = std::env::temp_dir().join(format!("livereg-igtl-seg-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let sub = dir.join("segmentations");
+        std::fs::create_dir_all(&sub).unwrap();
+        // The labelmap is not beside the scene: an operator's files sit where they are.
+        write_labelmap(&sub.join("patient seg.nrrd"));
+        let scene = dir.join("scene.toml");
+        std::fs::write(
+            &scene,
+            "units = \"mm\"\n[model]\nsegmentation = \"segmentations/patient seg.nrrd\"\n\
+             label = 1\ntarget_triangles = 2000\n[[model.structures]]\nname = \"tumour\"\n\
+             mesh_label = 2\n[grid]\ncell_size = 12.0\nsubdivisions = 1\n\
+             [material]\nlaw = \"linear\"\nyoung_modulus = 4500.0\npoisson_ratio = 0.45\n\
+             [[boundary.fixed]]\nbox = [[-40.0, -40.0, -40.0], [-16.0, 40.0, 40.0]]\n",
+        )
+        .unwrap();
+        let scenes =
+            IgtlScenes::load(Some(&scene), &Default::default(), IgtlCoordinates::Lps).unwrap();
+        let upload = scenes.for_device("AnyDevice").unwrap();
+        assert!(!upload.scene.contains("segmentation"), "{}", upload.scene);
+        // The session's scene, built as the server builds it, holds the derived model.
+        let built = super::super::upload::materialize(
+            &upload,
+            &dir.join("session"),
+            &LimitsConfig::default(),
+        )
+        .unwrap();
+        let direct = load_scene(&scene).unwrap();
+        let read = |s: &crate::scene::LoadedScene| {
+            crate::mesh::read_surface(&s.scene.model.surface).unwrap()
+        };
+        assert_eq!(read(&built).vertices, read(&direct).vertices);
+        assert_eq!(read(&built).triangles, read(&direct).triangles);
+        let tumour = |s: &crate::scene::LoadedScene| {
+            let m = s.scene.model.structures[0].mesh.clone().unwrap();
+            crate::mesh::read_surface(&m).unwrap().vertices.len()
+        };
+        assert!(tumour(&built) > 0);
+        assert_eq!(tumour(&built), tumour(&direct));
+        std::fs::remove_dir_all(&dir).ok();
     }
 }
