@@ -7,6 +7,7 @@ use serde::Serialize;
 
 use super::run::{run_workload, FrameSample};
 use super::workload::Workload;
+use crate::charts::pareto::ChartPoint;
 use crate::evaluation::tre::percentile;
 use crate::geometry::Camera;
 use crate::registration::RigidTransform;
@@ -387,6 +388,25 @@ pub fn run_indentation(
     Ok(out)
 }
 
+/// One configuration's point on the speed-versus-accuracy chart of the indentation class:
+/// the mean over `metrics`' cases of their mean node error (mm; the node error is a TRE over
+/// every node of the truth mesh), against the median of their warm-frame p50 times (ms).
+pub fn indentation_chart_point(
+    name: &str,
+    is_default: bool,
+    metrics: &[IndentationMetrics],
+) -> ChartPoint {
+    let n = metrics.len().max(1) as f64;
+    let mut ms: Vec<f64> = metrics.iter().map(|m| m.warm_ms_p50).collect();
+    ms.sort_by(f64::total_cmp);
+    ChartPoint {
+        label: name.to_string(),
+        ms_per_frame: ms.get(ms.len() / 2).copied().unwrap_or(f64::NAN),
+        tre_mm: metrics.iter().map(|m| m.mean_mm).sum::<f64>() / n,
+        is_default,
+    }
+}
+
 /// A table of indentation metrics (mm, ms).
 pub fn indentation_table(rows: &[IndentationMetrics]) -> String {
     let mut s = String::from(
@@ -411,4 +431,43 @@ pub fn indentation_table(rows: &[IndentationMetrics]) -> String {
         ));
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn metrics(mean_mm: f64, warm_ms_p50: f64) -> IndentationMetrics {
+        IndentationMetrics {
+            workload: "x".into(),
+            mean_mm,
+            p95_mm: 0.0,
+            none_mean_mm: 0.0,
+            none_p95_mm: 0.0,
+            region_mean_mm: 0.0,
+            none_region_mean_mm: 0.0,
+            frames_worse_than_none: 0,
+            failed_frames: 0,
+            force_relative_error_median: None,
+            warm_ms_p50,
+            warm_ms_p95: 0.0,
+            frames: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn a_chart_point_is_the_mean_error_at_the_median_time_of_the_cases() {
+        let p = indentation_chart_point(
+            "cell x2",
+            false,
+            &[metrics(1.0, 30.0), metrics(0.5, 10.0), metrics(1.5, 20.0)],
+        );
+        assert_eq!(p.label, "cell x2");
+        assert!(!p.is_default);
+        assert!((p.tre_mm - 1.0).abs() < 1e-12);
+        assert_eq!(p.ms_per_frame, 20.0);
+        // No case: no point to draw (non-finite coordinates are left off the chart).
+        let empty = indentation_chart_point("none", true, &[]);
+        assert!(empty.ms_per_frame.is_nan());
+    }
 }

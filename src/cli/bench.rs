@@ -12,7 +12,8 @@ use super::progress::bar;
 use super::register::frame_inputs;
 use crate::benchmark::config::law_name;
 use crate::benchmark::indentation::{
-    indentation_cases, indentation_table, run_indentation, IndentationMetrics, IndentationVariant,
+    indentation_cases, indentation_chart_point, indentation_table, run_indentation,
+    IndentationMetrics, IndentationVariant,
 };
 use crate::benchmark::ModelConfig;
 use crate::benchmark::{
@@ -259,18 +260,35 @@ pub fn run_indentation_bench(args: &BenchArgs) -> Result<Vec<IndentationMetrics>
     };
     let pb = bar(cases.len() * configs.len(), "indentation");
     let mut rows = Vec::new();
+    let mut points = Vec::new();
     for c in &configs {
         let applied = c.apply(&scene)?;
         let mut progress = |name: &str| {
             pb.set_message(format!("{} {name}", c.name));
             pb.inc(1);
         };
-        for mut m in run_indentation(&applied, &cases, &mut progress)? {
+        let metrics = run_indentation(&applied, &cases, &mut progress)?;
+        points.push(indentation_chart_point(
+            &c.name,
+            c.name == ModelConfig::scene_default().name,
+            &metrics,
+        ));
+        for mut m in metrics {
             m.workload = format!("{} {}", c.name, m.workload);
             rows.push(m);
         }
     }
     pb.finish_and_clear();
+    write_chart(
+        &points,
+        &format!(
+            "livereg bench --indentation: mean node error vs warm ms per frame ({} cases, {} cores)",
+            cases.len(),
+            std::thread::available_parallelism().map_or(1, |n| n.get())
+        ),
+        Some(&args.out.join("indentation.png")),
+        Some(&args.out.join("indentation.svg")),
+    )?;
     let json = serde_json::to_string_pretty(&rows).map_err(|e| e.to_string())?;
     let path = args.out.join("indentation.json");
     std::fs::write(&path, json).map_err(|e| format!("{}: {e}", path.display()))?;

@@ -108,10 +108,7 @@ impl SceneFiles {
     /// a labelmap removed (the derived files stand for it), and every file key naming
     /// `<prefix>NN-<file name>` (NN its index; characters other than `A-Z a-z 0-9 . _ -` in
     /// the file name become `_`), with those names → bytes.
-    pub fn self_contained(
-        &self,
-        prefix: &str,
-    ) -> Result<(Value, NamedFiles<'_>), RecordingError> {
+    pub fn self_contained(&self, prefix: &str) -> Result<(Value, NamedFiles<'_>), RecordingError> {
         let mut doc: Value = match self.format {
             SceneFormat::Toml => {
                 let t: toml::Table = toml::from_str(&self.text).map_err(|e| {
