@@ -48,9 +48,9 @@ pub struct IndentationStabilityOptions {
 
 impl IndentationStabilityOptions {
     /// The matrix of the docs (`reduced = false`: every value of every axis of
-    /// [`Axis::INDENTATION`], every second frame of both sequences — 25 each) or its reduced
-    /// form (`reduced = true`: the two ends of each axis, every tenth frame — 5 each); the
-    /// linear (frictionless) truth, which reaches the nominal 50 and 70 mm; all three variants.
+    /// [`Axis::INDENTATION`], every frame of both sequences — 50 each) or its reduced form
+    /// (`reduced = true`: the two ends of each axis, every tenth frame — 5 each); the linear
+    /// (frictionless) truth, which reaches the nominal 50 and 70 mm; all three variants.
     pub fn standard(reduced: bool) -> Self {
         Self {
             sequences: INDENTATION_SEQUENCES
@@ -58,7 +58,7 @@ impl IndentationStabilityOptions {
                 .map(|s| s.to_string())
                 .collect(),
             truth_law: "linear".into(),
-            stride: if reduced { 10 } else { 2 },
+            stride: if reduced { 10 } else { 1 },
             max_frames: None,
             reduced,
             axes: Axis::INDENTATION.to_vec(),
@@ -247,6 +247,11 @@ pub struct IndentationStabilityCell {
     pub error: Option<String>,
     /// Whether the cell panicked (caught).
     pub crashed: bool,
+    /// The failed frames: `sequence#frame (causes)`, frames numbered as in the sequence.
+    pub failed_at: Vec<String>,
+    /// The frames more than 10 % worse than no registration: `sequence#frame (registered
+    /// against unregistered mean node error)`.
+    pub worse_at: Vec<String>,
 }
 
 /// The whole matrix (`stability-indentation.json`).
@@ -289,12 +294,17 @@ impl IndentationStabilityReport {
             .sequences
             .iter()
             .map(|(name, len, k)| {
-                format!(
-                    "{name}: {} of {len} frames (every {} back from the last, first {})",
-                    k.len(),
-                    self.stride,
-                    k.first().map_or("–".into(), |f| f.to_string())
-                )
+                if k.len() == *len {
+                    format!("{name}: all {len} frames")
+                } else {
+                    format!(
+                        "{name}: {} of {len} frames (every {}, counted back from the last; \
+                         frames {})",
+                        k.len(),
+                        self.stride,
+                        frame_list(k)
+                    )
+                }
             })
             .collect();
         let mut s = format!(
@@ -344,6 +354,19 @@ impl IndentationStabilityReport {
             s.push('\n');
         }
         s
+    }
+}
+
+/// Frame numbers as `a, b, …, z` (at most the first two and the last).
+fn frame_list(k: &[usize]) -> String {
+    match k {
+        [] => "–".into(),
+        [a, b, _, .., z] => format!("{a}, {b}, …, {z}"),
+        _ => k
+            .iter()
+            .map(usize::to_string)
+            .collect::<Vec<_>>()
+            .join(", "),
     }
 }
 
@@ -416,6 +439,8 @@ pub fn run_indentation_matrix(
                 sequences: Vec::new(),
                 error: None,
                 crashed: false,
+                failed_at: Vec::new(),
+                worse_at: Vec::new(),
             };
             let run = catch_unwind(AssertUnwindSafe(|| match model_config(axis, value) {
                 Some(config) => {
@@ -442,6 +467,26 @@ pub fn run_indentation_matrix(
                 Ok(Err(e)) => cell.error = Some(e),
                 Ok(Ok(parts)) => {
                     cell.metrics = Some(IndentationCellMetrics::pool(&parts));
+                    for ((m, samples), (seq, _, indices)) in parts.iter().zip(&selected) {
+                        for ((f, s), k) in m.frames.iter().zip(samples).zip(indices) {
+                            if f.failed {
+                                let causes: Vec<&str> = s
+                                    .causes
+                                    .iter()
+                                    .filter(|c| c.is_failure())
+                                    .map(|c| c.name())
+                                    .collect();
+                                cell.failed_at
+                                    .push(format!("{seq}#{k} ({})", causes.join(", ")));
+                            }
+                            if f.mean_mm > WORSE_THAN_NONE_FACTOR * f.none_mean_mm {
+                                cell.worse_at.push(format!(
+                                    "{seq}#{k} ({:.2} against {:.2} mm)",
+                                    f.mean_mm, f.none_mean_mm
+                                ));
+                            }
+                        }
+                    }
                     cell.sequences = parts
                         .into_iter()
                         .map(|(mut m, _)| {
@@ -651,6 +696,13 @@ mod tests {
                 m.frames_worse_than_none, c.sequences[0].frames_worse_than_none,
                 "{what}"
             );
+            assert_eq!(c.worse_at.len(), m.frames_worse_than_none, "{what}");
+            assert_eq!(c.failed_at.len(), m.failed_frames, "{what}");
+            assert!(c
+                .worse_at
+                .iter()
+                .chain(&c.failed_at)
+                .all(|w| w.starts_with("two-sites#39 ") || w.starts_with("two-sites#49 ")));
             assert!(
                 (m.none_mean_mm - none).abs() < 1e-6,
                 "{what}: {}",
@@ -702,6 +754,7 @@ mod tests {
         }
         assert!(md.contains("| no-camera | rigid-icp |"), "{md}");
         assert!(md.contains("two-sites: 2 of 50 frames"), "{md}");
+        assert!(md.contains("frames 39, 49)"), "{md}");
     }
 
     #[test]

@@ -86,7 +86,7 @@ pub struct BenchArgs {
     #[arg(long, value_delimiter = ',', requires = "indentation")]
     pub variants: Vec<String>,
     /// With `--indentation --stability`: register every N-th frame of each sequence, counted
-    /// back from its last (default 2, `--quick`: 10); `--frame-count` then keeps the last
+    /// back from its last (default 1, `--quick`: 10); `--frame-count` then keeps the last
     /// that many of them.
     #[arg(long, value_name = "N", requires = "indentation", value_parser = clap::value_parser!(u32).range(1..))]
     pub frame_stride: Option<u32>,
