@@ -263,3 +263,54 @@ fn truth_law_changes_the_ground_truth_and_is_recorded() {
     let rel = (max_disp[0] - max_disp[1]).abs() / max_disp[0];
     assert!(rel > 1e-4 && rel < 0.3, "max displacements {max_disp:?}");
 }
+
+/// `bench --indentation --stability` (issue 18) end to end, cut to one sequence, one variant
+/// and one frame per cell: it writes both files, every cell of the reduced matrix has numbers
+/// (no crash, no non-finite output) and the table names every axis.
+#[test]
+fn indentation_stability_matrix_writes_every_cell() {
+    let d = out_dir("bench-indentation-stability");
+    let (code, stdout, stderr) = livereg(&[
+        "bench",
+        "--indentation",
+        "--stability",
+        "--quick",
+        "--scenarios",
+        "two-sites",
+        "--variants",
+        "no-camera",
+        "--frame-count",
+        "1",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    let v: Value = serde_json::from_str(
+        &std::fs::read_to_string(d.join("stability-indentation.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(v["crashes"], 0, "{v}");
+    assert_eq!(v["non_finite_frames"], 0, "{v}");
+    assert_eq!(v["sequences"][0][2], serde_json::json!([49]), "{v}");
+    let cells = v["cells"].as_array().unwrap();
+    // 6 axes × 2 values × 1 variant.
+    assert_eq!(cells.len(), 12);
+    for c in cells {
+        let what = format!("{} {}", c["axis"], c["label"]);
+        assert!(c["metrics"].is_object(), "{what}: {}", c["error"]);
+        assert_numbers_finite(c, &what);
+        assert_eq!(c["metrics"]["frames"], 1, "{what}");
+    }
+    let md = std::fs::read_to_string(d.join("stability-indentation.md")).unwrap();
+    assert!(stdout.contains("| no-camera |"), "{stdout}");
+    for axis in [
+        "noise",
+        "visible",
+        "cloud-size",
+        "outliers",
+        "poisson",
+        "law",
+    ] {
+        assert!(md.contains(&format!("| {axis} |")), "{axis} missing:\n{md}");
+    }
+}

@@ -360,30 +360,7 @@ pub fn run_indentation(
         progress(&case.name());
         let applied = scene_for(scene, case.variant);
         let mut session = Session::from_scene(&applied).map_err(|e| e.to_string())?;
-        let workload = indentation_workload(
-            &case.truth,
-            &case.frames,
-            scale,
-            case.variant == IndentationVariant::Camera,
-        );
-        let structures: Vec<(String, usize)> = session
-            .model
-            .structures
-            .iter()
-            .map(|s| (s.name.clone(), s.embedding.rest.len()))
-            .collect();
-        workload.check_against(&structures)?;
-        let samples = run_workload(&mut session, &workload, scale);
-        out.push(indentation_metrics(
-            &case.name(),
-            &case.truth,
-            &case.frames,
-            &case
-                .variant
-                .offset()
-                .unwrap_or_else(RigidTransform::identity),
-            &samples,
-        ));
+        out.push(run_case(&mut session, case, scale)?.0);
     }
     Ok(out)
 }
@@ -405,6 +382,41 @@ pub fn indentation_chart_point(
         tre_mm: metrics.iter().map(|m| m.mean_mm).sum::<f64>() / n,
         is_default,
     }
+}
+
+/// Registers `case` with `session` (a fresh session of the scene from [`scene_for`] for the
+/// case's variant, whose unit is `scale` metres) and grades it: the metrics and each frame's
+/// sample (node errors, mm; wall time, ms).
+pub fn run_case(
+    session: &mut Session,
+    case: &IndentationCase,
+    scale: f64,
+) -> Result<(IndentationMetrics, Vec<FrameSample>), String> {
+    let workload = indentation_workload(
+        &case.truth,
+        &case.frames,
+        scale,
+        case.variant == IndentationVariant::Camera,
+    );
+    let structures: Vec<(String, usize)> = session
+        .model
+        .structures
+        .iter()
+        .map(|s| (s.name.clone(), s.embedding.rest.len()))
+        .collect();
+    workload.check_against(&structures)?;
+    let samples = run_workload(session, &workload, scale);
+    let metrics = indentation_metrics(
+        &case.name(),
+        &case.truth,
+        &case.frames,
+        &case
+            .variant
+            .offset()
+            .unwrap_or_else(RigidTransform::identity),
+        &samples,
+    );
+    Ok((metrics, samples))
 }
 
 /// A table of indentation metrics (mm, ms).

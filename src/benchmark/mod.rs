@@ -7,12 +7,16 @@
 //! - [`sweep`]: every configuration on every workload, the Pareto front, the report;
 //! - [`stability`]: the stability matrix (noise, outliers, visible fraction, deformation,
 //!   grid offset, Poisson's ratio, penalty stiffness) with failures by cause;
+//! - [`indentation`], [`indentation_stability`]: the tool-indentation class (issue 18), its
+//!   workloads and metrics, and its stability matrix (noise, visible fraction, cloud size,
+//!   outliers, Poisson's ratio, law);
 //! - [`calibrate`]: the cheapest model that meets a TRE target or a latency budget;
 //! - [`memory`]: peak resident memory.
 
 pub mod calibrate;
 pub mod config;
 pub mod indentation;
+pub mod indentation_stability;
 pub mod memory;
 pub mod run;
 pub mod stability;

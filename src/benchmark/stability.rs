@@ -18,7 +18,10 @@ use crate::mechanics::LawKind;
 use crate::scene::LoadedScene;
 use crate::synthetic::{generate_sequence, ScenarioKind, SequenceSpec};
 
-/// One disturbance the matrix varies (the others stay at the scenario's defaults).
+/// One disturbance the matrix varies (the others stay at the scenario's defaults). The
+/// phantom's matrix varies [`Axis::ALL`] ([`Axis::values`]); the tool-indentation class's
+/// ([`super::indentation_stability`]) varies [`Axis::INDENTATION`]
+/// ([`Axis::indentation_values`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Axis {
@@ -36,10 +39,15 @@ pub enum Axis {
     Poisson,
     /// Factor on the penalty stiffness ramp.
     Penalty,
+    /// Surface samples (inliers) per cloud, points (tool-indentation class).
+    CloudSize,
+    /// Constitutive law of the registration model: the value is an index into
+    /// [`LawKind::ALL`] (tool-indentation class).
+    Law,
 }
 
 impl Axis {
-    /// Every axis, in report order.
+    /// Every axis of the phantom's matrix, in report order.
     pub const ALL: [Axis; 7] = [
         Axis::Noise,
         Axis::Outliers,
@@ -48,6 +56,16 @@ impl Axis {
         Axis::GridOffset,
         Axis::Poisson,
         Axis::Penalty,
+    ];
+
+    /// Every axis of the tool-indentation class's matrix, in report order.
+    pub const INDENTATION: [Axis; 6] = [
+        Axis::Noise,
+        Axis::Visible,
+        Axis::CloudSize,
+        Axis::Outliers,
+        Axis::Poisson,
+        Axis::Law,
     ];
 
     /// Name in reports.
@@ -60,10 +78,13 @@ impl Axis {
             Axis::GridOffset => "grid-offset",
             Axis::Poisson => "poisson",
             Axis::Penalty => "penalty",
+            Axis::CloudSize => "cloud-size",
+            Axis::Law => "law",
         }
     }
 
-    /// The values of the full matrix, or (`reduced`) its two ends.
+    /// The values of the phantom's full matrix, or (`reduced`) its two ends (empty for an axis
+    /// that matrix does not vary).
     pub fn values(self, reduced: bool) -> Vec<f64> {
         let all: &[f64] = match self {
             Axis::Noise => &[0.0, 1.0, 2.0, 4.0],
@@ -73,12 +94,41 @@ impl Axis {
             Axis::GridOffset => &[0.0, 0.25, 0.5, 0.75],
             Axis::Poisson => &[0.3, 0.45, 0.49, 0.499],
             Axis::Penalty => &[0.1, 1.0, 10.0, 100.0],
+            Axis::CloudSize | Axis::Law => &[],
         };
-        if reduced {
-            vec![all[0], all[all.len() - 1]]
-        } else {
-            all.to_vec()
-        }
+        ends(all, reduced)
+    }
+
+    /// The values of the tool-indentation class's full matrix, or (`reduced`) its two ends
+    /// (empty for an axis that matrix does not vary): noise 0–3 mm per axis, 5–25 % of the
+    /// surface seen, 150–1,000 points, 0–30 % outliers, the model's ν 0.3–0.499 (the truth's is
+    /// 0.49) and its law (linear, corotated, neo-Hookean — the default). The fixture's cloud
+    /// defaults ([`crate::synthetic::indentation::IndentationCloudSpec::default`]: 1.5 mm,
+    /// 15 %, 500 points, no outliers) are among the values.
+    pub fn indentation_values(self, reduced: bool) -> Vec<f64> {
+        let law = |l: LawKind| LawKind::ALL.iter().position(|&k| k == l).unwrap_or(0) as f64;
+        let all: Vec<f64> = match self {
+            Axis::Noise => vec![0.0, 0.5, 1.5, 3.0],
+            Axis::Visible => vec![0.05, 0.1, 0.15, 0.25],
+            Axis::CloudSize => vec![150.0, 300.0, 500.0, 1000.0],
+            Axis::Outliers => vec![0.0, 0.1, 0.3],
+            Axis::Poisson => vec![0.3, 0.45, 0.49, 0.499],
+            Axis::Law => vec![
+                law(LawKind::Linear),
+                law(LawKind::Corotated),
+                law(LawKind::NeoHookean),
+            ],
+            Axis::Deformation | Axis::GridOffset | Axis::Penalty => vec![],
+        };
+        ends(&all, reduced)
+    }
+
+    /// The law a value of [`Axis::Law`] stands for (`None`: not an index of
+    /// [`LawKind::ALL`]).
+    pub fn law_of(value: f64) -> Option<LawKind> {
+        (value >= 0.0 && value.fract() == 0.0)
+            .then(|| LawKind::ALL.get(value as usize).copied())
+            .flatten()
     }
 
     /// A value as the table shows it.
@@ -92,14 +142,19 @@ impl Axis {
             Axis::GridOffset => format!("{v} h"),
             Axis::Poisson => format!("ν {v}"),
             Axis::Penalty => format!("k × {v}"),
+            Axis::CloudSize => format!("{v} pts"),
+            Axis::Law => Axis::law_of(v).map_or_else(
+                || format!("law #{v}"),
+                |l| super::config::law_name(l).to_string(),
+            ),
         }
     }
 
     /// Whether the axis changes the data (a new synthetic sequence) rather than the model.
-    fn changes_data(self) -> bool {
+    pub fn changes_data(self) -> bool {
         matches!(
             self,
-            Axis::Noise | Axis::Outliers | Axis::Visible | Axis::Deformation
+            Axis::Noise | Axis::Outliers | Axis::Visible | Axis::Deformation | Axis::CloudSize
         )
     }
 }
@@ -418,7 +473,16 @@ pub fn run_matrix(
     }
 }
 
-fn panic_text(p: &Box<dyn std::any::Any + Send>) -> String {
+/// `all`, or (`reduced`) its first and last values.
+fn ends(all: &[f64], reduced: bool) -> Vec<f64> {
+    match all {
+        [first, .., last] if reduced => vec![*first, *last],
+        _ => all.to_vec(),
+    }
+}
+
+/// The message of a caught panic.
+pub(crate) fn panic_text(p: &Box<dyn std::any::Any + Send>) -> String {
     p.downcast_ref::<&str>()
         .map(|s| s.to_string())
         .or_else(|| p.downcast_ref::<String>().cloned())

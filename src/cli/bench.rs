@@ -15,6 +15,9 @@ use crate::benchmark::indentation::{
     indentation_cases, indentation_chart_point, indentation_table, run_indentation,
     IndentationMetrics, IndentationVariant,
 };
+use crate::benchmark::indentation_stability::{
+    run_indentation_matrix, IndentationStabilityOptions, IndentationStabilityReport,
+};
 use crate::benchmark::ModelConfig;
 use crate::benchmark::{
     run_matrix, run_sweep, sweep_configs, Axis, BenchReport, StabilityOptions, StabilityReport,
@@ -68,18 +71,26 @@ pub struct BenchArgs {
     #[arg(long, value_name = "LAW", value_parser = parse_truth_law)]
     pub truth_law: Option<String>,
     /// Run the stability matrix instead of the sweep (writes stability.json and
-    /// stability.md); with `--quick`, its reduced form (two values per axis).
+    /// stability.md); with `--quick`, its reduced form (two values per axis). With
+    /// `--indentation`: the tool-indentation class's matrix (stability-indentation.json and
+    /// stability-indentation.md).
     #[arg(long, conflicts_with_all = ["frames", "only"])]
     pub stability: bool,
     /// Run the tool-indentation class (issue 18) instead: the sequences of
     /// `fixtures/liver_indentation` (truth from a tetrahedral FE solve) registered with the
     /// scene (default: that fixture's scene) and each configuration of `--only` (default:
-    /// the scene as it is); writes indentation.json and indentation.md.
-    #[arg(long, conflicts_with_all = ["frames", "stability"])]
+    /// the scene as it is); writes indentation.json and indentation.md. With `--stability`,
+    /// its stability matrix instead.
+    #[arg(long, conflicts_with = "frames")]
     pub indentation: bool,
     /// With `--indentation`: the variants (`no-camera`, `camera`, `rigid-icp`; default all).
     #[arg(long, value_delimiter = ',', requires = "indentation")]
     pub variants: Vec<String>,
+    /// With `--indentation --stability`: register every N-th frame of each sequence, counted
+    /// back from its last (default 1, `--quick`: 10); `--frame-count` then keeps the last
+    /// that many of them.
+    #[arg(long, value_name = "N", requires = "indentation", value_parser = clap::value_parser!(u32).range(1..))]
+    pub frame_stride: Option<u32>,
 }
 
 /// Runs `livereg bench`; prints the table and writes the report and chart (the sweep's
@@ -91,6 +102,9 @@ pub fn run(args: &BenchArgs) -> Result<Option<BenchReport>, String> {
             args.out.display()
         )
     })?;
+    if args.indentation && args.stability {
+        return run_indentation_stability(args).map(|_| None);
+    }
     if args.indentation {
         return run_indentation_bench(args).map(|_| None);
     }
@@ -213,30 +227,13 @@ pub fn run_indentation_bench(args: &BenchArgs) -> Result<Vec<IndentationMetrics>
     let dir = bundled_fixture_dir();
     let scene_path = args.scene.clone().unwrap_or_else(|| dir.join("scene.toml"));
     let scene = load_scene(&scene_path).map_err(|e| e.to_string())?;
-    let variants = if args.variants.is_empty() {
-        IndentationVariant::ALL.to_vec()
-    } else {
-        args.variants
-            .iter()
-            .map(|v| {
-                IndentationVariant::from_name(v).ok_or_else(|| {
-                    format!("--variants: unknown `{v}` (known: no-camera, camera, rigid-icp)")
-                })
-            })
-            .collect::<Result<_, _>>()?
-    };
+    let variants = indentation_variants(args)?;
     let laws: Vec<&str> = match &args.truth_law {
         Some(l) => vec![l.as_str()],
         None => INDENTATION_LAWS.to_vec(),
     };
     for l in &laws {
-        if !INDENTATION_LAWS.contains(l) && !INDENTATION_STICKING_LAWS.contains(l) {
-            return Err(format!(
-                "--truth-law {l}: the indentation truth exists for {}, {}",
-                INDENTATION_LAWS.join(", "),
-                INDENTATION_STICKING_LAWS.join(", ")
-            ));
-        }
+        check_indentation_law(l)?;
     }
     let sequences: Vec<&str> = if args.scenarios.is_empty() {
         INDENTATION_SEQUENCES.to_vec()
@@ -297,6 +294,81 @@ pub fn run_indentation_bench(args: &BenchArgs) -> Result<Vec<IndentationMetrics>
     std::fs::write(&path, &table).map_err(|e| format!("{}: {e}", path.display()))?;
     print!("{table}");
     Ok(rows)
+}
+
+/// `--variants` (default: all).
+fn indentation_variants(args: &BenchArgs) -> Result<Vec<IndentationVariant>, String> {
+    if args.variants.is_empty() {
+        return Ok(IndentationVariant::ALL.to_vec());
+    }
+    args.variants
+        .iter()
+        .map(|v| {
+            IndentationVariant::from_name(v).ok_or_else(|| {
+                format!("--variants: unknown `{v}` (known: no-camera, camera, rigid-icp)")
+            })
+        })
+        .collect()
+}
+
+/// Whether the indentation fixture has a truth with law `law`.
+fn check_indentation_law(law: &str) -> Result<(), String> {
+    if INDENTATION_LAWS.contains(&law) || INDENTATION_STICKING_LAWS.contains(&law) {
+        return Ok(());
+    }
+    Err(format!(
+        "--truth-law {law}: the indentation truth exists for {}, {}",
+        INDENTATION_LAWS.join(", "),
+        INDENTATION_STICKING_LAWS.join(", ")
+    ))
+}
+
+/// `livereg bench --indentation --stability`: the tool-indentation class's stability matrix
+/// on the scene (default: the fixture's), written to `stability-indentation.json` and
+/// `stability-indentation.md` in the output directory.
+pub fn run_indentation_stability(args: &BenchArgs) -> Result<IndentationStabilityReport, String> {
+    let dir = bundled_fixture_dir();
+    let scene_path = args.scene.clone().unwrap_or_else(|| dir.join("scene.toml"));
+    let scene = load_scene(&scene_path).map_err(|e| e.to_string())?;
+    let mut options = IndentationStabilityOptions::standard(args.quick);
+    if let Some(l) = &args.truth_law {
+        check_indentation_law(l)?;
+        options.truth_law = l.clone();
+    }
+    if !args.scenarios.is_empty() {
+        options.sequences = args.scenarios.clone();
+    }
+    options.variants = indentation_variants(args)?;
+    if let Some(n) = args.frame_stride {
+        options.stride = n as usize;
+    }
+    if let Some(n) = args.frame_count {
+        options.max_frames = Some(n);
+    }
+    options.validate()?;
+    let pb = bar(options.rows().len() * options.variants.len(), "stability");
+    let mut progress = |what: &str| {
+        pb.set_message(what.to_string());
+        pb.inc(1);
+    };
+    let report = run_indentation_matrix(&scene, &dir, &options, &mut progress)?;
+    pb.finish_and_clear();
+    let json = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
+    let path = args.out.join("stability-indentation.json");
+    std::fs::write(&path, json).map_err(|e| format!("{}: {e}", path.display()))?;
+    let table = report.markdown();
+    let path = args.out.join("stability-indentation.md");
+    std::fs::write(&path, &table).map_err(|e| format!("{}: {e}", path.display()))?;
+    print!("{table}");
+    println!(
+        "{} cells, {} crashed, {} frames with non-finite output; {:.0} s; artefacts in {}",
+        report.cells.len(),
+        report.crashes,
+        report.non_finite_frames,
+        report.wall_s,
+        args.out.display()
+    );
+    Ok(report)
 }
 
 /// Frames per synthetic scenario.

@@ -66,6 +66,12 @@ pub enum IndentationError {
         /// What is wrong.
         message: String,
     },
+    /// The cloud spec is out of range.
+    #[error("{message}")]
+    Spec {
+        /// What is wrong.
+        message: String,
+    },
     /// A cloud could not be synthesized.
     #[error("cloud of frame {frame}: {message}")]
     Cloud {
@@ -243,6 +249,25 @@ impl IndentationTruth {
         self.frames.is_empty()
     }
 
+    /// The truth restricted to the frames `indices` (in that order): a frame subset or stride
+    /// of the sequence. An index past the last frame is an error.
+    pub fn select_frames(&self, indices: &[usize]) -> Result<Self, IndentationError> {
+        if let Some(&k) = indices.iter().find(|&&k| k >= self.len()) {
+            return Err(IndentationError::Format {
+                path: format!("{}_{}", self.sequence, self.law),
+                message: format!("no frame {k}: the sequence has {} frames", self.len()),
+            });
+        }
+        Ok(Self {
+            frames: indices.iter().map(|&k| self.frames[k].clone()).collect(),
+            displacements: indices
+                .iter()
+                .map(|&k| self.displacements[k].clone())
+                .collect(),
+            ..self.clone()
+        })
+    }
+
     /// Frame `k`'s deformed node positions, m, model frame.
     pub fn deformed_nodes(&self, k: usize) -> Vec<Point3<f64>> {
         self.nodes
@@ -318,11 +343,60 @@ impl Default for IndentationCloudSpec {
     }
 }
 
+impl IndentationCloudSpec {
+    /// Checks every parameter's range: at least one point, visible fraction in `(0, 1]`,
+    /// finite non-negative noise (m), outlier fraction in `[0, 1)`, finite positive camera
+    /// distance (m) and finite tilt (degrees). The message names the field.
+    pub fn validate(&self) -> Result<(), IndentationError> {
+        let bad = |m: String| {
+            Err(IndentationError::Spec {
+                message: format!("cloud spec: {m}"),
+            })
+        };
+        if self.points == 0 {
+            return bad("points must be >= 1".into());
+        }
+        if !(self.visible_fraction > 0.0 && self.visible_fraction <= 1.0) {
+            return bad(format!(
+                "visible_fraction {} is outside (0, 1]",
+                self.visible_fraction
+            ));
+        }
+        if !(self.noise_sigma.is_finite() && self.noise_sigma >= 0.0) {
+            return bad(format!(
+                "noise_sigma {} m must be finite and >= 0",
+                self.noise_sigma
+            ));
+        }
+        if !(0.0..1.0).contains(&self.outlier_fraction) {
+            return bad(format!(
+                "outlier_fraction {} is outside [0, 1)",
+                self.outlier_fraction
+            ));
+        }
+        if !(self.camera_distance.is_finite() && self.camera_distance > 0.0) {
+            return bad(format!(
+                "camera_distance {} m must be finite and > 0",
+                self.camera_distance
+            ));
+        }
+        if !self.camera_tilt_deg.is_finite() {
+            return bad(format!(
+                "camera_tilt_deg {} must be finite",
+                self.camera_tilt_deg
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// One frame as a camera sees it, with its truth: metres, CAMERA (cloud) frame.
 #[derive(Debug, Clone)]
 pub struct IndentationFrame {
     /// The cloud.
     pub cloud: Vec<Point3<f64>>,
+    /// How many points of `cloud` are outliers (the rest are noisy surface samples).
+    pub outliers: usize,
     /// The camera that saw it.
     pub camera: Camera,
     /// True node positions.
@@ -350,6 +424,7 @@ pub fn indentation_sequence(
     truth: &IndentationTruth,
     spec: &IndentationCloudSpec,
 ) -> Result<Vec<IndentationFrame>, IndentationError> {
+    spec.validate()?;
     let area: f64 = (0..truth.surface.triangles.len())
         .map(|t| truth.surface.scaled_normal(t).norm() * 0.5)
         .sum();
@@ -383,6 +458,7 @@ pub fn indentation_sequence(
             )
             .map_err(|e| err(e.to_string()))?;
             Ok(IndentationFrame {
+                outliers: cloud.outlier_count(),
                 cloud: offset.apply_all(&cloud.points),
                 camera: moved_camera,
                 truth_nodes: offset.apply_all(&nodes),
