@@ -27,6 +27,7 @@
 //! assert!(result.model_to_cloud.rotation_angle_to(&truth) < 0.01);
 //! ```
 
+pub mod change_evidence;
 pub mod coarse_to_fine;
 pub mod correspondences;
 pub mod isolated_points;

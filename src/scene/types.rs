@@ -649,6 +649,11 @@ pub struct RegistrationSpec {
     /// docs/registration.md, "The rigid stage"); false: plain ICP from the initial pose.
     #[serde(default = "defaults::pose_search")]
     pub pose_search: bool,
+    /// A frame whose cloud the rest shape explains within the cloud's own noise is kept at
+    /// rest (flag `at_rest`) instead of being registered (default true since session 26;
+    /// docs/registration.md, "Frames at rest").
+    #[serde(default = "defaults::rest_test")]
+    pub rest_test: bool,
     /// Warm frames refactorise the tangent on a helper thread while their Newton steps go on
     /// with the old factorisation (default false): faster on large grids, slightly less
     /// accurate (docs/registration.md). Results stay deterministic.
@@ -690,6 +695,7 @@ impl Default for RegistrationSpec {
             coarse_to_fine: None,
             robust_pruning: defaults::robust_pruning(),
             pose_search: defaults::pose_search(),
+            rest_test: defaults::rest_test(),
             background_factorization: false,
             remove_isolated_points: defaults::remove_isolated_points(),
             data_term: DataTerm::default(),
@@ -755,6 +761,10 @@ pub mod defaults {
     }
     /// `registration.pose_search`.
     pub fn pose_search() -> bool {
+        true
+    }
+    /// `registration.rest_test`.
+    pub fn rest_test() -> bool {
         true
     }
     /// `registration.robust_pruning`.

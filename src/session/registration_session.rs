@@ -11,6 +11,7 @@ use crate::geometry::Camera;
 use crate::linalg::SolverKind;
 use crate::mechanics::NewtonSettings;
 use crate::mesh::TriSurface;
+use crate::registration::change_evidence::cloud_noise_sigma;
 use crate::registration::correspondences::rejection_threshold;
 use crate::registration::isolated_points::{
     isolated_mask, ISOLATION_MEDIAN_FACTOR, ISOLATION_NEIGHBOURS, ISOLATION_SIGMA,
@@ -404,6 +405,23 @@ impl Session {
         // Non-rigid stage in the model frame.
         let cloud_to_model = model_to_cloud.inverse();
         let aligned: Vec<Point3<f64>> = cloud.iter().map(|p| cloud_to_model.apply(p)).collect();
+        if let Some((u, fit, force)) = self.rest_shape_if_unchanged(&aligned, flags) {
+            return Ok(Done {
+                u,
+                model_to_cloud,
+                converged: true,
+                rigid_iterations,
+                icp_iterations: 0,
+                newton_iterations: 0,
+                factorizations: 0,
+                surface_rms: fit,
+                used_points: cloud.len(),
+                cloud,
+                sources: 0,
+                warnings: Vec::new(),
+                contact_force: force,
+            });
+        }
         let camera = match &frame.camera {
             Some(c) => Some(camera_to_model(c, scale, &cloud_to_model)?),
             None => self.scene_camera,
@@ -894,21 +912,63 @@ impl Session {
         self.fit_rms(&aligned, &self.good.u)
     }
 
+    /// The rest shape, kept without registering when it explains the frame's cloud
+    /// (`aligned`, metres, model frame) within the cloud's own noise
+    /// ([`SessionSettings::rest_test`]; flag `at_rest`): registering a liver at rest can only
+    /// fit noise. `None` (register) otherwise. Returns the displacement (zero), the fit RMS
+    /// (m) and a zero contact force.
+    fn rest_shape_if_unchanged(
+        &mut self,
+        aligned: &[Point3<f64>],
+        flags: &mut Vec<String>,
+    ) -> Option<(Vec<f64>, f64, Option<ContactForce>)> {
+        let test = self.settings.rest_test.clone()?;
+        let cloud = IndexedPoints::new(aligned.to_vec())?;
+        let rest = vec![0.0; self.good.u.len()];
+        let d = self.signed_distances(aligned, &rest)?;
+        if test
+            .evaluate(&cloud, &d, cloud_noise_sigma(&cloud))
+            .significant
+        {
+            return None;
+        }
+        flags.push("at_rest".into());
+        // The solvers' warm state belongs to the shape left behind.
+        self.non_rigid_cold.invalidate();
+        self.non_rigid_warm.invalidate();
+        let rms = (d.iter().map(|v| v * v).sum::<f64>() / d.len() as f64).sqrt();
+        let force = ContactForce {
+            resultant: nalgebra::Vector3::zeros(),
+            centre: centroid(aligned),
+        };
+        Some((rest, rms, Some(force)))
+    }
+
+    /// Signed distance (metres) of each point of `cloud` (metres, model frame) to the surface
+    /// deformed by `u`: along the normal at its nearest vertex, positive outside. `None` for an
+    /// empty surface.
+    fn signed_distances(&self, cloud: &[Point3<f64>], u: &[f64]) -> Option<Vec<f64>> {
+        let x = self.model.surface_embedding.positions(u);
+        let normals = TriSurface::vertex_normals_at(&x, &self.model.surface.triangles);
+        let vertices = IndexedPoints::new(x)?;
+        Some(
+            cloud
+                .iter()
+                .map(|q| {
+                    let (i, _) = vertices.nearest(q);
+                    normals[i].dot(&(*q - vertices.points[i]))
+                })
+                .collect(),
+        )
+    }
+
     /// RMS distance (metres) from `cloud` (metres, model frame) to the surface deformed by `u`,
     /// measured to the tangent plane at the nearest vertex, after the mean + 2σ outlier rule.
     fn fit_rms(&self, cloud: &[Point3<f64>], u: &[f64]) -> f64 {
-        let x = self.model.surface_embedding.positions(u);
-        let normals = TriSurface::vertex_normals_at(&x, &self.model.surface.triangles);
-        let Some(vertices) = IndexedPoints::new(x) else {
+        let Some(signed) = self.signed_distances(cloud, u) else {
             return f64::INFINITY;
         };
-        let d: Vec<f64> = cloud
-            .iter()
-            .map(|q| {
-                let (i, _) = vertices.nearest(q);
-                normals[i].dot(&(*q - vertices.points[i])).abs()
-            })
-            .collect();
+        let d: Vec<f64> = signed.into_iter().map(f64::abs).collect();
         let limit = rejection_threshold(&d, 2.0);
         let kept: Vec<f64> = d.into_iter().filter(|&v| v <= limit).collect();
         if kept.is_empty() {

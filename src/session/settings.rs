@@ -1,6 +1,7 @@
 //! What a session does per frame, and its limits.
 
 use crate::mechanics::LawKind;
+use crate::registration::change_evidence::ChangeTest;
 use crate::registration::non_rigid_icp::NormalScale;
 use crate::registration::{NonRigidSettings, PoseSearch, RigidIcp};
 use crate::scene::{DataTerm, PoseUpdate, RigidMode, Scene};
@@ -26,6 +27,11 @@ pub struct SessionSettings {
     /// fits by plain ICP from the start alone (`registration.pose_search = false`). Default
     /// [`PoseSearch::default`] (docs/registration.md, "The rigid stage").
     pub pose_search: Option<PoseSearch>,
+    /// A frame whose cloud (after the rigid stage) the rest shape explains within the cloud's
+    /// own noise is kept at rest (flag `at_rest`), without the non-rigid stage
+    /// ([`ChangeTest`](crate::registration::change_evidence::ChangeTest)); `None`: every frame
+    /// is registered (`registration.rest_test = false`).
+    pub rest_test: Option<ChangeTest>,
     /// Rigid ICP from the last frame's pose (rigid-only sessions, `pose = "track"`) stops
     /// when the mean squared inlier distance changes by at most this fraction (default 1e-4,
     /// an RMS change of 0.005 %), if looser than `rigid.relative_tolerance` (1e-6, kept for
@@ -105,6 +111,7 @@ impl Default for SessionSettings {
                 ..RigidIcp::default()
             },
             pose_search: Some(PoseSearch::default()),
+            rest_test: Some(ChangeTest::default()),
             tracking_relative_tolerance: 1e-4,
             target_spacing: 0.005,
             max_rigid_rms: 0.02,
@@ -143,6 +150,9 @@ impl SessionSettings {
             s.rigid.robust_pruning = r.robust_pruning;
             if !r.pose_search {
                 s.pose_search = None;
+            }
+            if !r.rest_test {
+                s.rest_test = None;
             }
             // Warm frames prune at median/MAD with the cloud → surface term (measured in
             // docs/registration.md); the thesis's direction keeps mean + 2σ.

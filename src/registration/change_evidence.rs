@@ -1,0 +1,278 @@
+//! Does a cloud show a change of shape beyond its own noise? (issue 18: frames where the liver
+//! is at rest, or has not moved since the last frame, must not end worse than no registration.)
+//!
+//! Registering a cloud that shows no deformation can only fit its noise: on the indentation
+//! class, frames with the tool lifted ended 0.2–0.3 mm from the truth where the rest shape is
+//! exact. [`ChangeTest`] decides from the cloud alone whether the surface it is compared with
+//! (the last registered state, or the rest shape) explains it:
+//!
+//! 1. the noise of the cloud, σ, from the cloud itself ([`cloud_noise_sigma`]): the RMS
+//!    residual of a quadric fitted to each point's neighbourhood (a surface is smooth at that
+//!    scale, its noise is not), the median over the points;
+//! 2. the signed distance `dᵢ` of each cloud point to the surface along its normal, given;
+//! 3. for each point, the median of `d` over its `k` nearest cloud points, for `k` in
+//!    [`ChangeTest::neighbourhoods`]; under "no change" it is noise, of standard deviation
+//!    1.2533 σ / √k (the median of normal samples);
+//! 4. the statistic is the largest |median| over points and neighbourhoods in units of that
+//!    deviation; the change is significant above [`ChangeTest::threshold`] (default 4: the
+//!    chance that noise alone reaches it somewhere in a 500-point cloud is well under 1 %).
+//!
+//! A change of amplitude `A` spread over `k` points is found when `A ≳ 6 σ / √k`: with
+//! σ = 1.5 mm and `k` = 32, about 1.6 mm; with `k` = 8, about 3.3 mm. Smaller changes are left
+//! unregistered.
+//! Lengths in metres.
+
+use nalgebra::{Matrix3, Point3, SMatrix, SVector, Vector3};
+use serde::Serialize;
+
+use super::correspondences::IndexedPoints;
+
+/// Standard deviation of the median of `k` normal samples, in units of σ / √k (large-sample
+/// value √(π/2)).
+const MEDIAN_DEVIATION: f64 = 1.2533;
+
+/// Neighbours of the quadric fits of [`cloud_noise_sigma`].
+pub const NOISE_NEIGHBOURS: usize = 16;
+
+/// Settings of the test.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ChangeTest {
+    /// Neighbourhood sizes the local medians are taken over (default 8 and 32 points: a
+    /// narrow dent and a broad change).
+    pub neighbourhoods: Vec<usize>,
+    /// The change is significant when the statistic exceeds this (default 5: under noise
+    /// alone the largest of the overlapping local medians of a 500-point cloud reached 2.6–4.3
+    /// in 20 trials, `tests` below).
+    pub threshold: f64,
+}
+
+impl Default for ChangeTest {
+    fn default() -> Self {
+        Self {
+            neighbourhoods: vec![8, 32],
+            threshold: 5.0,
+        }
+    }
+}
+
+/// What [`ChangeTest::evaluate`] found.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ChangeEvidence {
+    /// The cloud's noise along the surface normal, metres ([`cloud_noise_sigma`]).
+    pub noise_sigma: f64,
+    /// Largest local median of the signed distances in units of its deviation under "no
+    /// change" (dimensionless).
+    pub statistic: f64,
+    /// `statistic` exceeds the threshold: the surface does not explain the cloud.
+    pub significant: bool,
+}
+
+impl ChangeTest {
+    /// Checks the settings.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.neighbourhoods.is_empty() || self.neighbourhoods.iter().any(|&k| k < 3) {
+            return Err(format!(
+                "change test: neighbourhoods must be non-empty, each >= 3 points, got {:?}",
+                self.neighbourhoods
+            ));
+        }
+        if !(self.threshold.is_finite() && self.threshold > 0.0) {
+            return Err(format!(
+                "change test: threshold must be finite and > 0, got {}",
+                self.threshold
+            ));
+        }
+        Ok(())
+    }
+
+    /// The test for `cloud` (metres) whose points lie at the signed distances `signed` (m,
+    /// one per point, along the surface's normal) from the surface compared with; `sigma`
+    /// is the cloud's noise ([`cloud_noise_sigma`]). A cloud too small for the largest
+    /// neighbourhood, a non-finite distance, or no noise estimate is always significant
+    /// (registered).
+    pub fn evaluate(&self, cloud: &IndexedPoints, signed: &[f64], sigma: f64) -> ChangeEvidence {
+        let k_max = self.neighbourhoods.iter().copied().max().unwrap_or(0);
+        if cloud.len() < k_max.max(3)
+            || signed.len() != cloud.len()
+            || signed.iter().any(|d| !d.is_finite())
+            || sigma.is_nan()
+            || sigma <= 0.0
+        {
+            return ChangeEvidence {
+                noise_sigma: sigma,
+                statistic: f64::INFINITY,
+                significant: true,
+            };
+        }
+        let mut statistic: f64 = 0.0;
+        let mut values = Vec::with_capacity(k_max);
+        for p in &cloud.points {
+            let near = cloud.nearest_k(p, k_max);
+            for &k in &self.neighbourhoods {
+                values.clear();
+                values.extend(near.iter().take(k).map(|&(j, _)| signed[j]));
+                let m = median(&mut values);
+                let deviation = MEDIAN_DEVIATION * sigma / (values.len() as f64).sqrt();
+                statistic = statistic.max(m.abs() / deviation);
+            }
+        }
+        ChangeEvidence {
+            noise_sigma: sigma,
+            statistic,
+            // A NaN statistic (no finite distance) counts as a change: the frame is registered.
+            significant: statistic.is_nan() || statistic > self.threshold,
+        }
+    }
+}
+
+/// The noise of `cloud` (metres) along its surface's normal: at each point, a quadric
+/// `z = a + b x + c y + d x² + e x y + f y²` is fitted by least squares to its
+/// [`NOISE_NEIGHBOURS`] nearest points in their principal frame (z along the smallest
+/// principal axis), and the residual variance is corrected for the 6 fitted parameters; the
+/// result is the square root of the median over the points, corrected to a mean (the median
+/// of a χ² with `n` degrees of freedom is about `n (1 − 2/(9n))³`). 0 when the cloud has fewer
+/// than [`NOISE_NEIGHBOURS`] points.
+pub fn cloud_noise_sigma(cloud: &IndexedPoints) -> f64 {
+    let k = NOISE_NEIGHBOURS;
+    if cloud.len() < k {
+        return 0.0;
+    }
+    let dof = (k - 6) as f64;
+    let mut variances: Vec<f64> = cloud
+        .points
+        .iter()
+        .filter_map(|p| {
+            let near: Vec<Point3<f64>> = cloud
+                .nearest_k(p, k)
+                .iter()
+                .map(|&(j, _)| cloud.points[j])
+                .collect();
+            quadric_residual(&near).map(|ss| ss / dof)
+        })
+        .collect();
+    if variances.is_empty() {
+        return 0.0;
+    }
+    let m = median(&mut variances);
+    let median_factor = (1.0 - 2.0 / (9.0 * dof)).powi(3);
+    (m / median_factor).sqrt()
+}
+
+/// Sum of squared residuals of the least-squares quadric through `points` in their principal
+/// frame; `None` when the fit is singular.
+fn quadric_residual(points: &[Point3<f64>]) -> Option<f64> {
+    let n = points.len() as f64;
+    let c = points.iter().map(|p| p.coords).sum::<Vector3<f64>>() / n;
+    let cov = points
+        .iter()
+        .map(|p| (p.coords - c) * (p.coords - c).transpose())
+        .sum::<Matrix3<f64>>()
+        / n;
+    let eig = cov.symmetric_eigen();
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+    let (ex, ey, ez) = (
+        eig.eigenvectors.column(order[0]).into_owned(),
+        eig.eigenvectors.column(order[1]).into_owned(),
+        eig.eigenvectors.column(order[2]).into_owned(),
+    );
+    let mut ata = SMatrix::<f64, 6, 6>::zeros();
+    let mut atb = SVector::<f64, 6>::zeros();
+    let local: Vec<(SVector<f64, 6>, f64)> = points
+        .iter()
+        .map(|p| {
+            let d = p.coords - c;
+            let (x, y, z) = (d.dot(&ex), d.dot(&ey), d.dot(&ez));
+            (SVector::<f64, 6>::from([1.0, x, y, x * x, x * y, y * y]), z)
+        })
+        .collect();
+    for (row, z) in &local {
+        ata += row * row.transpose();
+        atb += row * *z;
+    }
+    let coef = ata.cholesky()?.solve(&atb);
+    Some(
+        local
+            .iter()
+            .map(|(row, z)| (z - row.dot(&coef)).powi(2))
+            .sum(),
+    )
+}
+
+/// The median of `v` (reordered); NaN when empty.
+fn median(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let mid = v.len() / 2;
+    let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
+    *m
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synthetic::Rng;
+
+    /// A 12 × 12 cm patch of a sphere of radius 8 cm (curved like a liver), 500 points, with
+    /// normal noise `sigma`, and a Gaussian bump of `bump` metres (width 1.5 cm) at its
+    /// centre; the signed distances to the sphere along its normal.
+    fn patch(sigma: f64, bump: f64, seed: u64) -> (IndexedPoints, Vec<f64>) {
+        let mut rng = Rng::new(seed);
+        let r = 0.08;
+        let mut pts = Vec::new();
+        let mut signed = Vec::new();
+        for _ in 0..500 {
+            let (x, y) = (rng.uniform_in(-0.06, 0.06), rng.uniform_in(-0.06, 0.06));
+            let n = Vector3::new(x, y, r).normalize();
+            let h = bump * (-(x * x + y * y) / (2.0 * 0.015f64.powi(2))).exp();
+            let p = Point3::from(n * r) + rng.gaussian_vector(sigma) + n * h;
+            signed.push((p.coords.norm() - r).clamp(-1.0, 1.0));
+            pts.push(p);
+        }
+        (IndexedPoints::new(pts).unwrap(), signed)
+    }
+
+    #[test]
+    fn the_noise_is_measured_from_the_cloud_alone() {
+        for sigma in [0.5e-3, 1.5e-3, 3e-3] {
+            let (cloud, _) = patch(sigma, 0.0, 1);
+            let s = cloud_noise_sigma(&cloud);
+            // Isotropic noise σ per axis is σ along the normal; the fit sees it within 20 %.
+            assert!((s / sigma - 1.0).abs() < 0.2, "σ {sigma}: measured {s}");
+        }
+    }
+
+    #[test]
+    fn noise_alone_is_not_a_change_and_a_bump_of_twice_the_noise_is() {
+        let test = ChangeTest::default();
+        let (mut false_alarms, mut worst) = (0, 0.0f64);
+        for seed in 0..20 {
+            let (cloud, signed) = patch(1.5e-3, 0.0, seed);
+            let e = test.evaluate(&cloud, &signed, cloud_noise_sigma(&cloud));
+            worst = worst.max(e.statistic);
+            false_alarms += usize::from(e.significant);
+        }
+        // Measured: 2.6–4.3 over these 20 clouds.
+        assert_eq!(false_alarms, 0, "largest statistic {worst}");
+        for seed in 0..5 {
+            let (cloud, signed) = patch(1.5e-3, 3e-3, 100 + seed);
+            let e = test.evaluate(&cloud, &signed, cloud_noise_sigma(&cloud));
+            assert!(e.significant, "a 3 mm bump under 1.5 mm noise: {e:?}");
+        }
+    }
+
+    #[test]
+    fn settings_out_of_range_are_named() {
+        let bad = ChangeTest {
+            neighbourhoods: vec![2],
+            ..ChangeTest::default()
+        };
+        assert!(bad.validate().unwrap_err().contains("neighbourhoods"));
+        let bad = ChangeTest {
+            threshold: f64::NAN,
+            ..ChangeTest::default()
+        };
+        assert!(bad.validate().unwrap_err().contains("threshold"));
+    }
+}
