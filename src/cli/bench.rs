@@ -276,7 +276,9 @@ pub fn run_indentation_bench(args: &BenchArgs) -> Result<Vec<IndentationMetrics>
         }
     }
     pb.finish_and_clear();
-    write_chart(
+    // A chart of one configuration says nothing the table does not.
+    if points.len() > 1 {
+        write_chart(
         &points,
         &format!(
             "livereg bench --indentation: mean node error vs warm ms per frame ({} cases, {} cores)",
@@ -286,6 +288,7 @@ pub fn run_indentation_bench(args: &BenchArgs) -> Result<Vec<IndentationMetrics>
         Some(&args.out.join("indentation.png")),
         Some(&args.out.join("indentation.svg")),
     )?;
+    }
     let json = serde_json::to_string_pretty(&rows).map_err(|e| e.to_string())?;
     let path = args.out.join("indentation.json");
     std::fs::write(&path, json).map_err(|e| format!("{}: {e}", path.display()))?;
