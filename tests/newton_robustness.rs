@@ -405,3 +405,23 @@ fn extra_springs_act_as_the_problems_own_and_the_factorisation_records_them() {
         "both kinds of factorisation"
     );
 }
+
+#[test]
+fn a_state_exact_to_round_off_is_converged_not_diverged() {
+    // A noise-free cloud of the rest shape: the data springs' gaps are round-off (1e-17 m)
+    // and the residual cannot be lowered. The stability matrix found such a frame reported as
+    // diverged; the solver must call it converged and leave the rest state as it is.
+    let mut p = column(0.0);
+    let mut exact = top_pull(&p, Vector3::new(0.0, 1e-17, 0.0));
+    exact.stiffness = vec![1e5; exact.stiffness.len()];
+    exact.normals = Some(vec![Vector3::y(); exact.stiffness.len()]);
+    let u0 = vec![0.0; p.dofs()];
+    let r = NewtonSolver::new(NewtonSettings::default()).solve(
+        &mut p,
+        std::slice::from_ref(&exact),
+        &u0,
+    );
+    assert_eq!(r.outcome, Outcome::Converged, "{:?}", r.message);
+    let largest = r.u.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    assert!(largest < 1e-12, "the rest state moved by {largest:.2e} m");
+}

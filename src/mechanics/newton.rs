@@ -552,6 +552,9 @@ impl NewtonSolver {
         let ext_norm = load * norm(&problem.external);
         let result = (|| {
             let mut reference = 0.0;
+            // Residual norm (N) at which the state is exact to round-off: the tangent's
+            // largest diagonal entry (N/m) times [`ROUND_OFF_DISPLACEMENT`].
+            let mut round_off = 0.0;
             for it in 0..max_iterations {
                 if max_uses > 1 {
                     self.swap_in_background_factor(&mut k);
@@ -578,6 +581,8 @@ impl NewtonSolver {
                     let e =
                         problem.evaluate_with(u, load, extra, need, Some(&mut r), Some(&mut k))?;
                     problem.add_cut_cell_stabilization(stabilization, &mut k);
+                    round_off = ROUND_OFF_DISPLACEMENT
+                        * k.diagonal().iter().fold(0.0f64, |m, d| m.max(d.abs()));
                     e
                 };
                 let rn = norm(&r);
@@ -591,7 +596,11 @@ impl NewtonSolver {
                     reference = rn.max(ext_norm).max(f64::MIN_POSITIVE);
                 }
                 let rel = rn / reference;
-                if rel <= s.residual_tolerance {
+                // A state already exact to round-off (e.g. a noise-free cloud of the rest
+                // shape: every data spring's gap is 1e-17 m) is converged, whatever its
+                // relative residual: no step can lower a residual made of round-off, and the
+                // line search would call that divergence.
+                if rel <= s.residual_tolerance || rn <= round_off {
                     return Ok(rel);
                 }
                 if rel > 1e8 {
@@ -850,6 +859,11 @@ impl NewtonSolver {
         }))
     }
 }
+
+/// A residual (N) below this displacement (m) times the tangent's largest stiffness (N/m)
+/// is round-off: the state is exact to within a picometre, far below any registration's
+/// accuracy, and Newton's method cannot improve it.
+pub const ROUND_OFF_DISPLACEMENT: f64 = 1e-12;
 
 /// Euclidean norm.
 pub fn norm(v: &[f64]) -> f64 {
