@@ -40,6 +40,9 @@ struct GoodState {
     cloud: Option<Vec<Point3<f64>>>,
     /// The surface loads the last good frame's registration needed (model frame, SI).
     contact_force: Option<ContactForce>,
+    /// The pose was committed by a global search that found another pose about as good
+    /// (flag `pose_ambiguous`); every frame holding it says so too.
+    pose_ambiguous: bool,
 }
 
 /// Registers a stream of frames to one model, carrying the state from frame to frame.
@@ -191,6 +194,7 @@ impl Session {
                 registered: false,
                 cloud: None,
                 contact_force: None,
+                pose_ambiguous: false,
             },
             frames: 0,
             coarse: None,
@@ -207,6 +211,7 @@ impl Session {
             registered: false,
             cloud: None,
             contact_force: None,
+            pose_ambiguous: false,
         };
         self.non_rigid_cold.invalidate();
         self.non_rigid_warm.invalidate();
@@ -304,12 +309,21 @@ impl Session {
         };
         match outcome {
             Ok(done) => {
+                // An ambiguous pose stays ambiguous for as long as it is held; a pose fitted
+                // anew without ambiguity clears it.
+                let searched_ambiguous = result.flags.iter().any(|f| f == "pose_ambiguous");
+                let held = self.good.registered && done.model_to_cloud == self.good.model_to_cloud;
+                let pose_ambiguous = searched_ambiguous || (held && self.good.pose_ambiguous);
+                if pose_ambiguous && !searched_ambiguous {
+                    result.flags.push("pose_ambiguous".into());
+                }
                 self.good = GoodState {
                     u: done.u,
                     model_to_cloud: done.model_to_cloud,
                     registered: true,
                     cloud: Some(done.cloud),
                     contact_force: done.contact_force,
+                    pose_ambiguous,
                 };
                 result.model_to_cloud = done.model_to_cloud;
                 result.converged = done.converged;
