@@ -399,42 +399,28 @@ impl Session {
         times.rigid_ms = ms(t);
 
         if !self.settings.non_rigid {
-            return Ok(Done {
-                u: self.good.u.clone(),
+            return Ok(Done::without_non_rigid(
+                self.good.u.clone(),
                 model_to_cloud,
-                converged: true,
                 rigid_iterations,
-                icp_iterations: 0,
-                newton_iterations: 0,
-                factorizations: 0,
-                surface_rms: 0.0,
-                used_points: cloud.len(),
                 cloud,
-                sources: 0,
-                warnings: Vec::new(),
-                contact_force: None,
-            });
+                0.0,
+                None,
+            ));
         }
 
         // Non-rigid stage in the model frame.
         let cloud_to_model = model_to_cloud.inverse();
         let aligned: Vec<Point3<f64>> = cloud.iter().map(|p| cloud_to_model.apply(p)).collect();
         if let Some((u, fit, force)) = self.rest_shape_if_unchanged(&aligned, flags) {
-            return Ok(Done {
+            return Ok(Done::without_non_rigid(
                 u,
                 model_to_cloud,
-                converged: true,
                 rigid_iterations,
-                icp_iterations: 0,
-                newton_iterations: 0,
-                factorizations: 0,
-                surface_rms: fit,
-                used_points: cloud.len(),
                 cloud,
-                sources: 0,
-                warnings: Vec::new(),
-                contact_force: force,
-            });
+                fit,
+                force,
+            ));
         }
         let camera = match &frame.camera {
             Some(c) => Some(camera_to_model(c, scale, &cloud_to_model)?),
@@ -1015,6 +1001,36 @@ struct Done {
     sources: usize,
     warnings: Vec<String>,
     contact_force: Option<ContactForce>,
+}
+
+impl Done {
+    /// A frame that ends without the non-rigid stage (rigid only, or kept at rest): the shape
+    /// `u` (m), the pose, the rigid iterations, the cloud (m, cloud frame), the fit RMS (m)
+    /// and the contact force.
+    fn without_non_rigid(
+        u: Vec<f64>,
+        model_to_cloud: RigidTransform,
+        rigid_iterations: usize,
+        cloud: Vec<Point3<f64>>,
+        surface_rms: f64,
+        contact_force: Option<ContactForce>,
+    ) -> Self {
+        Done {
+            u,
+            model_to_cloud,
+            converged: true,
+            rigid_iterations,
+            icp_iterations: 0,
+            newton_iterations: 0,
+            factorizations: 0,
+            surface_rms,
+            used_points: cloud.len(),
+            cloud,
+            sources: 0,
+            warnings: Vec::new(),
+            contact_force,
+        }
+    }
 }
 
 /// Whether the Newton solver reported a failure (diverged, inverted, iteration cap) during
