@@ -71,6 +71,41 @@ pub struct Session {
     rigid_target: Option<(Vec<f64>, ModelTarget)>,
     /// The surface normals' averaging the non-rigid stages share (`None`: vertex normals).
     normals: Option<std::sync::Arc<NormalsAtScale>>,
+    /// The rest surface's vertices and normals, built on the first frame that asks whether
+    /// the rest shape explains it ([`Session::rest_shape_if_unchanged`]): the same every
+    /// frame.
+    rest_surface: std::sync::OnceLock<Option<SurfaceIndex>>,
+}
+
+/// A deformed surface's vertices in a k-d tree with their normals: signed distances of
+/// points to it along the normal at their nearest vertex.
+struct SurfaceIndex {
+    vertices: IndexedPoints,
+    normals: Vec<nalgebra::Vector3<f64>>,
+}
+
+impl SurfaceIndex {
+    /// The surface of `model` deformed by `u` (m); `None` for an empty surface.
+    fn new(model: &SceneModel, u: &[f64]) -> Option<Self> {
+        let x = model.surface_embedding.positions(u);
+        let normals = TriSurface::vertex_normals_at(&x, &model.surface.triangles);
+        Some(Self {
+            vertices: IndexedPoints::new(x)?,
+            normals,
+        })
+    }
+
+    /// Signed distance (m) of each point of `cloud` (m, model frame): along the normal at its
+    /// nearest vertex, positive outside.
+    fn signed_distances(&self, cloud: &[Point3<f64>]) -> Vec<f64> {
+        cloud
+            .iter()
+            .map(|q| {
+                let (i, _) = self.vertices.nearest(q);
+                self.normals[i].dot(&(*q - self.vertices.points[i]))
+            })
+            .collect()
+    }
 }
 
 /// The coarse model of a coarse-to-fine start and its prolongation to the fine grid.
@@ -199,6 +234,7 @@ impl Session {
             frames: 0,
             coarse: None,
             rigid_target: None,
+            rest_surface: std::sync::OnceLock::new(),
         }
     }
 
@@ -925,7 +961,11 @@ impl Session {
         let test = self.settings.rest_test.clone()?;
         let cloud = IndexedPoints::new(aligned.to_vec())?;
         let rest = vec![0.0; self.good.u.len()];
-        let d = self.signed_distances(aligned, &rest)?;
+        let d = self
+            .rest_surface
+            .get_or_init(|| SurfaceIndex::new(&self.model, &rest))
+            .as_ref()?
+            .signed_distances(aligned);
         if test
             .evaluate(&cloud, &d, cloud_noise_sigma(&cloud))
             .significant
@@ -944,30 +984,13 @@ impl Session {
         Some((rest, rms, Some(force)))
     }
 
-    /// Signed distance (metres) of each point of `cloud` (metres, model frame) to the surface
-    /// deformed by `u`: along the normal at its nearest vertex, positive outside. `None` for an
-    /// empty surface.
-    fn signed_distances(&self, cloud: &[Point3<f64>], u: &[f64]) -> Option<Vec<f64>> {
-        let x = self.model.surface_embedding.positions(u);
-        let normals = TriSurface::vertex_normals_at(&x, &self.model.surface.triangles);
-        let vertices = IndexedPoints::new(x)?;
-        Some(
-            cloud
-                .iter()
-                .map(|q| {
-                    let (i, _) = vertices.nearest(q);
-                    normals[i].dot(&(*q - vertices.points[i]))
-                })
-                .collect(),
-        )
-    }
-
     /// RMS distance (metres) from `cloud` (metres, model frame) to the surface deformed by `u`,
     /// measured to the tangent plane at the nearest vertex, after the mean + 2σ outlier rule.
     fn fit_rms(&self, cloud: &[Point3<f64>], u: &[f64]) -> f64 {
-        let Some(signed) = self.signed_distances(cloud, u) else {
+        let Some(surface) = SurfaceIndex::new(&self.model, u) else {
             return f64::INFINITY;
         };
+        let signed = surface.signed_distances(cloud);
         let d: Vec<f64> = signed.into_iter().map(f64::abs).collect();
         let limit = rejection_threshold(&d, 2.0);
         let kept: Vec<f64> = d.into_iter().filter(|&v| v <= limit).collect();
