@@ -202,20 +202,15 @@ pub fn run_stability(args: &BenchArgs, scene: &LoadedScene) -> Result<StabilityR
     };
     let report = run_matrix(scene, &options, &mut progress);
     pb.finish_and_clear();
-    let json = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
-    let path = args.out.join("stability.json");
-    std::fs::write(&path, json).map_err(|e| format!("{}: {e}", path.display()))?;
     let table = report.markdown();
-    let path = args.out.join("stability.md");
-    std::fs::write(&path, &table).map_err(|e| format!("{}: {e}", path.display()))?;
+    write_json_and_table(&args.out, "stability", &report, &table)?;
     print!("{table}");
-    println!(
-        "{} cells, {} crashed, {} frames with non-finite output; {:.0} s; artefacts in {}",
+    print_matrix_summary(
         report.cells.len(),
         report.crashes,
         report.non_finite_frames,
         report.wall_s,
-        args.out.display()
+        &args.out,
     );
     Ok(report)
 }
@@ -289,12 +284,8 @@ pub fn run_indentation_bench(args: &BenchArgs) -> Result<Vec<IndentationMetrics>
         Some(&args.out.join("indentation.svg")),
     )?;
     }
-    let json = serde_json::to_string_pretty(&rows).map_err(|e| e.to_string())?;
-    let path = args.out.join("indentation.json");
-    std::fs::write(&path, json).map_err(|e| format!("{}: {e}", path.display()))?;
     let table = indentation_table(&rows);
-    let path = args.out.join("indentation.md");
-    std::fs::write(&path, &table).map_err(|e| format!("{}: {e}", path.display()))?;
+    write_json_and_table(&args.out, "indentation", &rows, &table)?;
     print!("{table}");
     Ok(rows)
 }
@@ -356,22 +347,42 @@ pub fn run_indentation_stability(args: &BenchArgs) -> Result<IndentationStabilit
     };
     let report = run_indentation_matrix(&scene, &dir, &options, &mut progress)?;
     pb.finish_and_clear();
-    let json = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
-    let path = args.out.join("stability-indentation.json");
-    std::fs::write(&path, json).map_err(|e| format!("{}: {e}", path.display()))?;
     let table = report.markdown();
-    let path = args.out.join("stability-indentation.md");
-    std::fs::write(&path, &table).map_err(|e| format!("{}: {e}", path.display()))?;
+    write_json_and_table(&args.out, "stability-indentation", &report, &table)?;
     print!("{table}");
-    println!(
-        "{} cells, {} crashed, {} frames with non-finite output; {:.0} s; artefacts in {}",
+    print_matrix_summary(
         report.cells.len(),
         report.crashes,
         report.non_finite_frames,
         report.wall_s,
-        args.out.display()
+        &args.out,
     );
     Ok(report)
+}
+
+/// The last line of a stability matrix run: cells, crashes, frames with non-finite output,
+/// wall time (s) and where the files are.
+fn print_matrix_summary(cells: usize, crashes: usize, non_finite: usize, wall_s: f64, out: &Path) {
+    println!(
+        "{cells} cells, {crashes} crashed, {non_finite} frames with non-finite output; \
+         {wall_s:.0} s; artefacts in {}",
+        out.display()
+    );
+}
+
+/// Writes `value` as `<stem>.json` and `table` as `<stem>.md` into `out`; errors name the file.
+fn write_json_and_table(
+    out: &Path,
+    stem: &str,
+    value: &impl serde::Serialize,
+    table: &str,
+) -> Result<(), String> {
+    let json = serde_json::to_string_pretty(value).map_err(|e| e.to_string())?;
+    for (ext, text) in [("json", json.as_str()), ("md", table)] {
+        let path = out.join(format!("{stem}.{ext}"));
+        std::fs::write(&path, text).map_err(|e| format!("{}: {e}", path.display()))?;
+    }
+    Ok(())
 }
 
 /// Frames per synthetic scenario.
