@@ -398,12 +398,7 @@ pub fn run_case(
         scale,
         case.variant == IndentationVariant::Camera,
     );
-    let structures: Vec<(String, usize)> = session
-        .model
-        .structures
-        .iter()
-        .map(|s| (s.name.clone(), s.embedding.rest.len()))
-        .collect();
+    let structures = session.model.structure_sizes();
     workload.check_against(&structures)?;
     let samples = run_workload(session, &workload, scale);
     let metrics = indentation_metrics(

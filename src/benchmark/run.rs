@@ -444,12 +444,7 @@ pub fn run_scene(
     let mut session = Session::from_scene(scene).map_err(|e| e.to_string())?;
     let build_ms = t.elapsed().as_secs_f64() * 1e3;
     session.settings.non_rigid = !rigid_only;
-    let structures: Vec<(String, usize)> = session
-        .model
-        .structures
-        .iter()
-        .map(|s| (s.name.clone(), s.embedding.rest.len()))
-        .collect();
+    let structures = session.model.structure_sizes();
     let stats = session.model.problem.grid.stats();
     let scale = scene.length_scale();
     let mut all = Vec::with_capacity(workloads.len());

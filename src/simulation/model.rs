@@ -149,6 +149,15 @@ fn source_points(
 }
 
 impl SceneModel {
+    /// Each structure's name and number of points, in order (what a workload's truth must
+    /// match).
+    pub fn structure_sizes(&self) -> Vec<(String, usize)> {
+        self.structures
+            .iter()
+            .map(|s| (s.name.clone(), s.embedding.rest.len()))
+            .collect()
+    }
+
     /// Reads the scene's files and builds the model.
     pub fn build(loaded: &LoadedScene) -> Result<Self, ModelError> {
         let scene = &loaded.scene;
