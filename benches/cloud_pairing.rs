@@ -44,6 +44,7 @@ fn bench_cloud_pairing(c: &mut Criterion) {
         outlier_sigma: 2.0,
         robust: true,
         max_pair_distance: None,
+        min_outlier_distance: 0.0,
     };
     let radius = NormalsAtScale::default_radius(&model.vertices, &model.triangles).unwrap();
     let at_scale = NormalsAtScale::new(&model.vertices, &model.triangles, radius).unwrap();

@@ -65,28 +65,40 @@ fn the_default_follows_a_deep_indentation_without_camera_and_the_old_pairing_did
         last.mean_mm,
         last.none_mean_mm
     );
-    // The contact force: on the deep frames (true force above half the sequence's largest) the
-    // estimate's size is the tool's within a factor of two (measured median ratio printed;
-    // the direction is not yet reliable: median relative vector error ~70 %, issue 18's 15 %
-    // goal is not met — docs/registration.md).
+    // The contact force on the deep frames (true force above half the sequence's largest):
+    // the concentrated load fitted to the registered field (docs/registration.md, "The contact
+    // force"). Measured: median vector error 0.44, magnitude ratio median 0.87 (0.78–1.08);
+    // before it (the data term's spring sum) 0.84 and 0.94 (0.66–5.54). Issue 18's goal (15 %)
+    // is not met: the model's compliance on 11.5 mm cells and the unobservable sideways part.
     let largest = m.frames.iter().map(|f| f.force_true_n).fold(0.0, f64::max);
-    let mut ratios: Vec<f64> = m
+    let deep: Vec<_> = m
         .frames
         .iter()
         .filter(|f| f.force_true_n > 0.5 * largest)
+        .collect();
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let ratios: Vec<f64> = deep
+        .iter()
         .map(|f| f.force_estimate_n.expect("an estimate on every frame") / f.force_true_n)
         .collect();
-    ratios.sort_by(f64::total_cmp);
-    let median = ratios[ratios.len() / 2];
+    let errors: Vec<f64> = deep
+        .iter()
+        .map(|f| f.force_relative_error.expect("an estimate on every frame"))
+        .collect();
+    let (ratio, error) = (median(ratios.clone()), median(errors));
     println!(
-        "contact force magnitude ratio on deep frames: median {median:.2}, range {:.2}–{:.2}",
-        ratios[0],
-        ratios[ratios.len() - 1]
+        "contact force on deep frames: median vector error {error:.2}, magnitude ratio median {ratio:.2}, range {:.2}–{:.2}",
+        ratios.iter().cloned().fold(f64::INFINITY, f64::min),
+        ratios.iter().cloned().fold(0.0, f64::max),
     );
     assert!(
-        (0.5..=2.0).contains(&median),
-        "median force ratio {median:.2}"
+        (0.7..=1.5).contains(&ratio),
+        "median force ratio {ratio:.2}"
     );
+    assert!(error <= 0.5, "median force vector error {error:.2}");
 
     let old = run(DataTerm::SurfaceToCloud);
     println!("surface → cloud: mean {:.2} mm", old.mean_mm);
@@ -123,4 +135,64 @@ fn the_sticking_truths_load_and_the_neo_hookean_one_goes_deep() {
     let p = IndentationTruth::load(&dir, "press-slide", "neo-hookean-sticking").expect("truth");
     assert_eq!(p.len(), 12);
     assert!((deepest(&p) - 0.0423).abs() < 1e-9, "{}", deepest(&p));
+}
+
+/// What the contact force can reach on this model: the concentrated-load fit
+/// (`RestCompliance::fit_displacements`) given the truth's own displacements of the surface
+/// vertices within 6 cm of the tool (about the clouds' 15 %), on the fixture scene's model
+/// (11.5 mm cells). No registration error enters, so what is left is the model's compliance
+/// against the tetrahedral truth. Measured on the linear truth's frames deeper than 20 mm:
+/// the fit needs 1.18–1.38 times the truth's force (median 1.31 on press-slide, 1.18 on
+/// two-sites), 3–5° (median) from its direction. The fixed ligament points hold whole 11.5 mm cells,
+/// which stiffens the hold (1.07–1.10 on 8 mm cells; softer hold springs bring the ratio down
+/// without changing the node error: docs/registration.md, "The contact force").
+#[test]
+fn the_fit_of_the_true_field_measures_the_models_compliance() {
+    use livereg::grid::Embedding;
+    use livereg::registration::RestCompliance;
+    use livereg::session::Session;
+    use livereg::synthetic::indentation::IndentationTruth;
+
+    let mut session = Session::from_scene(&scene(DataTerm::CloudToSurface)).expect("session");
+    let mut compliance = RestCompliance::new(
+        &mut session.model.problem,
+        session.model.newton.linear_solver,
+    )
+    .expect("rest compliance");
+    let model = &session.model;
+    let normals = model.surface.vertex_normals();
+    for sequence in ["press-slide", "two-sites"] {
+        let truth =
+            IndentationTruth::load(&bundled_fixture_dir(), sequence, "linear").expect("truth");
+        let mut ratios = Vec::new();
+        let mut angles = Vec::new();
+        for (k, tool) in truth.frames.iter().enumerate() {
+            if tool.depth < 0.02 {
+                continue;
+            }
+            let seen: Vec<usize> = (0..model.surface.vertices.len())
+                .filter(|&v| (model.surface.vertices[v] - tool.tool_centre).norm() < 0.06)
+                .collect();
+            let points: Vec<_> = seen.iter().map(|&v| model.surface.vertices[v]).collect();
+            let embedding = Embedding::new(&model.problem.grid, &points).expect("embedded");
+            let moved: Vec<_> = seen.iter().map(|&v| truth.displacements[k][v]).collect();
+            let n: Vec<_> = seen.iter().map(|&v| normals[v]).collect();
+            let fitted = compliance
+                .fit_displacements(&model.problem, &model.surface, &embedding, &moved, Some(&n))
+                .expect("a fit");
+            ratios.push(fitted.resultant.norm() / tool.force.norm());
+            angles.push(fitted.resultant.angle(&tool.force).to_degrees());
+        }
+        ratios.sort_by(f64::total_cmp);
+        angles.sort_by(f64::total_cmp);
+        let (ratio, angle) = (ratios[ratios.len() / 2], angles[angles.len() / 2]);
+        println!(
+            "{sequence}: {} frames, force ratio median {ratio:.2} ({:.2}–{:.2}), angle median {angle:.1}°",
+            ratios.len(),
+            ratios[0],
+            ratios[ratios.len() - 1]
+        );
+        assert!((1.0..=1.8).contains(&ratio), "{sequence}: ratio {ratio:.2}");
+        assert!(angle < 15.0, "{sequence}: angle {angle:.1}°");
+    }
 }

@@ -101,6 +101,26 @@ pub struct PairingRule {
     pub robust: bool,
     /// Pairs farther than this, metres, are dropped too (`None`: no cap).
     pub max_pair_distance: Option<f64>,
+    /// Pairs no farther than this, metres, are never outliers, whatever the spread (0: no
+    /// floor). Once a registration has converged on a noise-free cloud every pair is a few
+    /// micrometres long, and centre + k × spread of those lengths cuts off the longest third
+    /// of them: pairs the model already fits. Dropped, they stop pulling and drift away, and
+    /// the next frame drops them again.
+    pub min_outlier_distance: f64,
+}
+
+impl PairingRule {
+    /// The outlier threshold (m) of the pair lengths `d` (m): centre + `outlier_sigma` ×
+    /// spread, at least `min_outlier_distance`, at most `max_pair_distance`.
+    pub fn limit(&self, d: &[f64]) -> f64 {
+        if self.robust {
+            robust_threshold(d, self.outlier_sigma)
+        } else {
+            rejection_threshold(d, self.outlier_sigma)
+        }
+        .max(self.min_outlier_distance)
+        .min(self.max_pair_distance.unwrap_or(f64::INFINITY))
+    }
 }
 
 /// Neighbours examined by [`IndexedPoints::rim_mask`] in non-rigid ICP.
@@ -206,15 +226,7 @@ pub fn pair(
         })
         .collect();
     let dists: Vec<f64> = forward.iter().map(|p| p.2).collect();
-    let threshold = |d: &[f64]| {
-        if rule.robust {
-            robust_threshold(d, rule.outlier_sigma)
-        } else {
-            rejection_threshold(d, rule.outlier_sigma)
-        }
-        .min(rule.max_pair_distance.unwrap_or(f64::INFINITY))
-    };
-    let limit = threshold(&dists);
+    let limit = rule.limit(&dists);
     let kept: Vec<(usize, usize, f64)> = forward.into_iter().filter(|p| p.2 <= limit).collect();
     if kept.len() < 3 {
         return None;
@@ -222,7 +234,7 @@ pub fn pair(
     let sources = IndexedPoints::new(kept.iter().map(|p| x[p.0]).collect())?;
     let back: Vec<(usize, f64)> = cloud.points.iter().map(|q| sources.nearest(q)).collect();
     let back_dists: Vec<f64> = back.iter().map(|b| b.1).collect();
-    let back_limit = threshold(&back_dists);
+    let back_limit = rule.limit(&back_dists);
     let mut sum = vec![Vector3::zeros(); kept.len()];
     let mut count = vec![0usize; kept.len()];
     let mut cloud_used = 0;
@@ -269,12 +281,41 @@ mod tests {
             outlier_sigma: 2.0,
             robust: false,
             max_pair_distance: None,
+            min_outlier_distance: 0.0,
         }
     }
 
     /// With 30 % gross outliers the median/MAD limit stays at the inliers' scale while
     /// mean + 2σ admits most outliers; on outlier-free normal data the two agree (the MAD
     /// estimates σ).
+    #[test]
+    fn converged_pairs_are_not_outliers_below_the_floor() {
+        // Micrometre pair lengths of a converged, noise-free fit: centre + 2 × spread cuts off
+        // the longest of them unless the floor keeps every pair under it.
+        let d: Vec<f64> = (0..100)
+            .map(|i| 1e-6 * (i as f64 / 100.0).powi(3))
+            .collect();
+        let mut r = rule(0.75);
+        r.robust = true;
+        let bare = r.limit(&d);
+        assert!(
+            d.iter().any(|x| *x > bare),
+            "without a floor some pairs are cut"
+        );
+        r.min_outlier_distance = 6e-4;
+        assert_eq!(r.limit(&d), 6e-4);
+        // A noisy cloud's threshold lies above the floor and is unchanged by it.
+        let noisy: Vec<f64> = (0..100)
+            .map(|i| 1.5e-3 * (1.0 + (i as f64 * 0.37).sin()))
+            .collect();
+        let mut bare_rule = r;
+        bare_rule.min_outlier_distance = 0.0;
+        assert_eq!(r.limit(&noisy), bare_rule.limit(&noisy));
+        // The cap still wins over the floor.
+        r.max_pair_distance = Some(1e-4);
+        assert_eq!(r.limit(&d), 1e-4);
+    }
+
     #[test]
     fn robust_threshold_ignores_gross_outliers() {
         // Inliers: half-normal distances, σ = 1 mm (Box–Muller on a fixed xorshift stream).

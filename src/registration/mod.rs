@@ -29,6 +29,7 @@
 
 pub mod change_evidence;
 pub mod coarse_to_fine;
+pub mod contact_force;
 pub mod correspondences;
 pub mod isolated_points;
 pub mod kabsch;
@@ -46,12 +47,13 @@ mod test_support;
 mod tests;
 
 pub use coarse_to_fine::Prolongation;
+pub use contact_force::{ContactForce, RestCompliance};
 pub use correspondences::{Correspondences, IndexedPoints, PairingRule};
 pub use kabsch::kabsch;
 pub use model_target::ModelTarget;
 pub use non_rigid_icp::{
-    register_non_rigid, ContactForce, DataTerm, NonRigidError, NonRigidIcp, NonRigidReport,
-    NonRigidSettings, NonRigidTimings,
+    register_non_rigid, DataTerm, NonRigidError, NonRigidIcp, NonRigidReport, NonRigidSettings,
+    NonRigidTimings,
 };
 pub use pose_search::{PoseSearch, PoseSearchResult};
 pub use rigid_icp::{IcpError, IcpMetric, IcpResult, RigidIcp};

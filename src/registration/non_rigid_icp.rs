@@ -6,7 +6,7 @@ use std::collections::HashSet;
 use std::sync::Arc;
 use std::time::Instant;
 
-use nalgebra::{Point3, Vector3};
+use nalgebra::Point3;
 
 use super::correspondences::{
     pair, Correspondences, IndexedPoints, PairingRule, RIM_NEIGHBOURS, RIM_RATIO,
@@ -267,65 +267,10 @@ pub struct NonRigidReport {
     pub warnings: Vec<String>,
     /// Where the time went.
     pub timings: NonRigidTimings,
-    /// The surface loads the registration needed: resultant and centre of the data term's
-    /// spring forces at the final state (`None` when no spring was applied).
-    pub contact_force: Option<ContactForce>,
-}
-
-/// The resultant of surface loads and where it acts: what the registration had to apply to the
-/// model to explain the cloud (at equilibrium, the force the tool or the surroundings applied to
-/// the liver). Newtons and metres, model frame.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ContactForce {
-    /// Sum of the forces, N.
-    pub resultant: Vector3<f64>,
-    /// Their centre, m: the deformed application points weighted by the magnitude of each
-    /// force's component along the resultant.
-    pub centre: Point3<f64>,
-}
-
-impl ContactForce {
-    /// Resultant and centre of the forces `springs` apply to the body at displacement `u`
-    /// (m): `f_j = k_j (d_j − u_j)`, or its component `k_j n_j n_jᵀ (d_j − u_j)` for
-    /// point-to-plane springs (thesis eq. 4.18–4.20). `None` without springs.
-    pub fn of(springs: &PenaltySprings, u: &[f64]) -> Option<Self> {
-        if springs.embedding.is_empty() {
-            return None;
-        }
-        let now = springs.embedding.interpolate(u);
-        let at = springs.embedding.positions(u);
-        let forces: Vec<Vector3<f64>> = now
-            .iter()
-            .enumerate()
-            .map(|(j, uj)| {
-                let gap = springs.target[j] - uj;
-                let f = match &springs.normals {
-                    Some(n) => n[j] * n[j].dot(&gap),
-                    None => gap,
-                };
-                f * springs.stiffness[j]
-            })
-            .collect();
-        let resultant: Vector3<f64> = forces.iter().sum();
-        let direction = resultant.try_normalize(1e-300);
-        let weights: Vec<f64> = forces
-            .iter()
-            .map(|f| direction.map_or(f.norm(), |d| f.dot(&d).abs()))
-            .collect();
-        let total: f64 = weights.iter().sum();
-        let centre = if total > 0.0 {
-            Point3::from(
-                at.iter()
-                    .zip(&weights)
-                    .map(|(p, w)| p.coords * *w)
-                    .sum::<Vector3<f64>>()
-                    / total,
-            )
-        } else {
-            Point3::from(at.iter().map(|p| p.coords).sum::<Vector3<f64>>() / at.len() as f64)
-        };
-        Some(Self { resultant, centre })
-    }
+    /// The data term's springs at the final state (`None` when no spring was applied): the
+    /// loads the registration applied, from which the session estimates the contact force
+    /// ([`RestCompliance::fit`](super::RestCompliance::fit)).
+    pub data_term: Option<PenaltySprings>,
 }
 
 fn ms(t: Instant) -> f64 {
@@ -351,6 +296,12 @@ pub struct NonRigidIcp {
     normals: Option<(NormalScale, Arc<NormalsAtScale>)>,
 }
 
+/// Pairs no longer than this many cell edges are never pruned as outliers
+/// ([`PairingRule::min_outlier_distance`]): 0.6 mm on 11.5 mm cells, the order of a trilinear
+/// field's own error over a curved surface (`h²/8R`: 0.3 mm at R = 5 cm), well below any
+/// camera's noise, so a noisy cloud's threshold (2–4 mm at 1–1.5 mm noise) never reaches it.
+const MIN_OUTLIER_DISTANCE_CELLS: f64 = 0.05;
+
 /// The cloud a registration pulls towards, prepared once per call: indexed, its rim points
 /// flagged, and the pairing rule.
 struct Target {
@@ -363,8 +314,13 @@ struct Target {
 }
 
 impl Target {
-    /// Checks `cloud` (m; not empty, finite) and prepares it with `settings`.
-    fn new(cloud: &[Point3<f64>], settings: &NonRigidSettings) -> Result<Self, NonRigidError> {
+    /// Checks `cloud` (m; not empty, finite) and prepares it with `settings` for a model of
+    /// cell edge `h` (m).
+    fn new(
+        cloud: &[Point3<f64>],
+        settings: &NonRigidSettings,
+        h: f64,
+    ) -> Result<Self, NonRigidError> {
         if cloud.is_empty() {
             return Err(NonRigidError::EmptyCloud);
         }
@@ -383,6 +339,7 @@ impl Target {
             outlier_sigma: settings.outlier_sigma,
             robust: settings.robust_pruning,
             max_pair_distance: settings.max_pair_distance,
+            min_outlier_distance: MIN_OUTLIER_DISTANCE_CELLS * h,
         };
         Ok(Self { cloud, rim, rule })
     }
@@ -483,7 +440,7 @@ impl NonRigidIcp {
         self.newton.set_factor_reuse(settings.factor_reuse);
         self.newton.set_background_lag(settings.background_lag);
         let t = Instant::now();
-        let target = Target::new(cloud, &settings)?;
+        let target = Target::new(cloud, &settings, model.problem.grid.grid.cell_size)?;
         let prepare_ms = ms(t);
         let ramp = PenaltyRamp::new(&settings, &model.problem);
         let factorizations_before = self.newton.factorizations();
@@ -500,7 +457,7 @@ impl NonRigidIcp {
                 pairing_ms: prepare_ms,
                 ..NonRigidTimings::default()
             },
-            contact_force: None,
+            data_term: None,
         };
         let mut pull = None;
         let result = self.penalty_ramp(
@@ -513,7 +470,7 @@ impl NonRigidIcp {
             &mut report,
             &mut pull,
         );
-        report.contact_force = pull.as_ref().and_then(|s| ContactForce::of(s, u));
+        report.data_term = pull;
         report.factorizations = self.newton.factorizations() - factorizations_before;
         result.map(|()| report)
     }

@@ -8,7 +8,7 @@
 
 use nalgebra::{Point3, Vector3};
 
-use super::correspondences::{rejection_threshold, robust_threshold, IndexedPoints, PairingRule};
+use super::correspondences::{IndexedPoints, PairingRule};
 use super::model_target::closest_barycentric;
 
 /// A point of the model surface: a triangle and barycentric weights of its corners.
@@ -122,12 +122,7 @@ pub fn pair_cloud_to_surface(
         }
     }
     let dists: Vec<f64> = found.iter().map(|f| f.2).collect();
-    let limit = if rule.robust {
-        robust_threshold(&dists, rule.outlier_sigma)
-    } else {
-        rejection_threshold(&dists, rule.outlier_sigma)
-    }
-    .min(rule.max_pair_distance.unwrap_or(f64::INFINITY));
+    let limit = rule.limit(&dists);
     let mut out = AnchoredPairs {
         anchors: Vec::new(),
         dominant: Vec::new(),
@@ -175,6 +170,7 @@ mod tests {
             outlier_sigma: 1e3,
             robust: false,
             max_pair_distance: None,
+            min_outlier_distance: 0.0,
         }
     }
 

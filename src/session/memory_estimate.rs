@@ -13,6 +13,7 @@
 //! | embedded point (surface vertex, structure point, probe) | 420 | embedding, k-d trees, correspondences |
 //! | triangle (surface, structure meshes) | 600 | adjacency, surface samples of the rigid and data terms |
 //! | the normals' averaging | its own count | samples and vertex–cluster entries (`NormalsAtScale::heap_bytes`, counted, not fitted) |
+//! | the rest compliance of the contact force | 8 per factor value, 16 per tangent entry | its own f64 factor and copy of the rest tangent (`RestCompliance`, counted, not fitted; non-rigid sessions) |
 //!
 //! The factor's size comes from the same symbolic analysis the solver makes (fill-reducing
 //! ordering included), without allocating the factor: it grows faster than the grid (about
@@ -56,6 +57,10 @@ pub const BYTES_PER_CELL: f64 = 20.0 * 1024.0;
 pub const BYTES_PER_EMBEDDED_POINT: f64 = 420.0;
 /// Bytes per surface or structure triangle.
 pub const BYTES_PER_TRIANGLE: f64 = 600.0;
+/// Bytes per value of the rest compliance's factor (one f64).
+pub const BYTES_PER_REST_FACTOR_VALUE: f64 = 8.0;
+/// Bytes per entry of the rest compliance's tangent (an f64 value and a row index).
+pub const BYTES_PER_REST_TANGENT_ENTRY: f64 = 16.0;
 
 impl ModelSize {
     /// Estimated peak live heap of a session's registration with this model, bytes (see the
@@ -75,6 +80,14 @@ impl ModelSize {
         let bytes =
             BYTES_PER_FACTOR_VALUE * self.factor_values as f64 + BYTES_PER_CELL * self.cells as f64;
         bytes.ceil() as u64
+    }
+
+    /// What the contact force's rest compliance (`RestCompliance`) of this model holds, bytes:
+    /// a factor like the tangent's and a copy of the tangent.
+    pub fn rest_compliance_bytes(&self) -> u64 {
+        (BYTES_PER_REST_FACTOR_VALUE * self.factor_values as f64
+            + BYTES_PER_REST_TANGENT_ENTRY * self.tangent_entries as f64)
+            .ceil() as u64
     }
 
     /// The sizes of `model`, whose linear solver is `kind`. Runs the symbolic analysis of the

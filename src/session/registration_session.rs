@@ -9,16 +9,17 @@ use super::memory_estimate::ModelSize;
 use super::settings::SessionSettings;
 use crate::geometry::Camera;
 use crate::linalg::SolverKind;
-use crate::mechanics::NewtonSettings;
+use crate::mechanics::{NewtonSettings, PenaltySprings};
 use crate::mesh::TriSurface;
 use crate::registration::change_evidence::cloud_noise_sigma;
 use crate::registration::correspondences::rejection_threshold;
 use crate::registration::isolated_points::{
     isolated_mask, ISOLATION_MEDIAN_FACTOR, ISOLATION_NEIGHBOURS, ISOLATION_SIGMA,
 };
-use crate::registration::non_rigid_icp::{ContactForce, NonRigidReport, NonRigidTimings};
+use crate::registration::non_rigid_icp::{NonRigidReport, NonRigidTimings};
 use crate::registration::pose_search::centroid;
 use crate::registration::surface_normals::NormalsAtScale;
+use crate::registration::{ContactForce, RestCompliance};
 use crate::registration::{
     IcpResult, IndexedPoints, ModelTarget, NonRigidIcp, NonRigidSettings, Prolongation, RigidIcp,
     RigidTransform,
@@ -75,6 +76,9 @@ pub struct Session {
     /// the rest shape explains it ([`Session::rest_shape_if_unchanged`]): the same every
     /// frame.
     rest_surface: std::sync::OnceLock<Option<SurfaceIndex>>,
+    /// The model's rest compliance for the contact force, factorised on the first frame that
+    /// estimates one (an error, kept, when it cannot be: no estimate then).
+    rest_compliance: Option<Result<RestCompliance, String>>,
 }
 
 /// A deformed surface's vertices in a k-d tree with their normals: signed distances of
@@ -185,14 +189,19 @@ impl Session {
     /// [`ModelSize::estimated_bytes`] plus the coarse model's
     /// [`ModelSize::estimated_grid_bytes`] (see [`Session::model_sizes`]). Made before the
     /// first frame, so that a server can refuse a session its memory budget cannot hold.
-    /// A rigid-only session (`settings.non_rigid` false) never factorises: its factors are
-    /// not counted.
+    /// A non-rigid session adds its rest compliance for the contact force
+    /// ([`ModelSize::rest_compliance_bytes`]). A rigid-only session (`settings.non_rigid`
+    /// false) never factorises: its factors are not counted.
     pub fn memory_estimate_bytes(&self) -> Result<u64, String> {
         let mut sizes = self.model_sizes()?;
-        if !self.settings.non_rigid {
+        let rest_compliance = if self.settings.non_rigid {
+            sizes[0].rest_compliance_bytes()
+        } else {
             sizes.iter_mut().for_each(|s| s.factor_values = 0);
-        }
+            0
+        };
         Ok(sizes[0].estimated_bytes()
+            + rest_compliance
             + sizes[1..]
                 .iter()
                 .map(ModelSize::estimated_grid_bytes)
@@ -235,6 +244,7 @@ impl Session {
             coarse: None,
             rigid_target: None,
             rest_surface: std::sync::OnceLock::new(),
+            rest_compliance: None,
         }
     }
 
@@ -499,6 +509,10 @@ impl Session {
                 limit_mm: self.settings.max_rigid_rms * 1e3,
             });
         }
+        let contact_force = report
+            .data_term
+            .as_ref()
+            .and_then(|springs| self.contact_force(springs, &u));
         Ok(Done {
             u,
             model_to_cloud,
@@ -512,8 +526,21 @@ impl Session {
             cloud,
             sources: report.sources,
             warnings: report.warnings,
-            contact_force: report.contact_force,
+            contact_force,
         })
+    }
+
+    /// The contact force the data term `springs` of the registered state `u` (m) imply
+    /// ([`RestCompliance::fit`]); the model's rest compliance is factorised on first use.
+    fn contact_force(&mut self, springs: &PenaltySprings, u: &[f64]) -> Option<ContactForce> {
+        let compliance = self
+            .rest_compliance
+            .get_or_insert_with(|| {
+                RestCompliance::new(&mut self.model.problem, self.model.newton.linear_solver)
+            })
+            .as_mut()
+            .ok()?;
+        compliance.fit(&self.model.problem, &self.model.surface, springs, u)
     }
 
     /// Input checks (empty, non-finite: rejected), thinning to `max_cloud_points` (flag
