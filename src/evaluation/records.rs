@@ -97,17 +97,17 @@ pub struct ResultRecord {
     pub contact_force: Option<ContactForceRecord>,
 }
 
-/// The surface loads a frame's registration needed: the resultant force applied to the liver
-/// (N, cloud frame) and where it acts (scene units, cloud frame). At equilibrium it is the
-/// force the tool (or whatever deformed the liver) applied; see docs/registration.md.
+/// The contact force a frame's registration implies: the concentrated load at the dent that
+/// explains the registered deformation (N, cloud frame) and where it acts (scene units, cloud
+/// frame); see docs/registration.md, "Contact force".
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ContactForceRecord {
     /// Resultant force, N, cloud frame.
     pub resultant_n: [f64; 3],
     /// Its magnitude, N.
     pub magnitude_n: f64,
-    /// Centre of the loads: application points weighted by each force's component along the
-    /// resultant, scene units, cloud frame.
+    /// Where the load acts: the centre of the loaded surface patch in the registered state,
+    /// scene units, cloud frame.
     pub centre: [f64; 3],
 }
 
