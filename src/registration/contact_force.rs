@@ -48,6 +48,9 @@ pub const CENTRE_SHARE: f64 = 0.8;
 /// Fewer points than this outside the near field: no estimate.
 pub const MIN_FIT_POINTS: usize = 12;
 
+/// A unit-load solve whose relative residual exceeds this gives no estimate.
+pub const MAX_SOLVE_RESIDUAL: f64 = 1e-8;
+
 /// The resultant of surface loads and where it acts: what the registration had to apply to the
 /// model to explain the cloud (at equilibrium, the force the tool or the surroundings applied to
 /// the liver). Newtons and metres, model frame.
@@ -68,7 +71,7 @@ pub struct RestCompliance {
 impl RestCompliance {
     /// Assembles and factorises, with the linear solver `kind` (the model's), the rest tangent
     /// of `problem` (its cells and its own springs: the fixed regions). Fails when the tangent
-    /// cannot be assembled or factorised (a body held nowhere is singular).
+    /// cannot be assembled or factorised, or is not positive definite (a body held nowhere).
     pub fn new(problem: &mut StaticProblem, kind: SolverKind) -> Result<Self, String> {
         let n = problem.dofs();
         let mut stiffness = problem.new_tangent();
@@ -87,6 +90,12 @@ impl RestCompliance {
         solver
             .factorize(&stiffness)
             .map_err(|e| format!("rest tangent: {e}"))?;
+        if solver.fell_back_to_indefinite() {
+            return Err(
+                "rest tangent is not positive definite: the body is held nowhere (no fixed region or support)"
+                    .into(),
+            );
+        }
         Ok(Self { stiffness, solver })
     }
 
@@ -163,7 +172,10 @@ impl RestCompliance {
             let mut b = vec![0.0; n];
             load.spread_forces(&forces, &mut b);
             let mut column = vec![0.0; n];
-            self.solver.solve(&self.stiffness, &b, &mut column).ok()?;
+            let stats = self.solver.solve(&self.stiffness, &b, &mut column).ok()?;
+            if stats.relative_residual > MAX_SOLVE_RESIDUAL {
+                return None;
+            }
             responses.push(points.interpolate(&column));
         }
         let mut normal = Matrix3::zeros();
@@ -287,6 +299,32 @@ mod tests {
         // Without normals the length counts.
         let c = dent_centre(&rest, &out, None).unwrap();
         assert!((c.x - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_body_held_nowhere_has_no_rest_compliance() {
+        use crate::grid::{GridOptions, WeightedCellGrid};
+        use crate::mechanics::{LawKind, Material, VolumetricIntegration};
+        let s = icosphere(Point3::origin(), 0.05, 2);
+        let grid = WeightedCellGrid::build(
+            &s,
+            &GridOptions {
+                cell_size: 0.02,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let material = Material::from_young_poisson(LawKind::Linear, 4500.0, 0.45).unwrap();
+        let mut free = StaticProblem::new(grid, material, VolumetricIntegration::Reduced);
+        let e = RestCompliance::new(&mut free, SolverKind::Cholesky)
+            .err()
+            .expect("a floating body is refused");
+        assert!(e.contains("held nowhere"), "{e}");
+        // Held by its bottom, the same body has one.
+        let bottom: Vec<Point3<f64>> = s.vertices.iter().filter(|v| v.z < -0.03).copied().collect();
+        let embedding = Embedding::new(&free.grid, &bottom).unwrap();
+        free.springs = vec![PenaltySprings::fixed(embedding, vec![1e4; bottom.len()])];
+        assert!(RestCompliance::new(&mut free, SolverKind::Cholesky).is_ok());
     }
 
     #[test]
