@@ -91,6 +91,9 @@ pub struct IndentationFrameMetrics {
     pub force_estimate_n: Option<f64>,
     /// |estimate − truth| / |truth| of the force vector (`None`: no estimate).
     pub force_relative_error: Option<f64>,
+    /// Distance from the estimate's centre to the truth's (the contact nodes' deformed
+    /// positions weighted by their reactions), mm (`None`: no estimate).
+    pub force_centre_error_mm: Option<f64>,
 }
 
 /// What an indentation run gave, mm and ms.
@@ -118,6 +121,9 @@ pub struct IndentationMetrics {
     /// frames whose true force exceeds a quarter of the sequence's largest (`None`: no
     /// estimate).
     pub force_relative_error_median: Option<f64>,
+    /// Median over the same frames of the distance between the estimated and the true force
+    /// centres, mm.
+    pub force_centre_error_median_mm: Option<f64>,
     /// Median and 95th percentile wall time of the warm frames, ms.
     pub warm_ms_p50: f64,
     /// See `warm_ms_p50`.
@@ -147,6 +153,10 @@ pub fn indentation_metrics(
         // The truth's force in the clouds' frame: rotated like the clouds.
         let truth_force = rotation * truth.frames[k].force;
         let estimate = s.contact_force_n.map(Vector3::from);
+        let truth_centre = offset.apply(&truth.frames[k].force_centre);
+        let centre_error_mm = s
+            .contact_centre_m
+            .map(|c| (Point3::from(c) - truth_centre).norm() * 1e3);
         let none: Vec<f64> = f
             .truth_nodes
             .iter()
@@ -171,6 +181,7 @@ pub fn indentation_metrics(
             force_estimate_n: estimate.map(|e| e.norm()),
             force_relative_error: estimate
                 .map(|e| (e - truth_force).norm() / truth_force.norm().max(1e-12)),
+            force_centre_error_mm: centre_error_mm,
         });
         all.extend_from_slice(&s.tre_mm);
         none_all.extend(none);
@@ -211,20 +222,28 @@ pub fn indentation_metrics(
             .filter(|f| f.mean_mm > WORSE_THAN_NONE_FACTOR * f.none_mean_mm)
             .count(),
         failed_frames: per_frame.iter().filter(|f| f.failed).count(),
-        force_relative_error_median: {
-            let largest = per_frame.iter().map(|f| f.force_true_n).fold(0.0, f64::max);
-            let mut e: Vec<f64> = per_frame
-                .iter()
-                .filter(|f| f.force_true_n > 0.25 * largest)
-                .filter_map(|f| f.force_relative_error)
-                .collect();
-            e.sort_by(f64::total_cmp);
-            (!e.is_empty()).then(|| percentile(&e, 0.5))
-        },
+        force_relative_error_median: loaded_median(&per_frame, |f| f.force_relative_error),
+        force_centre_error_median_mm: loaded_median(&per_frame, |f| f.force_centre_error_mm),
         warm_ms_p50: q(0.5),
         warm_ms_p95: q(0.95),
         frames: per_frame,
     }
+}
+
+/// Median of `pick` over the frames whose true force exceeds a quarter of the sequence's
+/// largest (the loaded frames; `None` when none has a value).
+fn loaded_median(
+    frames: &[IndentationFrameMetrics],
+    pick: fn(&IndentationFrameMetrics) -> Option<f64>,
+) -> Option<f64> {
+    let largest = frames.iter().map(|f| f.force_true_n).fold(0.0, f64::max);
+    let mut v: Vec<f64> = frames
+        .iter()
+        .filter(|f| f.force_true_n > 0.25 * largest)
+        .filter_map(pick)
+        .collect();
+    v.sort_by(f64::total_cmp);
+    (!v.is_empty()).then(|| percentile(&v, 0.5))
 }
 
 /// How the clouds of an indentation case reach the registration.
@@ -417,11 +436,11 @@ pub fn run_case(
 /// A table of indentation metrics (mm, ms).
 pub fn indentation_table(rows: &[IndentationMetrics]) -> String {
     let mut s = String::from(
-        "| case | none mean / p95 | mean | p95 | region none / reg. | worse than none | failed | force error (median) | warm p50 / p95 ms |\n|---|---|---|---|---|---|---|---|---|\n",
+        "| case | none mean / p95 | mean | p95 | region none / reg. | worse than none | failed | force error / centre (median) | warm p50 / p95 ms |\n|---|---|---|---|---|---|---|---|---|\n",
     );
     for m in rows {
         s.push_str(&format!(
-            "| {} | {:.2} / {:.2} | {:.2} | {:.2} | {:.2} / {:.2} | {} | {} | {} | {:.1} / {:.1} |\n",
+            "| {} | {:.2} / {:.2} | {:.2} | {:.2} | {:.2} / {:.2} | {} | {} | {} / {} | {:.1} / {:.1} |\n",
             m.workload,
             m.none_mean_mm,
             m.none_p95_mm,
@@ -433,6 +452,8 @@ pub fn indentation_table(rows: &[IndentationMetrics]) -> String {
             m.failed_frames,
             m.force_relative_error_median
                 .map_or("–".to_string(), |e| format!("{:.0} %", 100.0 * e)),
+            m.force_centre_error_median_mm
+                .map_or("–".to_string(), |e| format!("{e:.1} mm")),
             m.warm_ms_p50,
             m.warm_ms_p95
         ));
@@ -456,6 +477,7 @@ mod tests {
             frames_worse_than_none: 0,
             failed_frames: 0,
             force_relative_error_median: None,
+            force_centre_error_median_mm: None,
             warm_ms_p50,
             warm_ms_p95: 0.0,
             frames: Vec::new(),

@@ -84,6 +84,8 @@ pub struct FrameSample {
     pub recovered_causes: Vec<Cause>,
     /// The contact force the registration estimated (N, cloud frame).
     pub contact_force_n: Option<[f64; 3]>,
+    /// Where it acts (m, cloud frame).
+    pub contact_centre_m: Option<[f64; 3]>,
 }
 
 impl FrameSample {
@@ -188,6 +190,9 @@ pub fn sample_of(
         contact_force_n: r
             .contact_force
             .map(|c| [c.resultant.x, c.resultant.y, c.resultant.z]),
+        contact_centre_m: r
+            .contact_force
+            .map(|c| (c.centre.coords * scale).into()),
     }
 }
 
@@ -481,6 +486,7 @@ mod tests {
             flags: Vec::new(),
             recovered_causes: Vec::new(),
             contact_force_n: None,
+            contact_centre_m: None,
         }
     }
 
