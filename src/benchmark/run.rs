@@ -190,9 +190,7 @@ pub fn sample_of(
         contact_force_n: r
             .contact_force
             .map(|c| [c.resultant.x, c.resultant.y, c.resultant.z]),
-        contact_centre_m: r
-            .contact_force
-            .map(|c| (c.centre.coords * scale).into()),
+        contact_centre_m: r.contact_force.map(|c| (c.centre.coords * scale).into()),
     }
 }
 

@@ -66,6 +66,21 @@ fn bent(s: &TriSurface, a: f64) -> Vec<Point3<f64>> {
         .collect()
 }
 
+/// The tip target (rest (35, 0, −3) mm) registered to the surface of [`bent`] with amplitude
+/// `a` moves up as the field says there, `a (70/85)²` (5.4 mm at a = 8), within half a 20 mm
+/// cell's change of that field along x (`2a·70/85² × 10 mm`, 1.55 mm at a = 8): the grid
+/// interpolates the imposed bend over a cell and the field is not an elastic one. Measured
+/// 6.52 mm at a = 8.
+fn assert_follows_the_bend(tip: Point3<f64>, a: f64) {
+    let expected = a * (70.0_f64 / 85.0).powi(2);
+    let tolerance = 2.0 * a * 70.0 / 85.0_f64.powi(2) * 10.0;
+    let moved = tip.z + 3.0;
+    assert!(
+        (moved - expected).abs() <= tolerance,
+        "the tip target moved {moved:.2} mm up; the bend gives {expected:.2} ± {tolerance:.2} mm"
+    );
+}
+
 fn frame(points: Vec<Point3<f64>>, name: &str) -> Frame {
     Frame {
         source: name.into(),
@@ -95,7 +110,7 @@ fn bad_frames_leave_the_session_as_it_was() {
     assert!(good.error.is_none(), "{:?}", good.error);
     assert!(!good.warm && s.is_warm());
     let tip = good.structures[0].1[3];
-    assert!(tip.z > 1.0, "the tip target follows the bend: {tip}");
+    assert_follows_the_bend(tip, 8.0);
     let u = s.displacement().to_vec();
 
     let mut nan = bent(&rest, 8.0);
@@ -350,7 +365,7 @@ fn a_coarse_start_prolongates_the_coarse_field_and_agrees_with_the_fine_registra
     assert!(!a.flags.contains(&"coarse_start".to_string()));
     // Both follow the bend at the tip (8 mm at the far end), and agree within 0.5 mm.
     let tip = |r: &FrameResult| r.structures[0].1[3];
-    assert!(tip(&b).z > 1.0, "{}", tip(&b));
+    assert_follows_the_bend(tip(&b), 8.0);
     assert!(max_change(&a, &b) < 0.5, "{}", max_change(&a, &b));
     // Warm frames start from the last state, not from the coarse grid.
     let c = coarse.register(&cloud);
