@@ -24,12 +24,16 @@
 //! pushed inwards by at least [`CENTRE_SHARE`] of the deepest one, weighted by their depth.
 //! Linear in the load: exact for the linear law, first order for the others.
 //!
-//! Measured on the tool-indentation class (no camera; docs/registration.md): median vector
-//! error 37–58 % against 84–132 % for the spring sum. What remains is mostly the model's
-//! compliance, not the fit: with the truth's own displacements and the true centre the fit
-//! needs 1.22–1.56 times the truth's force on 11.5 mm cells (1.07–1.10 on 8 mm, 1.02–1.06 on
-//! 5.75 mm). The fixed ligament points hold whole cells, which stiffens the hold as the cells
-//! grow.
+//! Measured on the tool-indentation class (no camera; docs/registration.md, "Contact force"):
+//! median vector error 36 / 74 / 43 / 47 % (press-slide linear, neo-Hookean, two-sites
+//! linear, neo-Hookean) against 101 / 177 / 79 / 156 % for the spring sum. What remains:
+//! - the model's compliance: given the truth's own displacements, the fit needs 1.18–1.38
+//!   times the truth's force on the derived 11.5 mm cells (`tests/tool_indentation.rs`). The
+//!   fixed ligament points hold whole cells, which stiffens the hold as the cells grow (about
+//!   1.1 on 8 mm cells);
+//! - the sideways part of a load: the cloud shows the surface's motion along its normal only
+//!   and the point-to-plane data term pulls only along it, so the registered field carries a
+//!   push but little of a sideways load (`session::tests::contact_force_recovers_a_concentrated_load`).
 
 use nalgebra::{Matrix3, Point3, Vector3};
 
