@@ -12,7 +12,7 @@ pub mod newton;
 pub mod penalty;
 pub mod static_problem;
 #[cfg(test)]
-mod test_fixtures;
+pub(crate) mod test_fixtures;
 
 pub use assembly::Assembler;
 pub use cell_kernel::{Need, VolumetricIntegration};

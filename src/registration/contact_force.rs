@@ -55,14 +55,13 @@ pub const MIN_FIT_POINTS: usize = 12;
 /// A unit-load solve whose relative residual exceeds this gives no estimate.
 pub const MAX_SOLVE_RESIDUAL: f64 = 1e-8;
 
-/// The resultant of surface loads and where it acts: what the registration had to apply to the
-/// model to explain the cloud (at equilibrium, the force the tool or the surroundings applied to
-/// the liver). Newtons and metres, model frame.
+/// The contact force a registration implies (module doc): the concentrated load that explains
+/// the registered deformation, and where it acts. Newtons and metres, model frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ContactForce {
-    /// Sum of the forces, N.
+    /// The force applied to the liver, N.
     pub resultant: Vector3<f64>,
-    /// Their centre, m (deformed configuration).
+    /// Where it acts, m (deformed configuration).
     pub centre: Point3<f64>,
 }
 
@@ -203,10 +202,8 @@ impl RestCompliance {
         }
         Some(FittedLoad {
             resultant,
-            rest_centre: centre,
             load,
             weights,
-            points_used: used,
         })
     }
 }
@@ -216,14 +213,10 @@ impl RestCompliance {
 pub struct FittedLoad {
     /// The force, N.
     pub resultant: Vector3<f64>,
-    /// The dent's centre on the rest surface, m.
-    pub rest_centre: Point3<f64>,
     /// The surface points the unit loads were spread over (rest, m), embedded.
     pub load: Embedding,
     /// Their weights (summing to 1).
     pub weights: Vec<f64>,
-    /// Points outside the near field that entered the fit.
-    pub points_used: usize,
 }
 
 /// Rest position (m) of the dent's centre: the depth-weighted mean of the points `rest` whose
@@ -307,27 +300,15 @@ mod tests {
 
     #[test]
     fn a_body_held_nowhere_has_no_rest_compliance() {
-        use crate::grid::{GridOptions, WeightedCellGrid};
-        use crate::mechanics::{LawKind, Material, VolumetricIntegration};
-        let s = icosphere(Point3::origin(), 0.05, 2);
-        let grid = WeightedCellGrid::build(
-            &s,
-            &GridOptions {
-                cell_size: 0.02,
-                ..Default::default()
-            },
-        )
-        .unwrap();
-        let material = Material::from_young_poisson(LawKind::Linear, 4500.0, 0.45).unwrap();
-        let mut free = StaticProblem::new(grid, material, VolumetricIntegration::Reduced);
+        let (s, mut free) = crate::mechanics::test_fixtures::cut_box(0.05);
         let e = RestCompliance::new(&mut free, SolverKind::Cholesky)
             .err()
             .expect("a floating body is refused");
         assert!(e.contains("held nowhere"), "{e}");
-        // Held by its bottom, the same body has one.
-        let bottom: Vec<Point3<f64>> = s.vertices.iter().filter(|v| v.z < -0.03).copied().collect();
-        let embedding = Embedding::new(&free.grid, &bottom).unwrap();
-        free.springs = vec![PenaltySprings::fixed(embedding, vec![1e4; bottom.len()])];
+        // Held by its end face (x = 3 mm), the same body has one.
+        let end: Vec<Point3<f64>> = s.vertices.iter().filter(|v| v.x < 0.004).copied().collect();
+        let embedding = Embedding::new(&free.grid, &end).unwrap();
+        free.springs = vec![PenaltySprings::fixed(embedding, vec![1e4; end.len()])];
         assert!(RestCompliance::new(&mut free, SolverKind::Cholesky).is_ok());
     }
 

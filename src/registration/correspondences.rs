@@ -285,9 +285,6 @@ mod tests {
         }
     }
 
-    /// With 30 % gross outliers the median/MAD limit stays at the inliers' scale while
-    /// mean + 2σ admits most outliers; on outlier-free normal data the two agree (the MAD
-    /// estimates σ).
     #[test]
     fn converged_pairs_are_not_outliers_below_the_floor() {
         // Micrometre pair lengths of a converged, noise-free fit: centre + 2 × spread cuts off
@@ -316,6 +313,9 @@ mod tests {
         assert_eq!(r.limit(&d), 1e-4);
     }
 
+    /// With 30 % gross outliers the median/MAD limit stays at the inliers' scale while
+    /// mean + 2σ admits most outliers; on outlier-free normal data the two agree (the MAD
+    /// estimates σ).
     #[test]
     fn robust_threshold_ignores_gross_outliers() {
         // Inliers: half-normal distances, σ = 1 mm (Box–Muller on a fixed xorshift stream).

@@ -12,15 +12,22 @@ use crate::mesh::{write_obj, write_points, TriSurface};
 use crate::scene::DataTerm;
 use crate::scene::{load_scene, PoseUpdate};
 
-/// A clamped ellipsoid scene in mm; returns the scene path and the rest surface (mm).
-fn scene(tag: &str, rigid: &str) -> (PathBuf, TriSurface) {
+/// A fresh directory for `tag` holding `body.obj`: a 10 × 7.5 × 5 cm ellipsoid (mm), an
+/// icosphere of `levels`; returns the directory and the surface (mm).
+fn ellipsoid_body(tag: &str, levels: usize) -> (PathBuf, TriSurface) {
     let dir = std::env::temp_dir().join(format!("livereg-session-{}-{tag}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let mut s = icosphere(Point3::origin(), 1.0, 3);
+    let mut s = icosphere(Point3::origin(), 1.0, levels);
     for v in &mut s.vertices {
         *v = Point3::new(50.0 * v.x, 37.5 * v.y, 25.0 * v.z);
     }
     write_obj(&dir.join("body.obj"), &s).unwrap();
+    (dir, s)
+}
+
+/// A clamped ellipsoid scene in mm; returns the scene path and the rest surface (mm).
+fn scene(tag: &str, rigid: &str) -> (PathBuf, TriSurface) {
+    let (dir, s) = ellipsoid_body(tag, 3);
     let targets = [
         Point3::new(-20.0, 0.0, 0.0),
         Point3::new(0.0, 5.0, 0.0),
@@ -376,22 +383,10 @@ fn a_coarse_start_prolongates_the_coarse_field_and_agrees_with_the_fine_registra
     assert!(d.flags.contains(&"coarse_start".to_string()));
 }
 
-/// The contact force is what holds the registered shape: at equilibrium the data term's
-/// resultant and the clamp's reaction cancel (the elastic forces of a body sum to zero, a
-/// conservation law independent of how the estimate is computed). The bend
-/// `dz = a ((x + 35)/85)²` has constant curvature, a pure end moment, so the resultant itself
-/// is small (measured 0.15 N); its size is tested against the tet-FE truth's tool force
-/// in tests/tool_indentation.rs.
 /// A 10 × 7.5 × 5 cm ellipsoid (mm) on 8 mm cells, held by its bottom cap (z < −20 mm) like a
 /// liver by its ligaments; returns the scene path and the rest surface (mm).
 fn indentation_scene() -> (PathBuf, TriSurface) {
-    let dir = std::env::temp_dir().join(format!("livereg-session-{}-indent", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let mut s = icosphere(Point3::origin(), 1.0, 4);
-    for v in &mut s.vertices {
-        *v = Point3::new(50.0 * v.x, 37.5 * v.y, 25.0 * v.z);
-    }
-    write_obj(&dir.join("body.obj"), &s).unwrap();
+    let (dir, s) = ellipsoid_body("indent", 4);
     std::fs::write(
         dir.join("scene.toml"),
         r#"units = "mm"
