@@ -91,9 +91,33 @@ impl ChangeTest {
     /// neighbourhood, a non-finite distance, or no noise estimate is always significant
     /// (registered).
     pub fn evaluate(&self, cloud: &IndexedPoints, signed: &[f64], sigma: f64) -> ChangeEvidence {
+        self.evaluate_near(&self.neighbours(cloud), signed, sigma)
+    }
+
+    /// The nearest cloud points of each point of `cloud` (indices, nearest first, the point
+    /// itself included), as many as the largest neighbourhood: what
+    /// [`ChangeTest::evaluate_near`] needs, found once for several tests of one cloud.
+    pub fn neighbours(&self, cloud: &IndexedPoints) -> Vec<Vec<usize>> {
         let k_max = self.neighbourhoods.iter().copied().max().unwrap_or(0);
-        if cloud.len() < k_max.max(3)
-            || signed.len() != cloud.len()
+        if cloud.len() < k_max.max(3) {
+            return Vec::new();
+        }
+        cloud
+            .points
+            .iter()
+            .map(|p| cloud.nearest_k(p, k_max).iter().map(|&(j, _)| j).collect())
+            .collect()
+    }
+
+    /// [`ChangeTest::evaluate`] with the neighbours `near` of each cloud point
+    /// ([`ChangeTest::neighbours`]); significant when they do not match `signed`.
+    pub fn evaluate_near(&self, near: &[Vec<usize>], signed: &[f64], sigma: f64) -> ChangeEvidence {
+        let k_max = self.neighbourhoods.iter().copied().max().unwrap_or(0);
+        if near.len() < k_max.max(3)
+            || signed.len() != near.len()
+            || near
+                .iter()
+                .any(|n| n.len() < k_max || n.iter().any(|&j| j >= signed.len()))
             || signed.iter().any(|d| !d.is_finite())
             || sigma.is_nan()
             || sigma <= 0.0
@@ -106,11 +130,10 @@ impl ChangeTest {
         }
         let mut statistic: f64 = 0.0;
         let mut values = Vec::with_capacity(k_max);
-        for p in &cloud.points {
-            let near = cloud.nearest_k(p, k_max);
+        for list in near {
             for &k in &self.neighbourhoods {
                 values.clear();
-                values.extend(near.iter().take(k).map(|&(j, _)| signed[j]));
+                values.extend(list.iter().take(k).map(|&j| signed[j]));
                 let m = median(&mut values);
                 let deviation = MEDIAN_DEVIATION * sigma / (values.len() as f64).sqrt();
                 statistic = statistic.max(m.abs() / deviation);

@@ -86,6 +86,11 @@ pub struct NonRigidSettings {
     /// The scale of the surface normals the cloud → surface term's point-to-plane springs
     /// pull along ([`NormalScale`]).
     pub normal_scale: NormalScale,
+    /// Factor on every data-term spring's stiffness (the whole penalty ramp), > 0: 1 for one
+    /// frame's cloud; `1/n` when the clouds of `n` still frames are registered together, so
+    /// that they weigh as one frame against the body (`Session`, docs/registration.md,
+    /// "Still frames").
+    pub data_weight: f64,
 }
 
 /// The scale at which the cloud → surface term takes the surface normal at an anchor.
@@ -135,6 +140,7 @@ impl Default for NonRigidSettings {
             background_lag: 0,
             data_term: DataTerm::default(),
             normal_scale: NormalScale::default(),
+            data_weight: 1.0,
         }
     }
 }
@@ -199,6 +205,12 @@ impl NonRigidSettings {
             return bad(format!(
                 "outlier_sigma {} must be finite and > 0",
                 self.outlier_sigma
+            ));
+        }
+        if !(self.data_weight.is_finite() && self.data_weight > 0.0) {
+            return bad(format!(
+                "data_weight {} must be finite and > 0",
+                self.data_weight
             ));
         }
         Ok(())
@@ -356,13 +368,15 @@ struct PenaltyRamp {
 
 impl PenaltyRamp {
     /// The ramp of `settings` on `problem`: k₀ = 0.02 E h and k₁ = 2 E h unless set (E the
-    /// Young's modulus, Pa; h the cell size, m).
+    /// Young's modulus, Pa; h the cell size, m), both times
+    /// [`NonRigidSettings::data_weight`].
     fn new(settings: &NonRigidSettings, problem: &StaticProblem) -> Self {
         let h = problem.grid.grid.cell_size;
         let young = young_modulus(&problem.material);
+        let w = settings.data_weight;
         Self {
-            k0: settings.penalty_start.unwrap_or(0.02 * young * h),
-            k1: settings.penalty_end.unwrap_or(2.0 * young * h),
+            k0: w * settings.penalty_start.unwrap_or(0.02 * young * h),
+            k1: w * settings.penalty_end.unwrap_or(2.0 * young * h),
             steps: settings.penalty_steps.max(1),
         }
     }

@@ -654,6 +654,14 @@ pub struct RegistrationSpec {
     /// docs/registration.md, "Frames at rest").
     #[serde(default = "defaults::rest_test")]
     pub rest_test: bool,
+    /// Warm frames whose clouds the last registered shape explains within their noise (the
+    /// liver has not moved; seen by the same camera) are registered together, the newest up
+    /// to this many (and `max_cloud_points` points), each cloud's springs at `1/n` of the
+    /// stiffness: the cloud noise averages over the frames while the data term weighs as
+    /// one frame's. 1: every frame alone. Default 4 since session 28 (docs/registration.md,
+    /// "Still frames"); needs `rest_test`'s noise test (off with it).
+    #[serde(default = "defaults::still_frames")]
+    pub still_frames: u32,
     /// Warm frames refactorise the tangent on a helper thread while their Newton steps go on
     /// with the old factorisation (default false): faster on large grids, slightly less
     /// accurate (docs/registration.md). Results stay deterministic.
@@ -696,6 +704,7 @@ impl Default for RegistrationSpec {
             robust_pruning: defaults::robust_pruning(),
             pose_search: defaults::pose_search(),
             rest_test: defaults::rest_test(),
+            still_frames: defaults::still_frames(),
             background_factorization: false,
             remove_isolated_points: defaults::remove_isolated_points(),
             data_term: DataTerm::default(),
@@ -766,6 +775,10 @@ pub mod defaults {
     /// `registration.rest_test`.
     pub fn rest_test() -> bool {
         true
+    }
+    /// `registration.still_frames`.
+    pub fn still_frames() -> u32 {
+        4
     }
     /// `registration.robust_pruning`.
     pub fn robust_pruning() -> bool {

@@ -17,6 +17,9 @@ pub const MAX_SUBDIVISIONS: u32 = 6;
 pub const MAX_STEP_STABILIZATION: f64 = 1e4;
 /// Largest `solver.load_steps`.
 pub const MAX_LOAD_STEPS: u32 = 10_000;
+/// Largest `registration.still_frames`: the union of that many clouds is registered, so the
+/// pairing's cost grows with it.
+pub const MAX_STILL_FRAMES: u32 = 16;
 /// Largest `solver.max_bisections` (an increment halved 30 times is ~1e-9 of a load step).
 pub const MAX_BISECTIONS: u32 = 30;
 
@@ -396,6 +399,13 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
         }
         c.at_least_one("registration.penalty_steps", r.penalty_steps);
         c.at_least_one("registration.max_icp_iterations", r.max_icp_iterations);
+        c.at_least_one("registration.still_frames", r.still_frames);
+        if r.still_frames > MAX_STILL_FRAMES {
+            c.fail(
+                "registration.still_frames",
+                format!("must be at most {MAX_STILL_FRAMES}, got {}", r.still_frames),
+            );
+        }
         if let Some(d) = r.max_pair_distance {
             c.positive("registration.max_pair_distance", d, " scene units");
         }

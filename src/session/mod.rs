@@ -11,6 +11,7 @@ pub mod memory_estimate;
 pub mod observer;
 pub mod registration_session;
 pub mod settings;
+pub mod still_window;
 
 #[cfg(test)]
 mod tests;
@@ -22,3 +23,4 @@ pub use registration_session::{
     damped_newton, recovery_ladder, recovery_settings, RecoveryRung, Session, BEFORE_RECOVERY,
 };
 pub use settings::SessionSettings;
+pub use still_window::StillWindow;

@@ -7,11 +7,12 @@ use nalgebra::Point3;
 use super::frame::{Frame, FrameError, FrameResult, StageTimes};
 use super::memory_estimate::ModelSize;
 use super::settings::SessionSettings;
+use super::still_window::StillWindow;
 use crate::geometry::Camera;
 use crate::linalg::SolverKind;
 use crate::mechanics::{NewtonSettings, PenaltySprings};
 use crate::mesh::TriSurface;
-use crate::registration::change_evidence::cloud_noise_sigma;
+use crate::registration::change_evidence::{cloud_noise_sigma, ChangeTest};
 use crate::registration::correspondences::rejection_threshold;
 use crate::registration::isolated_points::{
     isolated_mask, ISOLATION_MEDIAN_FACTOR, ISOLATION_NEIGHBOURS, ISOLATION_SIGMA,
@@ -64,6 +65,8 @@ pub struct Session {
     non_rigid_cold: NonRigidIcp,
     non_rigid_warm: NonRigidIcp,
     good: GoodState,
+    /// The clouds of the frames since the liver last moved ([`StillWindow`]).
+    still: StillWindow,
     frames: usize,
     coarse: Option<CoarseStart>,
     /// The rigid stage's target (samples and k-d tree of the deformed surface) and the
@@ -243,6 +246,7 @@ impl Session {
             frames: 0,
             coarse: None,
             rigid_target: None,
+            still: StillWindow::default(),
             rest_surface: std::sync::OnceLock::new(),
             rest_compliance: None,
         }
@@ -261,6 +265,7 @@ impl Session {
         };
         self.non_rigid_cold.invalidate();
         self.non_rigid_warm.invalidate();
+        self.still.clear();
         if let Some(c) = &mut self.coarse {
             c.icp.invalidate();
         }
@@ -371,6 +376,7 @@ impl Session {
                     contact_force: done.contact_force,
                     pose_ambiguous,
                 };
+                self.still = done.still;
                 result.model_to_cloud = done.model_to_cloud;
                 result.converged = done.converged;
                 result.rigid_iterations = done.rigid_iterations;
@@ -458,7 +464,9 @@ impl Session {
         // Non-rigid stage in the model frame.
         let cloud_to_model = model_to_cloud.inverse();
         let aligned: Vec<Point3<f64>> = cloud.iter().map(|p| cloud_to_model.apply(p)).collect();
-        if let Some((u, fit, force)) = self.rest_shape_if_unchanged(&aligned, flags) {
+        let noise = CloudNoise::measure(&aligned, self.settings.rest_test.as_ref());
+        if let Some((u, fit, force)) = self.rest_shape_if_unchanged(&aligned, noise.as_ref(), flags)
+        {
             return Ok(Done::without_non_rigid(
                 u,
                 model_to_cloud,
@@ -476,8 +484,8 @@ impl Session {
             .settings
             .time_budget_ms
             .map(|b| start + Duration::from_secs_f64(b.max(0.0) * 1e-3));
-        let (u, report, spent) =
-            self.non_rigid_stage(&aligned, camera.as_ref(), deadline, flags)?;
+        let (still, data) = self.still_frames(&aligned, frame.camera, noise.as_ref(), flags);
+        let (u, report, spent) = self.non_rigid_stage(&data, camera.as_ref(), deadline, flags)?;
         times.visibility_ms = spent.visibility_ms;
         times.pairing_ms = spent.pairing_ms;
         times.newton_ms = spent.newton_ms;
@@ -527,6 +535,7 @@ impl Session {
             sources: report.sources,
             warnings: report.warnings,
             contact_force,
+            still,
         })
     }
 
@@ -638,27 +647,29 @@ impl Session {
         Ok((model_to_cloud, rigid_iterations))
     }
 
-    /// The non-rigid stage of a frame (`aligned`: the cloud in the model frame, metres): the
-    /// coarse-to-fine start of a cold frame, the registration from the last good state, and
-    /// the recovery ladder when the solver failed (flags `coarse_start`, `recovered:…`,
-    /// `recovery_failed`). Returns the displacement, the report and the time spent by stage.
+    /// The non-rigid stage of a frame (`data`: the clouds of the still window, model frame,
+    /// metres, with their springs' weight): the coarse-to-fine start of a cold frame, the
+    /// registration from the last good state, and the recovery ladder when the solver failed
+    /// (flags `coarse_start`, `recovered:…`, `recovery_failed`). Returns the displacement, the
+    /// report and the time spent by stage.
     fn non_rigid_stage(
         &mut self,
-        aligned: &[Point3<f64>],
+        data: &StillData,
         camera: Option<&Camera>,
         deadline: Option<Instant>,
         flags: &mut Vec<String>,
     ) -> Result<(Vec<f64>, NonRigidReport, NonRigidTimings), FrameError> {
+        let aligned = &data.points[..];
         let warm = self.good.registered;
-        let settings = if warm {
+        let mut settings = if warm {
             self.settings.warm
         } else {
             self.settings.cold
         };
+        settings.data_weight = data.weight;
         // Coarse-to-fine start of a cold frame: the coarse registration's field, prolongated,
         // is the fine stage's start, which then needs only the stiff end of the ramp.
         let mut start_u = None;
-        let mut settings = settings;
         let mut coarse_counts = (0, 0, 0);
         let mut spent = NonRigidTimings::default();
         if !warm {
@@ -690,8 +701,7 @@ impl Session {
         if self.settings.recovery && (solver_failed(&report) || !all_finite(&u)) {
             // The stage's kept factorisation and visible set are those of a failed attempt.
             self.icp(warm).invalidate();
-            let (u, report) =
-                self.recover(u, report, aligned, camera, deadline, &mut spent, flags)?;
+            let (u, report) = self.recover(u, report, data, camera, deadline, &mut spent, flags)?;
             return Ok((u, report, spent));
         }
         Ok((u, report, spent))
@@ -709,7 +719,7 @@ impl Session {
         &mut self,
         first_u: Vec<f64>,
         first: NonRigidReport,
-        aligned: &[Point3<f64>],
+        data: &StillData,
         camera: Option<&Camera>,
         deadline: Option<Instant>,
         spent: &mut NonRigidTimings,
@@ -719,11 +729,15 @@ impl Session {
             if deadline.is_some_and(|d| Instant::now() >= d) {
                 break;
             }
+            let settings = NonRigidSettings {
+                data_weight: data.weight,
+                ..rung.settings
+            };
             let mut icp =
-                NonRigidIcp::new(rung.settings, rung.newton).with_normals(self.normals.clone());
+                NonRigidIcp::new(settings, rung.newton).with_normals(self.normals.clone());
             let mut u = self.good.u.clone();
             let r = icp
-                .register(&mut self.model, aligned, camera, &mut u, deadline)
+                .register(&mut self.model, &data.points, camera, &mut u, deadline)
                 .map_err(|e| FrameError::NonRigid(e.to_string()))?;
             add_timings(spent, &r.timings);
             if !solver_failed(&r) && all_finite(&u) {
@@ -777,7 +791,13 @@ impl Session {
         } else {
             &mut self.non_rigid_cold
         };
-        if icp.settings != settings {
+        // The data term's weight changes as the still window fills and empties; the kept
+        // factorisation, a modified-Newton approximation of the tangent anyway, stays.
+        let same_but_weight = NonRigidSettings {
+            data_weight: settings.data_weight,
+            ..icp.settings
+        } == settings;
+        if !same_but_weight {
             icp.invalidate();
         }
         icp.settings = settings;
@@ -983,20 +1003,18 @@ impl Session {
     fn rest_shape_if_unchanged(
         &mut self,
         aligned: &[Point3<f64>],
+        noise: Option<&CloudNoise>,
         flags: &mut Vec<String>,
     ) -> Option<(Vec<f64>, f64, Option<ContactForce>)> {
         let test = self.settings.rest_test.clone()?;
-        let cloud = IndexedPoints::new(aligned.to_vec())?;
+        let noise = noise?;
         let rest = vec![0.0; self.good.u.len()];
         let d = self
             .rest_surface
             .get_or_init(|| SurfaceIndex::new(&self.model, &rest))
             .as_ref()?
             .signed_distances(aligned);
-        if test
-            .evaluate(&cloud, &d, cloud_noise_sigma(&cloud))
-            .significant
-        {
+        if test.evaluate_near(&noise.near, &d, noise.sigma).significant {
             return None;
         }
         flags.push("at_rest".into());
@@ -1009,6 +1027,55 @@ impl Session {
             centre: centroid(aligned),
         };
         Some((rest, rms, Some(force)))
+    }
+
+    /// The data of the non-rigid stage: the frame's cloud `aligned` (model frame, m) seen by
+    /// `camera` joins the still window ([`StillWindow`]) when the last registered shape
+    /// explains it within its `noise` (a warm frame; [`SessionSettings::still_frames`] > 1),
+    /// and the stage registers the window's union, each spring at `1/n` of its stiffness
+    /// (flag `still:<n>` for `n` > 1). Otherwise the window starts again with this cloud.
+    /// Returns the new window (the session keeps it only if the frame succeeds: a failed
+    /// frame leaves no trace) and the data.
+    fn still_frames(
+        &self,
+        aligned: &[Point3<f64>],
+        camera: Option<Camera>,
+        noise: Option<&CloudNoise>,
+        flags: &mut Vec<String>,
+    ) -> (StillWindow, StillData) {
+        let max_frames = self.settings.still_frames.max(1);
+        let unchanged = max_frames > 1
+            && self.good.registered
+            && noise.is_some_and(|n| self.explains(&self.good.u, aligned, n));
+        let mut still = self.still.clone();
+        let n = still.admit(
+            aligned.to_vec(),
+            camera,
+            unchanged,
+            max_frames,
+            self.settings.max_cloud_points,
+        );
+        if n > 1 {
+            flags.push(format!("still:{n}"));
+        }
+        let data = StillData {
+            points: still.union(),
+            weight: 1.0 / n as f64,
+        };
+        (still, data)
+    }
+
+    /// Whether the surface deformed by `u` (m) explains the cloud `aligned` (model frame, m)
+    /// within its `noise` ([`SessionSettings::rest_test`]'s test; false without it).
+    fn explains(&self, u: &[f64], aligned: &[Point3<f64>], noise: &CloudNoise) -> bool {
+        let Some(test) = &self.settings.rest_test else {
+            return false;
+        };
+        let Some(surface) = SurfaceIndex::new(&self.model, u) else {
+            return false;
+        };
+        let d = surface.signed_distances(aligned);
+        !test.evaluate_near(&noise.near, &d, noise.sigma).significant
     }
 
     /// RMS distance (metres) from `cloud` (metres, model frame) to the surface deformed by `u`,
@@ -1036,6 +1103,33 @@ const SAME_VIEW_FIT_RATIO: f64 = 1.2;
 /// a millimetre).
 const SAME_VIEW_FIT_SLACK: f64 = 0.5e-3;
 
+/// A frame's cloud indexed with its own noise, for the tests of change
+/// ([`Session::rest_shape_if_unchanged`], [`Session::still_frames`]).
+struct CloudNoise {
+    /// [`ChangeTest::neighbours`] of each cloud point.
+    near: Vec<Vec<usize>>,
+    /// [`cloud_noise_sigma`], m.
+    sigma: f64,
+}
+
+impl CloudNoise {
+    /// The noise and neighbours of `aligned` (m) for `test` (`None` without a test, or for
+    /// an empty cloud).
+    fn measure(aligned: &[Point3<f64>], test: Option<&ChangeTest>) -> Option<Self> {
+        let cloud = IndexedPoints::new(aligned.to_vec())?;
+        let near = test?.neighbours(&cloud);
+        let sigma = cloud_noise_sigma(&cloud);
+        Some(Self { near, sigma })
+    }
+}
+
+/// What the non-rigid stage registers: the points of the still window (model frame, m) and
+/// the weight of each one's spring ([`NonRigidSettings::data_weight`]).
+struct StillData {
+    points: Vec<Point3<f64>>,
+    weight: f64,
+}
+
 /// A successful frame's new state and counters.
 struct Done {
     u: Vec<f64>,
@@ -1051,6 +1145,9 @@ struct Done {
     sources: usize,
     warnings: Vec<String>,
     contact_force: Option<ContactForce>,
+    /// The still window with this frame's cloud (empty for a frame without the non-rigid
+    /// stage): it replaces the session's when the frame succeeds.
+    still: StillWindow,
 }
 
 impl Done {
@@ -1079,6 +1176,7 @@ impl Done {
             sources: 0,
             warnings: Vec::new(),
             contact_force,
+            still: StillWindow::default(),
         }
     }
 }

@@ -32,6 +32,9 @@ pub struct SessionSettings {
     /// ([`ChangeTest`](crate::registration::change_evidence::ChangeTest)); `None`: every frame
     /// is registered (`registration.rest_test = false`).
     pub rest_test: Option<ChangeTest>,
+    /// Most still frames registered together (`registration.still_frames`; 1: each frame
+    /// alone). Needs [`SessionSettings::rest_test`]'s noise test.
+    pub still_frames: usize,
     /// Rigid ICP from the last frame's pose (rigid-only sessions, `pose = "track"`) stops
     /// when the mean squared inlier distance changes by at most this fraction (default 1e-4,
     /// an RMS change of 0.005 %), if looser than `rigid.relative_tolerance` (1e-6, kept for
@@ -112,6 +115,7 @@ impl Default for SessionSettings {
             },
             pose_search: Some(PoseSearch::default()),
             rest_test: Some(ChangeTest::default()),
+            still_frames: crate::scene::defaults::still_frames() as usize,
             tracking_relative_tolerance: 1e-4,
             target_spacing: 0.005,
             max_rigid_rms: 0.02,
@@ -154,6 +158,7 @@ impl SessionSettings {
             if !r.rest_test {
                 s.rest_test = None;
             }
+            s.still_frames = r.still_frames as usize;
             // Warm frames prune at median/MAD with the cloud → surface term (measured in
             // docs/registration.md); the thesis's direction keeps mean + 2σ.
             s.warm.robust_pruning = r.data_term == DataTerm::CloudToSurface;

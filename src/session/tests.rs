@@ -628,3 +628,82 @@ fn vertex_normals(mut settings: SessionSettings) -> SessionSettings {
 fn rest_tip() -> Point3<f64> {
     Point3::new(35.0, 0.0, -3.0)
 }
+
+/// The still window (`still_window.rs`): a liver that stays bent while the camera sends
+/// fresh noise each frame. The reference is the same session's answer to the noise-free
+/// cloud; the window must bring the targets closer to it than frames registered alone, and
+/// a new bend must start the window again and be followed.
+#[test]
+fn still_frames_average_the_noise_of_a_still_liver() {
+    let (path, rest) = scene("stillnoise", "none");
+    let clean = bent(&rest, 8.0);
+    let mut reference = session(&path);
+    let mut truth = None;
+    for k in 0..8 {
+        truth = Some(reference.register(&frame(clean.clone(), &format!("clean {k}"))));
+    }
+    let truth = truth.unwrap();
+    // Fresh 1 mm noise per axis on every frame, the same clouds for both sessions.
+    let mut rng = crate::synthetic::Rng::new(28);
+    let noisy: Vec<Vec<Point3<f64>>> = (0..10)
+        .map(|_| clean.iter().map(|p| p + rng.gaussian_vector(1.0)).collect())
+        .collect();
+    let error = |r: &FrameResult| {
+        r.structures[0]
+            .1
+            .iter()
+            .zip(&truth.structures[0].1)
+            .map(|(p, q)| (p - q).norm())
+            .sum::<f64>()
+            / truth.structures[0].1.len() as f64
+    };
+    let run = |still_frames: usize| {
+        let mut s = session(&path);
+        s.settings.still_frames = still_frames;
+        let results: Vec<FrameResult> = noisy
+            .iter()
+            .enumerate()
+            .map(|(k, c)| s.register(&frame(c.clone(), &format!("{k}"))))
+            .collect();
+        (s, results)
+    };
+    let (_, alone) = run(1);
+    let (mut windowed, together) = run(4);
+    for r in alone.iter().chain(&together) {
+        assert!(r.error.is_none(), "{:?}", r.error);
+    }
+    assert!(alone
+        .iter()
+        .all(|r| !r.flags.iter().any(|f| f.starts_with("still:"))));
+    let counts: Vec<usize> = together
+        .iter()
+        .map(|r| {
+            r.flags
+                .iter()
+                .find_map(|f| f.strip_prefix("still:"))
+                .map_or(1, |n| n.parse().unwrap())
+        })
+        .collect();
+    println!("clouds per frame: {counts:?}");
+    // The first frame is cold; the window then fills to 4 clouds or to the point cap
+    // (`max_cloud_points`: 3 clouds of 642 points).
+    let cap = (windowed.settings.max_cloud_points / clean.len()).min(4);
+    assert_eq!(counts[0], 1);
+    assert_eq!(*counts.iter().max().unwrap(), cap, "{counts:?}");
+    let mean = |v: &[FrameResult]| v[4..].iter().map(error).sum::<f64>() / (v.len() - 4) as f64;
+    let (e_alone, e_together) = (mean(&alone), mean(&together));
+    println!("mean target error, frames 4–9: alone {e_alone:.3} mm, windowed {e_together:.3} mm");
+    assert!(
+        e_together < 0.8 * e_alone,
+        "the window should average the noise: {e_together:.3} against {e_alone:.3} mm"
+    );
+    // The liver moves again: the window starts over and the bend is followed.
+    let moved = windowed.register(&frame(bent(&rest, 14.0), "moved"));
+    assert!(moved.error.is_none(), "{:?}", moved.error);
+    assert!(
+        !moved.flags.iter().any(|f| f.starts_with("still:")),
+        "{:?}",
+        moved.flags
+    );
+    assert_follows_the_bend(moved.structures[0].1[3], 14.0);
+}
