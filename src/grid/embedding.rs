@@ -8,8 +8,8 @@
 
 use nalgebra::{Point3, Vector3};
 
+use super::hex8::shape_values;
 use super::weighted_cell_grid::WeightedCellGrid;
-use crate::mechanics::hex8::shape_values;
 
 /// How far outside every active cell (in cells, measured from the nearest active cell's box)
 /// a point may lie and still be embedded by extrapolating that cell's trilinear field.

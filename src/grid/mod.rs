@@ -2,6 +2,7 @@
 //! points (thesis ch. 4).
 
 pub mod embedding;
+pub mod hex8;
 pub mod quadrature;
 pub mod regular_grid;
 pub mod weighted_cell_grid;

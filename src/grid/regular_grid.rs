@@ -49,11 +49,11 @@ impl RegularGrid {
         self.origin + Vector3::new(n[0] as f64, n[1] as f64, n[2] as f64) * self.cell_size
     }
 
-    /// The 8 corner nodes of cell `c`, in the order of [`crate::mechanics::hex8::CORNERS`]
+    /// The 8 corner nodes of cell `c`, in the order of [`crate::grid::hex8::CORNERS`]
     /// (corner `a` sits at reference coordinates `CORNERS[a]`).
     pub fn cell_node_coords(&self, c: [usize; 3]) -> [[usize; 3]; 8] {
         let mut out = [[0; 3]; 8];
-        for (a, corner) in crate::mechanics::hex8::CORNERS.iter().enumerate() {
+        for (a, corner) in crate::grid::hex8::CORNERS.iter().enumerate() {
             out[a] = [
                 c[0] + usize::from(corner[0] > 0.0),
                 c[1] + usize::from(corner[1] > 0.0),
@@ -131,7 +131,7 @@ mod tests {
         let xi = g.to_reference(c, &p);
         assert!((g.to_physical(c, &xi) - p).norm() < 1e-14);
         let nodes = g.cell_node_coords(c);
-        for (a, corner) in crate::mechanics::hex8::CORNERS.iter().enumerate() {
+        for (a, corner) in crate::grid::hex8::CORNERS.iter().enumerate() {
             let x = g.to_physical(c, &Vector3::from(*corner));
             assert!((x - g.node_position(nodes[a])).norm() < 1e-14);
         }

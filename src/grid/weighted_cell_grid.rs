@@ -4,10 +4,10 @@
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
+use super::hex8::{gauss_points, CORNERS, GAUSS_2};
 use super::quadrature::{CellQuadratures, IntegrationMode, QuadPoint};
 use super::regular_grid::RegularGrid;
 use crate::geometry::{triangle_overlaps_box, Aabb, InsideTest};
-use crate::mechanics::hex8::{gauss_points, CORNERS, GAUSS_2};
 use crate::mesh::TriSurface;
 
 /// Largest number of background cells a grid may have (a guard against a cell size that is far

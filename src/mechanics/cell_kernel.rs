@@ -4,8 +4,8 @@
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::hex8::shape_gradients;
 use super::material::{Material, MaterialError, Part};
+use crate::grid::hex8::shape_gradients;
 use crate::grid::QuadPoint;
 
 /// Element force vector: 8 nodes × 3 components, node-major (N).

@@ -41,7 +41,7 @@
 //! [`NewtonSolver::improve`]: super::NewtonSolver::improve
 
 use super::assembly::Assembler;
-use super::hex8::CORNERS;
+use crate::grid::hex8::CORNERS;
 use crate::grid::{IntegrationMode, WeightedCellGrid};
 use crate::linalg::SymmetricCsc;
 

@@ -4,8 +4,8 @@
 use nalgebra::{Point3, Vector3};
 
 use crate::geometry::Aabb;
+use crate::grid::hex8::{gauss_points, shape_values};
 use crate::grid::{Embedding, EmbeddingError, WeightedCellGrid};
-use crate::mechanics::hex8::{gauss_points, shape_values};
 use crate::mesh::TriSurface;
 
 /// A point sampling a piece of surface: its position and the area it stands for.

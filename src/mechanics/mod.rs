@@ -1,11 +1,11 @@
-//! Mechanics: hexahedral elements, hyperelastic materials, assembly, loads, penalty springs and
-//! the static Newton solver (thesis ch. 2 and §4.6–4.7).
+//! Mechanics: hexahedral element kernels (the trilinear shape functions are the grid's,
+//! [`crate::grid::hex8`]), hyperelastic materials, assembly, loads, penalty springs and the
+//! static Newton solver (thesis ch. 2 and §4.6–4.7).
 
 pub mod assembly;
 pub mod background_factorization;
 pub mod cell_kernel;
 pub mod cut_cell_stabilization;
-pub mod hex8;
 pub mod loads;
 pub mod material;
 pub mod newton;
