@@ -141,11 +141,15 @@ fn the_sticking_truths_load_and_the_neo_hookean_one_goes_deep() {
 /// (`RestCompliance::fit_displacements`) given the truth's own displacements of the surface
 /// vertices within 6 cm of the tool (about the clouds' 15 %), on the fixture scene's model
 /// (11.5 mm cells). No registration error enters, so what is left is the model's compliance
-/// against the tetrahedral truth. Measured on the linear truth's frames deeper than 20 mm:
-/// the fit needs 1.18–1.38 times the truth's force (median 1.31 on press-slide, 1.18 on
-/// two-sites), 3–5° (median) from its direction. The fixed ligament points hold whole 11.5 mm cells,
-/// which stiffens the hold (1.07–1.10 on 8 mm cells; softer hold springs bring the ratio down
-/// without changing the node error: docs/registration.md, "The contact force").
+/// against the tetrahedral truth. Measured on the linear truth's frames deeper than 20 mm
+/// (force ratio, median over the frames):
+/// - the ligament's 100 fixed points held point by point, as the registration holds them:
+///   1.31 on press-slide, 1.18 on two-sites. Eight or more points in a cell clamp the whole
+///   cell, so the hold reaches up to a cell beyond the truth's fixed patch;
+/// - lumped per cell, as the fit holds them (`SceneModel::point_holds`): 1.09 and 1.09.
+///
+/// Asserted: lumped within 15 % of the truth on both and closer to it than point by point;
+/// the direction within 15°.
 #[test]
 fn the_fit_of_the_true_field_measures_the_models_compliance() {
     use livereg::grid::Embedding;
@@ -154,18 +158,26 @@ fn the_fit_of_the_true_field_measures_the_models_compliance() {
     use livereg::synthetic::indentation::IndentationTruth;
 
     let mut session = Session::from_scene(&scene(DataTerm::CloudToSurface)).expect("session");
-    let mut compliance = RestCompliance::new(
-        &mut session.model.problem,
-        session.model.newton.linear_solver,
-    )
-    .expect("rest compliance");
+    let holds = session.model.point_holds.clone();
+    assert!(
+        !holds.is_empty(),
+        "the fixture holds its ligament by points"
+    );
+    let kind = session.model.newton.linear_solver;
+    let mut lumped =
+        RestCompliance::new(&mut session.model.problem, kind, &holds).expect("rest compliance");
+    let mut by_point =
+        RestCompliance::new(&mut session.model.problem, kind, &[]).expect("rest compliance");
     let model = &session.model;
     let normals = model.surface.vertex_normals();
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
     for sequence in ["press-slide", "two-sites"] {
         let truth =
             IndentationTruth::load(&bundled_fixture_dir(), sequence, "linear").expect("truth");
-        let mut ratios = Vec::new();
-        let mut angles = Vec::new();
+        let (mut ratios, mut by_point_ratios, mut angles) = (Vec::new(), Vec::new(), Vec::new());
         for (k, tool) in truth.frames.iter().enumerate() {
             if tool.depth < 0.02 {
                 continue;
@@ -177,22 +189,30 @@ fn the_fit_of_the_true_field_measures_the_models_compliance() {
             let embedding = Embedding::new(&model.problem.grid, &points).expect("embedded");
             let moved: Vec<_> = seen.iter().map(|&v| truth.displacements[k][v]).collect();
             let n: Vec<_> = seen.iter().map(|&v| normals[v]).collect();
-            let fitted = compliance
-                .fit_displacements(&model.problem, &model.surface, &embedding, &moved, Some(&n))
-                .expect("a fit");
-            ratios.push(fitted.resultant.norm() / tool.force.norm());
-            angles.push(fitted.resultant.angle(&tool.force).to_degrees());
+            let fit = |c: &mut RestCompliance| {
+                c.fit_displacements(&model.problem, &model.surface, &embedding, &moved, Some(&n))
+                    .expect("a fit")
+                    .resultant
+            };
+            let f = fit(&mut lumped);
+            ratios.push(f.norm() / tool.force.norm());
+            angles.push(f.angle(&tool.force).to_degrees());
+            by_point_ratios.push(fit(&mut by_point).norm() / tool.force.norm());
         }
-        ratios.sort_by(f64::total_cmp);
-        angles.sort_by(f64::total_cmp);
-        let (ratio, angle) = (ratios[ratios.len() / 2], angles[angles.len() / 2]);
+        let frames = ratios.len();
+        let (ratio, by_point_ratio, angle) =
+            (median(ratios), median(by_point_ratios), median(angles));
         println!(
-            "{sequence}: {} frames, force ratio median {ratio:.2} ({:.2}–{:.2}), angle median {angle:.1}°",
-            ratios.len(),
-            ratios[0],
-            ratios[ratios.len() - 1]
+            "{sequence}: {frames} frames, force ratio median {ratio:.2} lumped, {by_point_ratio:.2} point by point; angle median {angle:.1}°"
         );
-        assert!((1.0..=1.8).contains(&ratio), "{sequence}: ratio {ratio:.2}");
+        assert!(
+            (0.85..=1.15).contains(&ratio),
+            "{sequence}: ratio {ratio:.2}"
+        );
+        assert!(
+            (ratio - 1.0).abs() < (by_point_ratio - 1.0).abs(),
+            "{sequence}: lumped {ratio:.2}, point by point {by_point_ratio:.2}"
+        );
         assert!(angle < 15.0, "{sequence}: angle {angle:.1}°");
     }
 }

@@ -6,7 +6,9 @@ use nalgebra::{Point3, Vector3};
 use super::assembly::Assembler;
 use super::loads::samples_by_triangle;
 use crate::geometry::Aabb;
-use crate::grid::{embedding::interpolate_one, Embedding, EmbeddingError, WeightedCellGrid};
+use crate::grid::{
+    embedding::interpolate_one, EmbeddedPoint, Embedding, EmbeddingError, WeightedCellGrid,
+};
 use crate::linalg::SymmetricCsc;
 use crate::mesh::TriSurface;
 
@@ -103,6 +105,65 @@ impl PenaltySprings {
             );
         }
         Ok(Some(springs))
+    }
+
+    /// The same hold with the springs of each grid cell lumped into one: a spring of their
+    /// summed stiffness on the stiffness-weighted mean of their displacements (trilinear
+    /// weights averaged; rest position and imposed displacement averaged alike). `n` isotropic
+    /// springs in one cell constrain `3n` of its 24 unknowns, so eight or more clamp the whole
+    /// cell and a hold given as many points reaches a cell beyond them; lumped, each cell is
+    /// held by three constraints whatever the number of points. Point-to-plane springs
+    /// (`normals`) are returned unchanged.
+    pub fn lumped_per_cell(&self) -> Self {
+        if self.normals.is_some() {
+            return self.clone();
+        }
+        let mut order: Vec<usize> = Vec::new();
+        let mut slot = std::collections::HashMap::new();
+        for (j, e) in self.embedding.points.iter().enumerate() {
+            slot.entry(e.cell).or_insert_with(|| {
+                order.push(j);
+                order.len() - 1
+            });
+        }
+        let m = order.len();
+        let mut points: Vec<EmbeddedPoint> =
+            order.iter().map(|&j| self.embedding.points[j]).collect();
+        points.iter_mut().for_each(|e| e.weights = [0.0; 8]);
+        let mut rest = vec![Vector3::zeros(); m];
+        let mut target = vec![Vector3::zeros(); m];
+        let mut stiffness = vec![0.0; m];
+        for (j, e) in self.embedding.points.iter().enumerate() {
+            let c = slot[&e.cell];
+            let k = self.stiffness[j];
+            stiffness[c] += k;
+            rest[c] += self.embedding.rest[j].coords * k;
+            target[c] += self.target[j] * k;
+            for (w, wj) in points[c].weights.iter_mut().zip(e.weights) {
+                *w += k * wj;
+            }
+        }
+        for c in 0..m {
+            // A cell whose springs sum to zero stiffness holds nothing: plain means.
+            let total = if stiffness[c] > 0.0 {
+                stiffness[c]
+            } else {
+                1.0
+            };
+            rest[c] /= total;
+            target[c] /= total;
+            points[c].weights.iter_mut().for_each(|w| *w /= total);
+        }
+        Self {
+            embedding: Embedding {
+                points,
+                rest: rest.into_iter().map(Point3::from).collect(),
+            },
+            target,
+            stiffness,
+            follows_load: self.follows_load,
+            normals: None,
+        }
     }
 
     fn imposed(&self, j: usize, load: f64) -> Vector3<f64> {
@@ -225,5 +286,65 @@ mod tests {
         let tilted = Vector3::new(3.0, -2.0, 1.0).normalize() * d;
         let e = energy_of_translation(&mut sliding, tilted);
         assert!((e - expect * (tilted.z / d).powi(2)).abs() < 1e-9 * expect);
+    }
+
+    #[test]
+    fn lumping_holds_each_cells_mean_displacement_with_the_summed_stiffness() {
+        // 6 × 6 points on the bottom face of the cut box (several per cell), stiffness varying.
+        let (_, p) = cut_box(0.096);
+        let points: Vec<Point3<f64>> = (0..36)
+            .map(|i| {
+                Point3::new(
+                    0.008 + 0.016 * (i % 6) as f64,
+                    -0.003,
+                    0.004 + 0.011 * (i / 6) as f64,
+                )
+            })
+            .collect();
+        let k: Vec<f64> = (0..36).map(|i| 100.0 + 10.0 * i as f64).collect();
+        let held = PenaltySprings::fixed(Embedding::new(&p.grid, &points).unwrap(), k.clone());
+        let lumped = held.lumped_per_cell();
+        let mut cells: Vec<usize> = held.embedding.points.iter().map(|e| e.cell).collect();
+        cells.sort_unstable();
+        cells.dedup();
+        assert_eq!(lumped.embedding.len(), cells.len());
+        assert!(cells.len() < points.len(), "several points per cell");
+        // A smooth non-rigid field: the lumped energy is ½ Σ_c K_c |Σ_j k_j u_j / K_c|² with
+        // u_j the original points' displacements, and smaller than the original by Jensen.
+        let u: Vec<f64> = (0..3 * p.grid.node_count())
+            .map(|i| 1e-3 * ((0.37 * i as f64).sin() + 0.2))
+            .collect();
+        let assembler = Assembler::new(&p.grid);
+        let moved = held.embedding.interpolate(&u);
+        let expected: f64 = cells
+            .iter()
+            .map(|&c| {
+                let (mut kc, mut sum) = (0.0, Vector3::zeros());
+                for (j, e) in held.embedding.points.iter().enumerate() {
+                    if e.cell == c {
+                        kc += k[j];
+                        sum += moved[j] * k[j];
+                    }
+                }
+                0.5 * kc * (sum / kc).norm_squared()
+            })
+            .sum();
+        let got = lumped.accumulate(&assembler, &u, 1.0, None, None);
+        assert!(
+            (got - expected).abs() < 1e-12 * expected,
+            "{got} vs {expected}"
+        );
+        let original = held.accumulate(&assembler, &u, 1.0, None, None);
+        assert!(got < 0.9 * original, "{got} vs {original}");
+        // A rigid shift stores the same energy either way: ½ (Σ k) d².
+        let d = Vector3::new(1e-3, -2e-3, 0.5e-3);
+        let shift: Vec<f64> = (0..p.grid.node_count())
+            .flat_map(|_| [d.x, d.y, d.z])
+            .collect();
+        let rigid = 0.5 * k.iter().sum::<f64>() * d.norm_squared();
+        for springs in [&held, &lumped] {
+            let e = springs.accumulate(&assembler, &shift, 1.0, None, None);
+            assert!((e - rigid).abs() < 1e-12 * rigid, "{e} vs {rigid}");
+        }
     }
 }

@@ -545,7 +545,11 @@ impl Session {
         let compliance = self
             .rest_compliance
             .get_or_insert_with(|| {
-                RestCompliance::new(&mut self.model.problem, self.model.newton.linear_solver)
+                RestCompliance::new(
+                    &mut self.model.problem,
+                    self.model.newton.linear_solver,
+                    &self.model.point_holds,
+                )
             })
             .as_mut()
             .ok()?;

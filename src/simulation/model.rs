@@ -70,6 +70,10 @@ pub struct SceneModel {
     pub surface_embedding: Embedding,
     /// The mechanical problem (grid, material, dead loads, fixed regions).
     pub problem: StaticProblem,
+    /// Indices into `problem.springs` of the fixed regions given as points
+    /// (`boundary.fixed` `points`), one spring per point; the contact force's rest compliance
+    /// lumps them per cell (`registration::RestCompliance`).
+    pub point_holds: Vec<usize>,
     /// Newton settings from `[solver]`.
     pub newton: NewtonSettings,
     /// Probe points, embedded.
@@ -208,6 +212,7 @@ impl SceneModel {
         }
 
         let mut springs = Vec::new();
+        let mut point_holds = Vec::new();
         for (i, f) in scene.boundary.fixed.iter().enumerate() {
             let key = format!("boundary.fixed[{i}]");
             let set = match f.region() {
@@ -235,6 +240,7 @@ impl SceneModel {
                         .or(scene.solver.penalty_stiffness)
                         .unwrap_or(DEFAULT_FIXED_PENALTY_FACTOR * young * h);
                     let emb = embed(key.clone(), &pts, &grid)?;
+                    point_holds.push(springs.len());
                     (!pts.is_empty()).then(|| PenaltySprings::fixed(emb, vec![k; pts.len()]))
                 }
                 None => {
@@ -317,6 +323,7 @@ impl SceneModel {
         problem.springs = springs;
         Ok(Self {
             length_scale: scale,
+            point_holds,
             surface,
             surface_report,
             surface_embedding,
