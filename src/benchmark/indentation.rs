@@ -94,6 +94,9 @@ pub struct IndentationFrameMetrics {
     /// Distance from the estimate's centre to the truth's (the contact nodes' deformed
     /// positions weighted by their reactions), mm (`None`: no estimate).
     pub force_centre_error_mm: Option<f64>,
+    /// The frame's pose uncertainty (`FrameResult::pose_uncertainty`), mm; `None` when the
+    /// pose was given.
+    pub pose_uncertainty_mm: Option<f64>,
 }
 
 /// What an indentation run gave, mm and ms.
@@ -124,6 +127,11 @@ pub struct IndentationMetrics {
     /// Median over the same frames of the distance between the estimated and the true force
     /// centres, mm.
     pub force_centre_error_median_mm: Option<f64>,
+    /// The largest pose uncertainty over the frames (`FrameResult::pose_uncertainty`), mm;
+    /// `None` when the pose was given.
+    pub pose_uncertainty_max_mm: Option<f64>,
+    /// Frames flagged `pose_uncertain`.
+    pub pose_uncertain_frames: usize,
     /// Median and 95th percentile wall time of the warm frames, ms.
     pub warm_ms_p50: f64,
     /// See `warm_ms_p50`.
@@ -182,6 +190,7 @@ pub fn indentation_metrics(
             force_relative_error: estimate
                 .map(|e| (e - truth_force).norm() / truth_force.norm().max(1e-12)),
             force_centre_error_mm: centre_error_mm,
+            pose_uncertainty_mm: s.pose_uncertainty_mm,
         });
         all.extend_from_slice(&s.tre_mm);
         none_all.extend(none);
@@ -224,6 +233,14 @@ pub fn indentation_metrics(
         failed_frames: per_frame.iter().filter(|f| f.failed).count(),
         force_relative_error_median: loaded_median(&per_frame, |f| f.force_relative_error),
         force_centre_error_median_mm: loaded_median(&per_frame, |f| f.force_centre_error_mm),
+        pose_uncertainty_max_mm: per_frame
+            .iter()
+            .filter_map(|f| f.pose_uncertainty_mm)
+            .reduce(f64::max),
+        pose_uncertain_frames: samples
+            .iter()
+            .filter(|s| s.flags.iter().any(|f| f == "pose_uncertain"))
+            .count(),
         warm_ms_p50: q(0.5),
         warm_ms_p95: q(0.95),
         frames: per_frame,
@@ -474,6 +491,8 @@ mod tests {
             none_p95_mm: 0.0,
             region_mean_mm: 0.0,
             none_region_mean_mm: 0.0,
+            pose_uncertainty_max_mm: None,
+            pose_uncertain_frames: 0,
             frames_worse_than_none: 0,
             failed_frames: 0,
             force_relative_error_median: None,

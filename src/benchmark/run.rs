@@ -86,6 +86,8 @@ pub struct FrameSample {
     pub contact_force_n: Option<[f64; 3]>,
     /// Where it acts (m, cloud frame).
     pub contact_centre_m: Option<[f64; 3]>,
+    /// The frame's pose uncertainty (`FrameResult::pose_uncertainty`), mm.
+    pub pose_uncertainty_mm: Option<f64>,
 }
 
 impl FrameSample {
@@ -191,6 +193,7 @@ pub fn sample_of(
             .contact_force
             .map(|c| [c.resultant.x, c.resultant.y, c.resultant.z]),
         contact_centre_m: r.contact_force.map(|c| (c.centre.coords * scale).into()),
+        pose_uncertainty_mm: r.pose_uncertainty.map(|v| v * scale * 1e3),
     }
 }
 
@@ -485,6 +488,7 @@ mod tests {
             recovered_causes: Vec::new(),
             contact_force_n: None,
             contact_centre_m: None,
+            pose_uncertainty_mm: None,
         }
     }
 

@@ -17,6 +17,12 @@ pub struct RigidRecord {
     pub rotation: [[f64; 3]; 3],
     /// Translation, scene units.
     pub translation: [f64; 3],
+    /// How uncertain the pose is: the 1σ misplacement of the model's surface (root mean
+    /// square over its vertices) from the noise of the fit that found it, scene units; a
+    /// lower bound (docs/registration.md, "Pose uncertainty"). Omitted when the pose was given
+    /// (`rigid = "none"`) or not determined. This project's addition to the contract.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub uncertainty: Option<f64>,
 }
 
 impl RigidRecord {
@@ -32,6 +38,7 @@ impl RigidRecord {
                 [m[(2, 0)], m[(2, 1)], m[(2, 2)]],
             ],
             translation: [v.x, v.y, v.z],
+            uncertainty: None,
         }
     }
 }
@@ -151,7 +158,10 @@ impl ResultRecord {
             source: r.source.clone(),
             wall_ms: r.wall_ms,
             converged: r.converged,
-            rigid: RigidRecord::from_transform(&r.model_to_cloud, length_scale),
+            rigid: RigidRecord {
+                uncertainty: r.pose_uncertainty,
+                ..RigidRecord::from_transform(&r.model_to_cloud, length_scale)
+            },
             diagnostics: DiagnosticsRecord {
                 icp_iterations: r.icp_iterations,
                 newton_iterations: r.newton_iterations,

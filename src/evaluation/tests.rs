@@ -57,6 +57,7 @@ fn result(
         rigid: RigidRecord {
             rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
             translation: [0.0, 0.0, 0.0],
+            uncertainty: None,
         },
         diagnostics: DiagnosticsRecord {
             error: error.map(str::to_string),

@@ -72,6 +72,7 @@ fn result(k: usize) -> FrameResult {
             resultant: nalgebra::Vector3::new(0.5, -1.25, 0.0625),
             centre: Point3::new(10.0, -20.5, 3.0),
         }),
+        pose_uncertainty: None,
     }
 }
 

@@ -35,6 +35,7 @@ pub mod isolated_points;
 pub mod kabsch;
 pub mod model_target;
 pub mod non_rigid_icp;
+pub mod pose_covariance;
 pub mod pose_search;
 pub mod rigid_icp;
 pub mod rigid_transform;
@@ -55,6 +56,7 @@ pub use non_rigid_icp::{
     register_non_rigid, DataTerm, NonRigidError, NonRigidIcp, NonRigidReport, NonRigidSettings,
     NonRigidTimings,
 };
+pub use pose_covariance::PoseCovariance;
 pub use pose_search::{PoseSearch, PoseSearchResult};
 pub use rigid_icp::{IcpError, IcpMetric, IcpResult, RigidIcp};
 pub use rigid_transform::RigidTransform;

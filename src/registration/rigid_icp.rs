@@ -34,7 +34,7 @@ use serde::Serialize;
 use thiserror::Error;
 
 use crate::registration::correspondences::{rejection_threshold, robust_threshold};
-use crate::registration::{kabsch, ModelTarget, RigidTransform};
+use crate::registration::{kabsch, ModelTarget, PoseCovariance, RigidTransform};
 
 /// What can go wrong in rigid registration. Messages say what is wrong and where.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -175,6 +175,11 @@ pub struct IcpResult {
     /// `true` when the pose-change or relative-MSE test stopped the iterations (not
     /// `max_iterations`).
     pub converged: bool,
+    /// How well the kept pairs determine the pose under their own residual noise
+    /// ([`PoseCovariance`]); `None` when they do not determine it at all (a plane, a sphere,
+    /// fewer than 7 pairs).
+    #[serde(skip)]
+    pub covariance: Option<PoseCovariance>,
 }
 
 /// Reusable buffers of one registration.
@@ -324,6 +329,7 @@ impl RigidIcp {
                     rms: mse.sqrt(),
                     inlier_fraction: inliers as f64 / cloud.len() as f64,
                     converged,
+                    covariance: pose_covariance(cloud, &estimate, &ws),
                 });
             }
             let plane_step = match self.metric {
@@ -481,6 +487,18 @@ fn point_to_plane_step(
     let increment = RigidTransform::new(rotation, c + translation - rotation * c);
     let next = increment.compose(estimate).renormalized();
     next.is_finite().then_some(next)
+}
+
+/// The covariance of the pose `estimate` from the kept pairs of `ws` (matched at `estimate`).
+fn pose_covariance(
+    cloud: &[Point3<f64>],
+    estimate: &RigidTransform,
+    ws: &Workspace,
+) -> Option<PoseCovariance> {
+    let moved: Vec<Point3<f64>> = ws.keep.iter().map(|&i| estimate.apply(&cloud[i])).collect();
+    let closest: Vec<Point3<f64>> = ws.keep.iter().map(|&i| ws.pairs[i].0).collect();
+    let normals: Vec<Vector3<f64>> = ws.keep.iter().map(|&i| ws.pairs[i].2).collect();
+    PoseCovariance::from_pairs(&moved, &closest, &normals)
 }
 
 /// Past iterates kept by the Anderson acceleration.

@@ -323,6 +323,7 @@ mod tests {
                 rigid: RigidRecord {
                     rotation: [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
                     translation: [1.5, -2.0, 0.125],
+                    uncertainty: Some(1.75),
                 },
                 diagnostics: DiagnosticsRecord {
                     icp_iterations: 3,

@@ -188,4 +188,10 @@ pub struct FrameResult {
     /// both in the cloud frame); `None` for rigid-only registration or before any frame
     /// succeeded. A failed frame carries the last good state's.
     pub contact_force: Option<crate::registration::ContactForce>,
+    /// How uncertain the pose is, scene units: the 1σ misplacement of the model's surface
+    /// (root mean square over its vertices) that the noise of the fit that found the pose
+    /// implies (`registration::PoseCovariance`), carried while the pose is held; `None` when
+    /// the pose was given (`rigid = "none"`) or not determined. A lower bound: deformation
+    /// and a wrong pose basin are not in it.
+    pub pose_uncertainty: Option<f64>,
 }

@@ -45,6 +45,9 @@ struct GoodState {
     /// The pose was committed by a global search that found another pose about as good
     /// (flag `pose_ambiguous`); every frame holding it says so too.
     pose_ambiguous: bool,
+    /// The pose's uncertainty when it was fitted (m, [`Session::pose_uncertainty`]); `None`
+    /// when the pose was given (`rigid = "none"`) or its fit did not determine it.
+    pose_uncertainty: Option<f64>,
 }
 
 /// Registers a stream of frames to one model, carrying the state from frame to frame.
@@ -82,6 +85,9 @@ pub struct Session {
     /// The model's rest compliance for the contact force, factorised on the first frame that
     /// estimates one (an error, kept, when it cannot be: no estimate then).
     rest_compliance: Option<Result<RestCompliance, String>>,
+    /// The uncertainty (m) of a pose fitted by this frame's rigid stage; `None` when the
+    /// stage held the pose or fitted none.
+    fitted_pose_uncertainty: Option<f64>,
 }
 
 /// A deformed surface's vertices in a k-d tree with their normals: signed distances of
@@ -242,6 +248,7 @@ impl Session {
                 cloud: None,
                 contact_force: None,
                 pose_ambiguous: false,
+                pose_uncertainty: None,
             },
             frames: 0,
             coarse: None,
@@ -249,6 +256,7 @@ impl Session {
             still: StillWindow::default(),
             rest_surface: std::sync::OnceLock::new(),
             rest_compliance: None,
+            fitted_pose_uncertainty: None,
         }
     }
 
@@ -262,6 +270,7 @@ impl Session {
             cloud: None,
             contact_force: None,
             pose_ambiguous: false,
+            pose_uncertainty: None,
         };
         self.non_rigid_cold.invalidate();
         self.non_rigid_warm.invalidate();
@@ -357,6 +366,7 @@ impl Session {
             structures: Vec::new(),
             times,
             contact_force: None,
+            pose_uncertainty: None,
         };
         match outcome {
             Ok(done) => {
@@ -368,6 +378,17 @@ impl Session {
                 if pose_ambiguous && !searched_ambiguous {
                     result.flags.push("pose_ambiguous".into());
                 }
+                // Likewise the pose's uncertainty: that of its fit, for as long as it is held.
+                let fitted = self.fitted_pose_uncertainty.take();
+                let pose_uncertainty = if held {
+                    self.good.pose_uncertainty
+                } else {
+                    fitted
+                };
+                if pose_uncertainty.is_some_and(|v| v > self.settings.max_pose_uncertainty) {
+                    result.flags.push("pose_uncertain".into());
+                }
+                result.pose_uncertainty = pose_uncertainty.map(|v| v / scale);
                 self.good = GoodState {
                     u: done.u,
                     model_to_cloud: done.model_to_cloud,
@@ -375,6 +396,7 @@ impl Session {
                     cloud: Some(done.cloud),
                     contact_force: done.contact_force,
                     pose_ambiguous,
+                    pose_uncertainty,
                 };
                 self.still = done.still;
                 result.model_to_cloud = done.model_to_cloud;
@@ -633,6 +655,7 @@ impl Session {
         flags: &mut Vec<String>,
     ) -> Result<(RigidTransform, usize), FrameError> {
         // Rigid stage: hold the pose, or track it against the current deformed surface.
+        self.fitted_pose_uncertainty = None;
         let hold = self.settings.non_rigid
             && self.settings.pose_update == PoseUpdate::Hold
             && self.settings.rigid_mode == RigidMode::Icp
@@ -842,6 +865,7 @@ impl Session {
                 limit_mm: limit * 1e3,
             });
         }
+        self.fitted_pose_uncertainty = self.pose_uncertainty(&r);
         Ok((r.model_to_cloud, r.iterations))
     }
 
@@ -897,6 +921,7 @@ impl Session {
         match (best, last_error) {
             (Some((r, start_flags)), _) => {
                 flags.extend(start_flags);
+                self.fitted_pose_uncertainty = self.pose_uncertainty(&r);
                 Ok((r.model_to_cloud, iterations))
             }
             (None, Some(e)) if iterations == 0 => Err(e),
@@ -905,6 +930,18 @@ impl Session {
                 limit_mm: self.settings.max_rigid_rms * 1e3,
             }),
         }
+    }
+
+    /// The uncertainty of the pose fitted by `fit` (m): the 1σ misplacement of the model's
+    /// rest surface, root mean square over its vertices, under the fit's own noise
+    /// ([`PoseCovariance::rms_displacement_std`](crate::registration::PoseCovariance::rms_displacement_std)); `None` without a rigid stage
+    /// (`rigid = "none"`: the pose is given) or when the fit did not determine the pose.
+    fn pose_uncertainty(&self, fit: &IcpResult) -> Option<f64> {
+        if self.settings.rigid_mode != RigidMode::Icp {
+            return None;
+        }
+        fit.covariance
+            .map(|c| c.rms_displacement_std(&self.model.surface.vertices))
     }
 
     /// The rigid target of the last good state's deformed surface, rebuilt when that state

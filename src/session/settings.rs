@@ -20,6 +20,11 @@ pub struct SessionSettings {
     /// sequences (1 mm noise, and the deformation since the last frame, which the non-rigid
     /// stage is there to explain); smaller camera moves are absorbed as deformation.
     pub pose_reacquire_rms: f64,
+    /// A fitted pose whose uncertainty ([`PoseCovariance`](crate::registration::PoseCovariance):
+    /// the 1σ misplacement of the model's surface, root mean square over its vertices, from
+    /// the fit's own noise) exceeds this, metres, is flagged `pose_uncertain` on every frame
+    /// that holds it (default 2 mm; docs/registration.md, "Pose uncertainty").
+    pub max_pose_uncertainty: f64,
     /// Rigid ICP settings.
     pub rigid: RigidIcp,
     /// The multi-start search of the rigid pose on a frame whose pose is not known from the
@@ -107,6 +112,7 @@ impl Default for SessionSettings {
             rigid_mode: RigidMode::Icp,
             pose_update: PoseUpdate::Hold,
             pose_reacquire_rms: 0.008,
+            max_pose_uncertainty: 0.002,
             // Median/MAD pruning (`registration.robust_pruning`, default true); the rigid
             // ICP's own default stays the thesis's mean + 2σ.
             rigid: RigidIcp {

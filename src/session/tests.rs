@@ -711,3 +711,59 @@ fn still_frames_average_the_noise_of_a_still_liver() {
     );
     assert_follows_the_bend(moved.structures[0].1[3], 14.0);
 }
+
+/// The pose's uncertainty (`FrameResult::pose_uncertainty`) is its fit's, carried while the
+/// pose is held, and none when the pose is given. The clamped ellipsoid (10 × 7.5 × 5 cm)
+/// seen whole and as a 2 cm cap at the end of its long axis, with 0.5 mm noise per axis: the
+/// cap leaves the rotations about its own axis nearly unseen, the whole body does not
+/// (`registration::pose_covariance` checks the value itself against repeated fits).
+#[test]
+fn the_pose_uncertainty_is_its_fits_and_is_held_with_the_pose() {
+    let (path, rest) = scene("uncertainty", "icp");
+    let mut rng = crate::synthetic::rng::Rng::new(11);
+    let mut noisy = |pts: &[Point3<f64>]| -> Vec<Point3<f64>> {
+        pts.iter().map(|p| p + rng.gaussian_vector(0.5)).collect()
+    };
+    let whole = noisy(&rest.vertices);
+    let tip = Point3::new(50.0, 0.0, 0.0);
+    let cap: Vec<Point3<f64>> = rest
+        .vertices
+        .iter()
+        .filter(|v| (*v - tip).norm() < 20.0)
+        .copied()
+        .collect();
+    assert!(cap.len() > 20, "{} cap vertices", cap.len());
+    let cap = noisy(&cap);
+
+    let mut s = session(&path);
+    let seen_whole = s.register(&frame(whole, "0"));
+    assert!(seen_whole.error.is_none(), "{:?}", seen_whole.error);
+    let u_whole = seen_whole.pose_uncertainty.expect("a fitted pose");
+
+    let mut s = session(&path);
+    let first = s.register(&frame(cap.clone(), "0"));
+    assert!(first.error.is_none(), "{:?}", first.error);
+    let u_cap = first.pose_uncertainty.expect("a fitted pose");
+    println!("pose uncertainty: whole body {u_whole:.3} mm, 2 cm cap {u_cap:.3} mm");
+    assert!(
+        u_whole > 0.0 && u_cap > 5.0 * u_whole,
+        "{u_whole} vs {u_cap}"
+    );
+    let flagged = |r: &FrameResult| r.flags.iter().any(|f| f == "pose_uncertain");
+    let limit_mm = s.settings.max_pose_uncertainty * 1e3;
+    assert_eq!(flagged(&first), u_cap > limit_mm, "{:?}", first.flags);
+    assert_eq!(flagged(&seen_whole), u_whole > limit_mm);
+    // Held: the next frame fits no pose and reports the held one's uncertainty.
+    let second = s.register(&frame(cap, "1"));
+    assert!(second.error.is_none(), "{:?}", second.error);
+    assert_eq!(second.rigid_iterations, 0);
+    assert_eq!(second.pose_uncertainty, Some(u_cap));
+    assert_eq!(flagged(&second), flagged(&first));
+
+    // A given pose has none.
+    let (path, rest) = scene("uncertainty-none", "none");
+    let mut s = session(&path);
+    let r = s.register(&frame(rest.vertices.clone(), "0"));
+    assert!(r.error.is_none(), "{:?}", r.error);
+    assert_eq!(r.pose_uncertainty, None);
+}
