@@ -118,7 +118,7 @@ pub fn result() -> Value {
             "rigid": {
                 "type": "object",
                 "required": ["rotation", "translation"],
-                "properties": {"rotation": matrix, "translation": vec3()}
+                "properties": {"rotation": matrix, "translation": vec3(), "uncertainty": {"type": "number"}}
             },
             "diagnostics": {
                 "type": "object",

@@ -951,3 +951,11 @@ fn load_scene_str_resolves_against_the_given_path() {
     let e = load_scene_str("[model", SceneFormat::Toml, &notional).unwrap_err();
     assert!(e.to_string().contains("never-written.toml:1:"), "{e}");
 }
+
+#[test]
+fn max_pose_uncertainty_must_be_a_positive_length() {
+    toml_error(
+        &format!("{MINIMAL}\n[registration]\nmax_pose_uncertainty = -1.0\n"),
+        &["registration.max_pose_uncertainty", "-1"],
+    );
+}

@@ -662,6 +662,12 @@ pub struct RegistrationSpec {
     /// "Still frames"); needs `rest_test`'s noise test (off with it).
     #[serde(default = "defaults::still_frames")]
     pub still_frames: u32,
+    /// A fitted pose whose uncertainty (the 1σ misplacement of the model's surface from the
+    /// noise of its rigid fit, root mean square over the vertices) exceeds this, scene units,
+    /// is flagged `pose_uncertain` on every frame that holds it. Omitted: 2 mm
+    /// (docs/registration.md, "Pose uncertainty").
+    #[serde(default)]
+    pub max_pose_uncertainty: Option<f64>,
     /// Warm frames refactorise the tangent on a helper thread while their Newton steps go on
     /// with the old factorisation (default false): faster on large grids, slightly less
     /// accurate (docs/registration.md). Results stay deterministic.
@@ -705,6 +711,7 @@ impl Default for RegistrationSpec {
             pose_search: defaults::pose_search(),
             rest_test: defaults::rest_test(),
             still_frames: defaults::still_frames(),
+            max_pose_uncertainty: None,
             background_factorization: false,
             remove_isolated_points: defaults::remove_isolated_points(),
             data_term: DataTerm::default(),

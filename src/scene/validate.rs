@@ -409,6 +409,9 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
         if let Some(d) = r.max_pair_distance {
             c.positive("registration.max_pair_distance", d, " scene units");
         }
+        if let Some(d) = r.max_pose_uncertainty {
+            c.positive("registration.max_pose_uncertainty", d, " scene units");
+        }
         if let Some(b) = r.time_budget_ms {
             c.positive("registration.time_budget_ms", b, " ms");
         }

@@ -23,7 +23,8 @@ pub struct SessionSettings {
     /// A fitted pose whose uncertainty ([`PoseCovariance`](crate::registration::PoseCovariance):
     /// the 1σ misplacement of the model's surface, root mean square over its vertices, from
     /// the fit's own noise) exceeds this, metres, is flagged `pose_uncertain` on every frame
-    /// that holds it (default 2 mm; docs/registration.md, "Pose uncertainty").
+    /// that holds it (`registration.max_pose_uncertainty`, default 2 mm; docs/registration.md,
+    /// "Pose uncertainty").
     pub max_pose_uncertainty: f64,
     /// Rigid ICP settings.
     pub rigid: RigidIcp,
@@ -165,6 +166,9 @@ impl SessionSettings {
                 s.rest_test = None;
             }
             s.still_frames = r.still_frames as usize;
+            if let Some(d) = r.max_pose_uncertainty {
+                s.max_pose_uncertainty = d * scale;
+            }
             // Warm frames prune at median/MAD with the cloud → surface term (measured in
             // docs/registration.md); the thesis's direction keeps mean + 2σ.
             s.warm.robust_pruning = r.data_term == DataTerm::CloudToSurface;

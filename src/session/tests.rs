@@ -760,6 +760,12 @@ fn the_pose_uncertainty_is_its_fits_and_is_held_with_the_pose() {
     assert_eq!(second.pose_uncertainty, Some(u_cap));
     assert_eq!(flagged(&second), flagged(&first));
 
+    // The limit is a scene key, in scene units (mm here).
+    let mut text = std::fs::read_to_string(&path).unwrap();
+    text.push_str("max_pose_uncertainty = 3.5\n");
+    std::fs::write(&path, text).unwrap();
+    assert_eq!(session(&path).settings.max_pose_uncertainty, 3.5e-3);
+
     // A given pose has none.
     let (path, rest) = scene("uncertainty-none", "none");
     let mut s = session(&path);
