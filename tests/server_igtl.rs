@@ -252,6 +252,17 @@ async fn pyigtl_streams_frames_and_the_server_survives_hostile_messages() {
             targets.message.metadata.get("livereg.frame"),
             Some(k.to_string().as_str())
         );
+        // The pose's uncertainty: register's `rigid.uncertainty` (the scene is in mm).
+        let want_u = reference[k]["rigid"]["uncertainty"].as_f64();
+        let got_u: Option<f64> = targets
+            .message
+            .metadata
+            .get("livereg.pose_uncertainty_mm")
+            .map(|s| s.parse().unwrap());
+        match (got_u, want_u) {
+            (Some(a), Some(b)) => assert!((a - b).abs() < 1e-5, "frame {k}: {a} vs {b}"),
+            (a, b) => panic!("frame {k}: pose uncertainty {a:?}, register's {b:?}"),
+        }
         over.push(rt - server_ms);
     }
     eprintln!(

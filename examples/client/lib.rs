@@ -642,9 +642,13 @@ pub fn proto_to_record(r: &proto::FrameResult) -> Value {
             (s.name.clone(), serde_json::json!(pts))
         })
         .collect();
+    let mut rigid = serde_json::json!({"rotation": rot, "translation": r.translation});
+    if let Some(u) = r.pose_uncertainty {
+        rigid["uncertainty"] = u.into();
+    }
     serde_json::json!({
         "frame": r.frame, "source": r.source, "converged": r.converged,
-        "rigid": {"rotation": rot, "translation": r.translation},
+        "rigid": rigid,
         "diagnostics": {"icp_iterations": r.icp_iterations, "newton_iterations": r.newton_iterations,
                         "surface_rms": r.surface_rms},
         "structures": structures,

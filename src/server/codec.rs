@@ -352,6 +352,7 @@ impl ResultMessage {
                 magnitude_n: c.magnitude_n,
                 centre: c.centre.to_vec(),
             }),
+            pose_uncertainty: rec.rigid.uncertainty,
             skipped: self.skipped,
             server_ms: self.server_ms,
             queue_ms: self.queue_ms,

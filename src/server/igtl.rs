@@ -499,6 +499,12 @@ pub fn result_messages(c: &Completed, handle: &SessionHandle, ras: bool) -> Vec<
         md.insert(METADATA_UNITS, UNITS_MM);
         md.insert("livereg.converged", r.converged.to_string());
         md.insert("livereg.server_ms", format!("{:.3}", c.server_ms));
+        if let Some(u) = r.pose_uncertainty {
+            md.insert("livereg.pose_uncertainty_mm", format!("{:.6}", u * to_mm));
+        }
+        if !r.flags.is_empty() {
+            md.insert("livereg.flags", r.flags.join(","));
+        }
         m.metadata = md;
     };
     let mut out = Vec::new();
