@@ -216,3 +216,54 @@ fn the_fit_of_the_true_field_measures_the_models_compliance() {
         assert!(angle < 15.0, "{sequence}: angle {angle:.1}°");
     }
 }
+
+/// The data term weighed by the cloud's noise (`registration::noise_weight`): press-slide on
+/// the neo-Hookean truth, whose dent is shallow (at most 9.6 mm) against the clouds' 1.5 mm of
+/// noise, registered with the default (the ramp scaled by (1 mm / σ̂)², about 0.44 here) and
+/// with the reference stiffnesses given explicitly (0.02 E h … 2 E h, as before session 30).
+/// Measured (release, `livereg bench --indentation`): 0.32 against 0.54 mm mean node error,
+/// 1.06 mm unregistered; the springs at the reference stiffness pulled the surface onto the
+/// noise, far from the dent as well.
+#[test]
+fn a_noisy_clouds_springs_weigh_less_and_its_noise_is_not_registered() {
+    let cases = indentation_cases(
+        &bundled_fixture_dir(),
+        &["press-slide"],
+        &["neo-hookean"],
+        &[IndentationVariant::NoCamera],
+        None,
+    )
+    .expect("cases");
+    let weighted = run_indentation(&scene(DataTerm::CloudToSurface), &cases, &mut |_| {})
+        .expect("runs")
+        .remove(0);
+    let mut reference = scene(DataTerm::CloudToSurface);
+    // E h in N/m: the scene is in millimetres.
+    let eh = reference.scene.material.young_modulus * reference.scene.grid.cell_size * 1e-3;
+    let r = reference
+        .scene
+        .registration
+        .get_or_insert_with(Default::default);
+    r.penalty_start = Some(0.02 * eh);
+    r.penalty_end = Some(2.0 * eh);
+    let fixed = run_indentation(&reference, &cases, &mut |_| {})
+        .expect("runs")
+        .remove(0);
+    println!(
+        "press-slide neo-Hookean: noise-weighted {:.2} mm, reference stiffness {:.2} mm, none {:.2} mm",
+        weighted.mean_mm, fixed.mean_mm, weighted.none_mean_mm
+    );
+    assert_eq!(weighted.failed_frames, 0);
+    assert!(
+        weighted.mean_mm <= 0.75 * fixed.mean_mm,
+        "noise-weighted {:.2} mm against {:.2} mm",
+        weighted.mean_mm,
+        fixed.mean_mm
+    );
+    assert!(
+        weighted.mean_mm <= 0.4 * weighted.none_mean_mm,
+        "{:.2} mm against {:.2} mm unregistered",
+        weighted.mean_mm,
+        weighted.none_mean_mm
+    );
+}

@@ -6,6 +6,7 @@ use serde::Serialize;
 use crate::grid::IntegrationMode;
 use crate::linalg::SolverKind;
 use crate::mechanics::LawKind;
+use crate::registration::non_rigid_icp::{PENALTY_END_PER_EH, PENALTY_START_PER_EH};
 use crate::scene::{validate_scene, LoadedScene, RegistrationSpec, Scene};
 
 /// Changes to a scene's registration model; `None` keeps the scene's value. The scene with
@@ -28,8 +29,9 @@ pub struct ModelConfig {
     pub linear_solver: Option<SolverKind>,
     /// Steps of the cold frames' penalty ramp.
     pub penalty_steps: Option<u32>,
-    /// Multiplies both ends of the penalty ramp (the automatic 0.02 E h … 2 E h, or the
-    /// scene's `penalty_start`/`penalty_end`).
+    /// Multiplies both ends of the penalty ramp (the automatic 0.02 E h … 2 E h, made
+    /// explicit and so without the cloud-noise weight, or the scene's
+    /// `penalty_start`/`penalty_end`).
     pub penalty_factor: Option<f64>,
     /// Grid origin shift in cell units (moves the surface against the grid: cuts cells
     /// differently).
@@ -172,8 +174,8 @@ impl ModelConfig {
             if let Some(f) = self.penalty_factor {
                 // The automatic ramp of the non-rigid stage, made explicit, times f.
                 let eh = s.material.young_modulus * s.grid.cell_size * scale;
-                r.penalty_start = Some(f * r.penalty_start.unwrap_or(0.02 * eh));
-                r.penalty_end = Some(f * r.penalty_end.unwrap_or(2.0 * eh));
+                r.penalty_start = Some(f * r.penalty_start.unwrap_or(PENALTY_START_PER_EH * eh));
+                r.penalty_end = Some(f * r.penalty_end.unwrap_or(PENALTY_END_PER_EH * eh));
             }
         }
         let problems = validate_scene(s);

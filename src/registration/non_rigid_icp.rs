@@ -26,9 +26,11 @@ pub struct NonRigidSettings {
     /// Blending α of eq. 5.4 between the source's own nearest target and the targets that
     /// chose it (0.75 in the thesis's fig. 5.4).
     pub alpha: f64,
-    /// First penalty stiffness k₀ (soft: follow the global shape). `None`: 0.02 E h.
+    /// First penalty stiffness k₀ (soft: follow the global shape). `None`: 0.02 E h
+    /// ([`PENALTY_START_PER_EH`]) times [`noise_weight`].
     pub penalty_start: Option<f64>,
-    /// Last penalty stiffness k₁ (stiff: match detail). `None`: 2 E h.
+    /// Last penalty stiffness k₁ (stiff: match detail). `None`: 2 E h ([`PENALTY_END_PER_EH`])
+    /// times [`noise_weight`].
     pub penalty_end: Option<f64>,
     /// Steps of the exponential ramp from k₀ to k₁ (1: k₁ only).
     pub penalty_steps: usize,
@@ -91,6 +93,10 @@ pub struct NonRigidSettings {
     /// that they weigh as one frame against the body (`Session`, docs/registration.md,
     /// "Still frames").
     pub data_weight: f64,
+    /// The noise of the cloud being registered (m, 1σ along the normal), when measured: the
+    /// automatic penalty ramp (no `penalty_start`/`penalty_end` given) is scaled by
+    /// [`noise_weight`] of it. `None`: the reference stiffnesses.
+    pub cloud_noise: Option<f64>,
 }
 
 /// The scale at which the cloud → surface term takes the surface normal at an anchor.
@@ -141,6 +147,7 @@ impl Default for NonRigidSettings {
             data_term: DataTerm::default(),
             normal_scale: NormalScale::default(),
             data_weight: 1.0,
+            cloud_noise: None,
         }
     }
 }
@@ -357,6 +364,46 @@ impl Target {
     }
 }
 
+/// The automatic first stiffness of the penalty ramp, k₀, per E h (N/m per spring for a
+/// Young's modulus E in Pa and a cell edge h in m).
+pub const PENALTY_START_PER_EH: f64 = 0.02;
+
+/// The automatic last stiffness of the penalty ramp, k₁, per E h, for a cloud of
+/// [`REFERENCE_NOISE`] or less: the stiffness every warm frame's springs pull with.
+pub const PENALTY_END_PER_EH: f64 = 2.0;
+
+/// The cloud noise (m, 1σ along the surface normal) the automatic ramp's stiffnesses are
+/// made for: the phantom's clouds, on which they were chosen. A noisier cloud's springs are
+/// weakened by [`noise_weight`].
+pub const REFERENCE_NOISE: f64 = 1e-3;
+
+/// The smallest [`noise_weight`]: a cloud noisier than 2 mm is weighted as one of 2 mm.
+/// Measured with the quick stability matrices (docs/registration.md, "The data term's
+/// stiffness"): without the bound, the phantom at 4 mm noise went from 1.87 to 2.08 mm mean
+/// TRE (weight 1/16: the large deformation was no longer followed); with it, 1.84 mm, while
+/// tool-indentation at 3 mm noise kept most of its gain (1.33 → 1.18 mm, 1.12 unbounded).
+pub const MIN_NOISE_WEIGHT: f64 = 0.25;
+
+/// The factor on the automatic penalty ramp for a cloud whose noise is `sigma` (m, 1σ along
+/// the normal; [`cloud_noise_sigma`](super::change_evidence::cloud_noise_sigma)):
+/// `(REFERENCE_NOISE / σ)²`, within [[`MIN_NOISE_WEIGHT`], 1]; 1 when not measured. Each
+/// spring is one point's evidence, and evidence weighs as the inverse of its variance: the
+/// data term `Σ k (n·(x − q))²/2` is the log-likelihood of points of noise σ when
+/// `k ∝ 1/σ²`, against the elastic energy as the prior (docs/registration.md, "The data
+/// term's stiffness"). With a fixed k a noisy cloud's springs pulled the surface onto its
+/// noise: tool-indentation (1.5 mm noise, weight 0.44) press-slide neo-Hookean went from
+/// 0.54 to 0.32 mm mean node error. Never above 1: a cleaner cloud than the reference keeps
+/// the reference stiffness (stiffer springs were not measured to pay, and σ → 0 would make
+/// them unbounded).
+pub fn noise_weight(sigma: Option<f64>) -> f64 {
+    match sigma {
+        Some(s) if s.is_finite() && s > REFERENCE_NOISE => {
+            (REFERENCE_NOISE / s).powi(2).max(MIN_NOISE_WEIGHT)
+        }
+        _ => 1.0,
+    }
+}
+
 /// The penalty stiffness schedule: `steps` values from `k0` to `k1` (N/m per spring),
 /// exponentially spaced (thesis alg. 3).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -367,16 +414,30 @@ struct PenaltyRamp {
 }
 
 impl PenaltyRamp {
-    /// The ramp of `settings` on `problem`: k₀ = 0.02 E h and k₁ = 2 E h unless set (E the
+    /// The ramp of `settings` on `problem`: k₀ = 0.02 E h and k₁ = 2 E h unless set, times
+    /// [`noise_weight`] of the cloud's noise (E the
     /// Young's modulus, Pa; h the cell size, m), both times
     /// [`NonRigidSettings::data_weight`].
     fn new(settings: &NonRigidSettings, problem: &StaticProblem) -> Self {
-        let h = problem.grid.grid.cell_size;
-        let young = young_modulus(&problem.material);
+        Self::for_model(
+            settings,
+            young_modulus(&problem.material),
+            problem.grid.grid.cell_size,
+        )
+    }
+
+    /// The ramp of `settings` on a model of Young's modulus `young` (Pa) and cell edge `h`
+    /// (m).
+    fn for_model(settings: &NonRigidSettings, young: f64, h: f64) -> Self {
         let w = settings.data_weight;
+        let automatic = noise_weight(settings.cloud_noise) * young * h;
         Self {
-            k0: w * settings.penalty_start.unwrap_or(0.02 * young * h),
-            k1: w * settings.penalty_end.unwrap_or(2.0 * young * h),
+            k0: w * settings
+                .penalty_start
+                .unwrap_or(PENALTY_START_PER_EH * automatic),
+            k1: w * settings
+                .penalty_end
+                .unwrap_or(PENALTY_END_PER_EH * automatic),
             steps: settings.penalty_steps.max(1),
         }
     }
@@ -900,4 +961,56 @@ impl Pulled {
 /// Young's modulus (Pa) from the Lamé parameters.
 fn young_modulus(m: &crate::mechanics::Material) -> f64 {
     m.mu * (3.0 * m.lambda + 2.0 * m.mu) / (m.lambda + m.mu)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// E h of a 4.5 kPa liver on 11.5 mm cells, N/m.
+    const EH: f64 = 4500.0 * 0.0115;
+
+    fn ramp(settings: NonRigidSettings) -> PenaltyRamp {
+        PenaltyRamp::for_model(&settings, 4500.0, 0.0115)
+    }
+
+    #[test]
+    fn a_noisy_clouds_springs_weigh_as_the_inverse_of_its_noise_variance() {
+        let clean = ramp(NonRigidSettings::default());
+        assert!((clean.k0 - 0.02 * EH).abs() < 1e-12 && (clean.k1 - 2.0 * EH).abs() < 1e-12);
+        let at = |sigma: f64| {
+            ramp(NonRigidSettings {
+                cloud_noise: Some(sigma),
+                ..NonRigidSettings::default()
+            })
+        };
+        // 1.5 mm: (1 / 1.5)² of the reference, at both ends of the ramp.
+        let r = at(1.5e-3);
+        assert!((r.k1 / clean.k1 - 1.0 / 2.25).abs() < 1e-12);
+        assert!((r.k0 / clean.k0 - 1.0 / 2.25).abs() < 1e-12);
+        // At or below the reference noise, the reference; above 2 mm, the bound.
+        assert_eq!(at(0.5e-3), clean);
+        assert_eq!(at(1e-3), clean);
+        assert!((at(4e-3).k1 / clean.k1 - MIN_NOISE_WEIGHT).abs() < 1e-12);
+        assert_eq!(at(f64::NAN), clean);
+        // The still window's weight multiplies it.
+        let both = ramp(NonRigidSettings {
+            cloud_noise: Some(1.5e-3),
+            data_weight: 0.5,
+            ..NonRigidSettings::default()
+        });
+        assert!((both.k1 - 0.5 * r.k1).abs() < 1e-12);
+    }
+
+    #[test]
+    fn stiffnesses_the_scene_gives_are_not_weighted_by_the_noise() {
+        let given = NonRigidSettings {
+            penalty_start: Some(3.0),
+            penalty_end: Some(300.0),
+            cloud_noise: Some(1.5e-3),
+            ..NonRigidSettings::default()
+        };
+        let r = ramp(given);
+        assert_eq!((r.k0, r.k1), (3.0, 300.0));
+    }
 }

@@ -694,6 +694,7 @@ impl Session {
             self.settings.cold
         };
         settings.data_weight = data.weight;
+        settings.cloud_noise = data.noise;
         // Coarse-to-fine start of a cold frame: the coarse registration's field, prolongated,
         // is the fine stage's start, which then needs only the stiff end of the ramp.
         let mut start_u = None;
@@ -702,7 +703,10 @@ impl Session {
         if !warm {
             if let Some(c) = &mut self.coarse {
                 let mut uc = vec![0.0; c.model.problem.dofs()];
-                c.icp.settings = self.settings.cold;
+                c.icp.settings = NonRigidSettings {
+                    cloud_noise: data.noise,
+                    ..self.settings.cold
+                };
                 if let Ok(r) = c
                     .icp
                     .register(&mut c.model, aligned, camera, &mut uc, deadline)
@@ -758,6 +762,7 @@ impl Session {
             }
             let settings = NonRigidSettings {
                 data_weight: data.weight,
+                cloud_noise: data.noise,
                 ..rung.settings
             };
             let mut icp =
@@ -818,10 +823,12 @@ impl Session {
         } else {
             &mut self.non_rigid_cold
         };
-        // The data term's weight changes as the still window fills and empties; the kept
-        // factorisation, a modified-Newton approximation of the tangent anyway, stays.
+        // The data term's weight changes as the still window fills and empties, and with
+        // each cloud's noise; the kept factorisation, a modified-Newton approximation of the
+        // tangent anyway, stays.
         let same_but_weight = NonRigidSettings {
             data_weight: settings.data_weight,
+            cloud_noise: settings.cloud_noise,
             ..icp.settings
         } == settings;
         if !same_but_weight {
@@ -1102,6 +1109,10 @@ impl Session {
         let data = StillData {
             points: still.union(),
             weight: 1.0 / n as f64,
+            noise: noise
+                .map(|n| n.sigma)
+                .or_else(|| IndexedPoints::new(aligned.to_vec()).map(|c| cloud_noise_sigma(&c)))
+                .filter(|s| *s > 0.0),
         };
         (still, data)
     }
@@ -1169,6 +1180,9 @@ impl CloudNoise {
 struct StillData {
     points: Vec<Point3<f64>>,
     weight: f64,
+    /// The frame's cloud noise (m, [`cloud_noise_sigma`]), which weakens the automatic
+    /// penalty ramp ([`NonRigidSettings::cloud_noise`]); `None` when not measured.
+    noise: Option<f64>,
 }
 
 /// A successful frame's new state and counters.
