@@ -21,17 +21,22 @@ fn scene(data_term: DataTerm) -> LoadedScene {
     s
 }
 
-fn run(data_term: DataTerm) -> IndentationMetrics {
+/// `scene` on one sequence of the fixture against one truth law, without camera.
+fn run_sequence(scene: &LoadedScene, sequence: &str, law: &str) -> IndentationMetrics {
     let cases = indentation_cases(
         &bundled_fixture_dir(),
-        &["two-sites"],
-        &["linear"],
+        &[sequence],
+        &[law],
         &[IndentationVariant::NoCamera],
         None,
     )
     .expect("cases");
-    let mut rows = run_indentation(&scene(data_term), &cases, &mut |_| {}).expect("runs");
+    let mut rows = run_indentation(scene, &cases, &mut |_| {}).expect("runs");
     rows.remove(0)
+}
+
+fn run(data_term: DataTerm) -> IndentationMetrics {
+    run_sequence(&scene(data_term), "two-sites", "linear")
 }
 
 /// Two sites, the first on the thin left lobe (30 mm deep), the second 70 mm deep on the
@@ -226,17 +231,11 @@ fn the_fit_of_the_true_field_measures_the_models_compliance() {
 /// noise, far from the dent as well.
 #[test]
 fn a_noisy_clouds_springs_weigh_less_and_its_noise_is_not_registered() {
-    let cases = indentation_cases(
-        &bundled_fixture_dir(),
-        &["press-slide"],
-        &["neo-hookean"],
-        &[IndentationVariant::NoCamera],
-        None,
-    )
-    .expect("cases");
-    let weighted = run_indentation(&scene(DataTerm::CloudToSurface), &cases, &mut |_| {})
-        .expect("runs")
-        .remove(0);
+    let weighted = run_sequence(
+        &scene(DataTerm::CloudToSurface),
+        "press-slide",
+        "neo-hookean",
+    );
     let mut reference = scene(DataTerm::CloudToSurface);
     // E h in N/m: the scene is in millimetres.
     let eh = reference.scene.material.young_modulus * reference.scene.grid.cell_size * 1e-3;
@@ -246,9 +245,7 @@ fn a_noisy_clouds_springs_weigh_less_and_its_noise_is_not_registered() {
         .get_or_insert_with(Default::default);
     r.penalty_start = Some(0.02 * eh);
     r.penalty_end = Some(2.0 * eh);
-    let fixed = run_indentation(&reference, &cases, &mut |_| {})
-        .expect("runs")
-        .remove(0);
+    let fixed = run_sequence(&reference, "press-slide", "neo-hookean");
     println!(
         "press-slide neo-Hookean: noise-weighted {:.2} mm, reference stiffness {:.2} mm, none {:.2} mm",
         weighted.mean_mm, fixed.mean_mm, weighted.none_mean_mm

@@ -1109,10 +1109,7 @@ impl Session {
         let data = StillData {
             points: still.union(),
             weight: 1.0 / n as f64,
-            noise: noise
-                .map(|n| n.sigma)
-                .or_else(|| IndexedPoints::new(aligned.to_vec()).map(|c| cloud_noise_sigma(&c)))
-                .filter(|s| *s > 0.0),
+            noise: noise.map(|n| n.sigma).filter(|s| *s > 0.0),
         };
         (still, data)
     }
@@ -1155,21 +1152,22 @@ const SAME_VIEW_FIT_RATIO: f64 = 1.2;
 /// a millimetre).
 const SAME_VIEW_FIT_SLACK: f64 = 0.5e-3;
 
-/// A frame's cloud indexed with its own noise, for the tests of change
-/// ([`Session::rest_shape_if_unchanged`], [`Session::still_frames`]).
+/// A frame's cloud with its own noise, for the tests of change
+/// ([`Session::rest_shape_if_unchanged`], [`Session::still_frames`]) and the data term's
+/// weight ([`NonRigidSettings::cloud_noise`]).
 struct CloudNoise {
-    /// [`ChangeTest::neighbours`] of each cloud point.
+    /// [`ChangeTest::neighbours`] of each cloud point (empty without a test).
     near: Vec<Vec<usize>>,
     /// [`cloud_noise_sigma`], m.
     sigma: f64,
 }
 
 impl CloudNoise {
-    /// The noise and neighbours of `aligned` (m) for `test` (`None` without a test, or for
-    /// an empty cloud).
+    /// The noise of `aligned` (m) and its neighbours for `test` (none without a test);
+    /// `None` for an empty cloud.
     fn measure(aligned: &[Point3<f64>], test: Option<&ChangeTest>) -> Option<Self> {
         let cloud = IndexedPoints::new(aligned.to_vec())?;
-        let near = test?.neighbours(&cloud);
+        let near = test.map_or_else(Vec::new, |t| t.neighbours(&cloud));
         let sigma = cloud_noise_sigma(&cloud);
         Some(Self { near, sigma })
     }
