@@ -1,6 +1,7 @@
 //! livereg: biomechanical registration of a deforming liver for surgical augmented reality.
 //!
 //! The modules follow the data's path:
+//! - [`stored_scalar`]: numbers as binary files store them (the readers' shared decoding);
 //! - [`mesh`]: triangle surfaces and point files (reading, validation, primitives);
 //! - [`geometry`]: boxes, triangle–box overlap, inside/outside tests;
 //! - [`grid`]: the immersed weighted-cell grid, its quadrature and the embedding H;
@@ -43,6 +44,7 @@ pub mod segmentation;
 pub mod server;
 pub mod session;
 pub mod simulation;
+pub mod stored_scalar;
 pub mod synthetic;
 #[cfg(feature = "rerun")]
 pub mod visualisation;

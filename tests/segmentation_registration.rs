@@ -9,6 +9,8 @@
 //! scenario: `LIVEREG_SEG_SCENARIOS=all LIVEREG_SEG_FRAMES=10 LIVEREG_SEG_VOXELS=1,2
 //! cargo test --release --test segmentation_registration -- --nocapture`.
 //!
+//! `LIVEREG_SEG_KEEP=1` keeps the files (labelmaps, models, results) and prints where.
+//!
 //! Needs `python3 -m pip install nibabel==5.4.2 pynrrd==1.1.3 numpy` (fails without).
 
 use std::path::{Path, PathBuf};
@@ -114,6 +116,7 @@ fn a_labelmap_model_registers_like_the_phantom() {
             for (file, label) in [("sform.nii.gz", "1"), ("liver.seg.nrrd", "liver")] {
                 let model = root.join(format!("model-{h}mm-{file}"));
                 let triangles = env_or("LIVEREG_SEG_TRIANGLES", "20000");
+                let smoothing = env_or("LIVEREG_SEG_SMOOTHING", "20");
                 let summary: Value = serde_json::from_str(&run(&[
                     "model",
                     maps.join(file).to_str().unwrap(),
@@ -121,6 +124,8 @@ fn a_labelmap_model_registers_like_the_phantom() {
                     label,
                     "--target-triangles",
                     &triangles,
+                    "--smoothing",
+                    &smoothing,
                     "--out",
                     model.to_str().unwrap(),
                 ]))
@@ -158,7 +163,11 @@ fn a_labelmap_model_registers_like_the_phantom() {
             }
         }
     }
-    let _ = std::fs::remove_dir_all(&root);
+    if std::env::var_os("LIVEREG_SEG_KEEP").is_none() {
+        let _ = std::fs::remove_dir_all(&root);
+    } else {
+        eprintln!("kept {}", root.display());
+    }
     assert!(
         failures.is_empty(),
         "TRE beyond 10 % of the phantom's: {failures:?}"

@@ -61,6 +61,10 @@ pub struct ModelArgs {
     /// triangle).
     #[arg(long, default_value_t = 20_000)]
     pub target_triangles: usize,
+    /// Taubin λ|μ smoothing pairs applied to the organ surface before decimation (0: no
+    /// smoothing; docs/segmentation.md, "Options").
+    #[arg(long, default_value_t = crate::segmentation::Taubin::default().iterations)]
+    pub smoothing: usize,
     /// Most points per point structure.
     #[arg(long, default_value_t = crate::segmentation::DEFAULT_MAX_POINTS)]
     pub max_points: usize,
@@ -132,6 +136,8 @@ pub fn run(args: &ModelArgs) -> Result<ModelSummary, String> {
         explicit_request(args)?
     };
     request.organ_options.target_triangles = args.target_triangles;
+    request.organ_options.taubin.iterations = args.smoothing;
+    request.organ_options.smooth = args.smoothing > 0;
     request.max_points = args.max_points.max(1);
     let model = derive_model_from(&map, &args.segmentation, &request, read_ms)
         .map_err(|e| e.to_string())?;

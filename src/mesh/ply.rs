@@ -2,6 +2,7 @@
 //! x, y, z and the `face` element's vertex index lists; every other property and element is
 //! skipped.
 
+use crate::stored_scalar::{ByteOrder, StoredScalar};
 use std::path::Path;
 
 use nalgebra::Point3;
@@ -25,77 +26,29 @@ pub fn read_ply_vertices(path: &Path) -> Result<Vec<Point3<f64>>, MeshError> {
     Ok(parse(path, &read_bytes(path)?, false)?.0)
 }
 
-/// A PLY scalar type.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Scalar {
-    I8,
-    U8,
-    I16,
-    U16,
-    I32,
-    U32,
-    F32,
-    F64,
-}
-
-impl Scalar {
-    fn from_name(name: &str) -> Option<Self> {
-        Some(match name {
-            "char" | "int8" => Self::I8,
-            "uchar" | "uint8" => Self::U8,
-            "short" | "int16" => Self::I16,
-            "ushort" | "uint16" => Self::U16,
-            "int" | "int32" => Self::I32,
-            "uint" | "uint32" => Self::U32,
-            "float" | "float32" => Self::F32,
-            "double" | "float64" => Self::F64,
-            _ => return None,
-        })
-    }
-
-    fn size(self) -> usize {
-        match self {
-            Self::I8 | Self::U8 => 1,
-            Self::I16 | Self::U16 => 2,
-            Self::I32 | Self::U32 | Self::F32 => 4,
-            Self::F64 => 8,
-        }
-    }
-
-    fn is_float(self) -> bool {
-        matches!(self, Self::F32 | Self::F64)
-    }
-
-    /// Decodes `bytes` (exactly [`Self::size`] long); every PLY scalar is exact in an `f64`.
-    fn decode(self, bytes: &[u8], big_endian: bool) -> f64 {
-        macro_rules! num {
-            ($t:ty) => {{
-                let b = bytes.try_into().unwrap();
-                f64::from(if big_endian {
-                    <$t>::from_be_bytes(b)
-                } else {
-                    <$t>::from_le_bytes(b)
-                })
-            }};
-        }
-        match self {
-            Self::I8 => num!(i8),
-            Self::U8 => num!(u8),
-            Self::I16 => num!(i16),
-            Self::U16 => num!(u16),
-            Self::I32 => num!(i32),
-            Self::U32 => num!(u32),
-            Self::F32 => num!(f32),
-            Self::F64 => num!(f64),
-        }
-    }
+/// The number type a PLY property type names (`uchar`, `float32`, …).
+fn ply_scalar(name: &str) -> Option<StoredScalar> {
+    Some(match name {
+        "char" | "int8" => StoredScalar::I8,
+        "uchar" | "uint8" => StoredScalar::U8,
+        "short" | "int16" => StoredScalar::I16,
+        "ushort" | "uint16" => StoredScalar::U16,
+        "int" | "int32" => StoredScalar::I32,
+        "uint" | "uint32" => StoredScalar::U32,
+        "float" | "float32" => StoredScalar::F32,
+        "double" | "float64" => StoredScalar::F64,
+        _ => return None,
+    })
 }
 
 /// A property: a scalar, or a list with its length type and item type.
 #[derive(Debug, Clone, Copy)]
 enum Kind {
-    Scalar(Scalar),
-    List { count: Scalar, item: Scalar },
+    Scalar(StoredScalar),
+    List {
+        count: StoredScalar,
+        item: StoredScalar,
+    },
 }
 
 #[derive(Debug)]
@@ -227,7 +180,7 @@ fn parse_header(path: &Path, data: &[u8]) -> Result<Header, MeshError> {
                             count: scalar_type(&mut t)?,
                             item: scalar_type(&mut t)?,
                         },
-                        ty => Kind::Scalar(Scalar::from_name(ty).ok_or_else(|| {
+                        ty => Kind::Scalar(ply_scalar(ty).ok_or_else(|| {
                             line.err(format!("unknown property type {}", quote(ty)))
                         })?),
                     };
@@ -254,9 +207,9 @@ fn parse_header(path: &Path, data: &[u8]) -> Result<Header, MeshError> {
     }
 }
 
-fn scalar_type(t: &mut Tokens<'_>) -> Result<Scalar, MeshError> {
+fn scalar_type(t: &mut Tokens<'_>) -> Result<StoredScalar, MeshError> {
     let name = t.expect("a list type")?;
-    Scalar::from_name(name).ok_or_else(|| t.err(format!("unknown property type {}", quote(name))))
+    ply_scalar(name).ok_or_else(|| t.err(format!("unknown property type {}", quote(name))))
 }
 
 /// The data after the header, read one element instance at a time.
@@ -311,7 +264,7 @@ impl<'a> Body<'a> {
         self.err(format!("the file ends inside {} (truncated file?)", what()))
     }
 
-    fn value(&mut self, ty: Scalar, what: &dyn Fn() -> String) -> Result<f64, MeshError> {
+    fn value(&mut self, ty: StoredScalar, what: &dyn Fn() -> String) -> Result<f64, MeshError> {
         match self {
             Self::Ascii { tokens, .. } => {
                 let t = tokens.as_mut().expect("an instance has been started");
@@ -331,7 +284,7 @@ impl<'a> Body<'a> {
                     return Err(self.truncated(what));
                 };
                 *pos += ty.size();
-                Ok(ty.decode(bytes, *big_endian))
+                Ok(ty.decode(bytes, ByteOrder::big_if(*big_endian)))
             }
         }
     }

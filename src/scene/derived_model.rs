@@ -1,5 +1,6 @@
 //! `model.segmentation`: the model's surface (and `mesh_label` / `points_label` structures)
-//! derived from a labelmap when the scene loads, through [`crate::segmentation::derive_model`].
+//! derived from a labelmap when the scene loads, through [`crate::segmentation::derive_model_from_bytes`]
+//! (the labelmap is read once, for its hash and, on a cache miss, its voxels).
 //!
 //! The derived files are kept in `<scene dir>/.livereg-derived/<labelmap>-<key>/` (or under
 //! the system's temporary directory when the scene's directory cannot be written), `key`
@@ -14,7 +15,9 @@ use std::path::{Path, PathBuf};
 
 use super::types::Scene;
 use crate::mesh::{write_obj, write_points};
-use crate::segmentation::{derive_model, ModelRequest, SurfaceOptions, DEFAULT_MAX_POINTS};
+use crate::segmentation::{
+    derive_model_from_bytes, ModelRequest, SurfaceOptions, DEFAULT_MAX_POINTS,
+};
 
 /// Where derived models are kept inside a scene's directory.
 pub const DERIVED_DIR: &str = ".livereg-derived";
@@ -55,21 +58,25 @@ pub fn derive_into(scene: &mut Scene, dir: &Path) -> Result<(), String> {
         &bytes,
         &format!("{request:?} {}", env!("CARGO_PKG_VERSION")),
     );
-    drop(bytes);
     let name = labelmap
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     let leaf = format!("{name}-{key:016x}");
-    let out = match cached_or_derived(&dir.join(DERIVED_DIR).join(&leaf), &labelmap, &request) {
+    let source = Labelmap {
+        path: &labelmap,
+        bytes: &bytes,
+    };
+    let out = match cached_or_derived(&dir.join(DERIVED_DIR).join(&leaf), &source, &request) {
         Ok(p) => p,
         // A read-only scene directory: the system's temporary directory instead.
         Err(_) => cached_or_derived(
             &std::env::temp_dir().join("livereg-derived").join(&leaf),
-            &labelmap,
+            &source,
             &request,
         )?,
     };
+    drop(bytes);
     scene.model.surface = out.join("liver.obj");
     let (mut m, mut p) = (0, 0);
     for s in &mut scene.model.structures {
@@ -88,17 +95,25 @@ pub fn derive_into(scene: &mut Scene, dir: &Path) -> Result<(), String> {
     Ok(())
 }
 
+/// A labelmap file read once: its path (for the reader's choice and for errors) and bytes.
+struct Labelmap<'a> {
+    path: &'a Path,
+    bytes: &'a [u8],
+}
+
 /// The directory `target` holding the derived files: as found (a complete earlier
 /// derivation), or derived now, written beside it and renamed into place.
 fn cached_or_derived(
     target: &Path,
-    labelmap: &Path,
+    source: &Labelmap,
     request: &ModelRequest,
 ) -> Result<PathBuf, String> {
     if target.join("complete").is_file() {
         return Ok(target.to_path_buf());
     }
-    let model = derive_model(labelmap, request).map_err(|e| e.to_string())?;
+    let labelmap = source.path;
+    let model =
+        derive_model_from_bytes(labelmap, source.bytes, request).map_err(|e| e.to_string())?;
     let parent = target.parent().unwrap_or(target);
     std::fs::create_dir_all(parent).map_err(|e| format!("{}: {e}", parent.display()))?;
     let partial = parent.join(format!(

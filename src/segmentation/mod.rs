@@ -39,11 +39,11 @@ pub use decimate::{decimate, Decimation};
 pub use error::SegmentationError;
 pub use labelmap::{Labelmap, Segment, MAX_VOXELS};
 pub use model::{
-    default_request, derive_model, derive_model_from, DerivedModel, ModelRequest,
-    DEFAULT_MAX_POINTS,
+    default_request, derive_model, derive_model_from, derive_model_from_bytes, DerivedModel,
+    ModelRequest, DEFAULT_MAX_POINTS,
 };
-pub use nifti::{read_nifti, read_nifti_with_transform, NiftiTransform};
-pub use nrrd::{read_nrrd, read_nrrd_layers};
+pub use nifti::{read_nifti, read_nifti_bytes, read_nifti_with_transform, NiftiTransform};
+pub use nrrd::{read_nrrd, read_nrrd_layers, read_nrrd_layers_bytes};
 pub use structure::{
     extract_surface, organ_surface, resolve_labels, tumour_mesh, vessel_points, ExtractedSurface,
     LabelRef, SurfaceOptions,
@@ -55,11 +55,33 @@ pub use voxelise::{voxelise, voxelise_into};
 /// `.nii.gz` (NIfTI-1), `.nrrd` and `.seg.nrrd` (NRRD, a single layer; see
 /// [`read_nrrd_layers`] for several).
 pub fn read_labelmap(path: &Path) -> Result<Labelmap, SegmentationError> {
+    labelmap_kind(path)?;
+    let bytes = std::fs::read(path).map_err(|e| SegmentationError::io(path, e))?;
+    read_labelmap_bytes(path, &bytes)
+}
+
+/// [`read_labelmap`] of a file's bytes already in memory (e.g. read once to hash them too);
+/// `path` chooses the reader by its name and names the file in errors.
+pub fn read_labelmap_bytes(path: &Path, bytes: &[u8]) -> Result<Labelmap, SegmentationError> {
+    match labelmap_kind(path)? {
+        LabelmapKind::Nifti => read_nifti_bytes(path, bytes).map(|(l, _)| l),
+        LabelmapKind::Nrrd => nrrd::single_layer(path, read_nrrd_layers_bytes(path, bytes)?),
+    }
+}
+
+/// The labelmap formats, told apart by the file name.
+enum LabelmapKind {
+    Nifti,
+    Nrrd,
+}
+
+/// The format of the labelmap at `path`, or an error naming the supported extensions.
+fn labelmap_kind(path: &Path) -> Result<LabelmapKind, SegmentationError> {
     let name = path.to_string_lossy().to_ascii_lowercase();
     if name.ends_with(".nii") || name.ends_with(".nii.gz") {
-        read_nifti(path)
+        Ok(LabelmapKind::Nifti)
     } else if name.ends_with(".nrrd") {
-        read_nrrd(path)
+        Ok(LabelmapKind::Nrrd)
     } else {
         Err(SegmentationError::unsupported(
             path,

@@ -8,8 +8,8 @@ use std::time::Instant;
 use nalgebra::Point3;
 
 use super::{
-    extract_surface, read_labelmap, resolve_labels, vessel_points, LabelRef, Labelmap,
-    SegmentationError, SurfaceOptions,
+    extract_surface, read_labelmap, read_labelmap_bytes, resolve_labels, vessel_points, LabelRef,
+    Labelmap, SegmentationError, SurfaceOptions,
 };
 use crate::mesh::{SurfaceReport, TriSurface};
 
@@ -117,6 +117,19 @@ pub fn derive_model(
 ) -> Result<DerivedModel, SegmentationError> {
     let t0 = Instant::now();
     let map = read_labelmap(path)?;
+    let read_ms = t0.elapsed().as_secs_f64() * 1e3;
+    derive_model_from(&map, path, request, read_ms)
+}
+
+/// [`derive_model`] of a labelmap file's bytes already in memory (read once, e.g. to hash
+/// them as well); `path` chooses the reader and names the file in errors.
+pub fn derive_model_from_bytes(
+    path: &Path,
+    bytes: &[u8],
+    request: &ModelRequest,
+) -> Result<DerivedModel, SegmentationError> {
+    let t0 = Instant::now();
+    let map = read_labelmap_bytes(path, bytes)?;
     let read_ms = t0.elapsed().as_secs_f64() * 1e3;
     derive_model_from(&map, path, request, read_ms)
 }

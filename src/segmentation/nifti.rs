@@ -13,8 +13,7 @@
 //!   `.hdr`/`.img` pairs, more than three non-singleton dimensions, complex/RGB/128-bit types,
 //!   sizes over [`MAX_VOXELS`](super::labelmap::MAX_VOXELS), a file shorter than its header says.
 
-use std::fs::File;
-use std::io::{BufReader, Read};
+use std::io::Read;
 use std::path::Path;
 
 use flate2::read::MultiGzDecoder;
@@ -23,7 +22,8 @@ use nifti::{Endianness, NiftiHeader, NiftiType};
 
 use super::error::SegmentationError;
 use super::labelmap::{voxel_count, Labelmap, MAX_VOXELS};
-use super::samples::{to_labels, ByteOrder, SampleType, Scaling};
+use super::samples::{to_labels, Scaling};
+use crate::stored_scalar::{ByteOrder, StoredScalar};
 
 /// Where the affine of a NIfTI file came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -46,6 +46,13 @@ pub fn read_nifti(path: &Path) -> Result<Labelmap, SegmentationError> {
 pub fn read_nifti_with_transform(
     path: &Path,
 ) -> Result<(Labelmap, NiftiTransform), SegmentationError> {
+    refuse_pairs(path)?;
+    let bytes = std::fs::read(path).map_err(|e| SegmentationError::io(path, e))?;
+    read_nifti_bytes(path, &bytes)
+}
+
+/// NIfTI/Analyze `.hdr`/`.img` pairs are not read: an error saying so.
+fn refuse_pairs(path: &Path) -> Result<(), SegmentationError> {
     let name = path.to_string_lossy().to_ascii_lowercase();
     if name.ends_with(".hdr") || name.ends_with(".img") || name.ends_with(".hdr.gz") {
         return Err(SegmentationError::unsupported(
@@ -53,13 +60,23 @@ pub fn read_nifti_with_transform(
             "NIfTI/Analyze .hdr/.img pairs; convert to a single .nii or .nii.gz",
         ));
     }
-    let file = File::open(path).map_err(|e| SegmentationError::io(path, e))?;
-    let file_len = file.metadata().map(|m| m.len()).ok();
+    Ok(())
+}
+
+/// [`read_nifti_with_transform`] of a file's bytes already in memory; `path` names it in
+/// errors, and its name ending in `.gz` says the bytes are gzip-compressed.
+pub fn read_nifti_bytes(
+    path: &Path,
+    file: &[u8],
+) -> Result<(Labelmap, NiftiTransform), SegmentationError> {
+    refuse_pairs(path)?;
+    let name = path.to_string_lossy().to_ascii_lowercase();
+    let file_len = Some(file.len() as u64);
     let gz = name.ends_with(".gz");
-    let mut reader: Box<dyn Read> = if gz {
-        Box::new(MultiGzDecoder::new(BufReader::new(file)))
+    let mut reader: Box<dyn Read + '_> = if gz {
+        Box::new(MultiGzDecoder::new(file))
     } else {
-        Box::new(BufReader::new(file))
+        Box::new(file)
     };
 
     let mut raw = [0u8; 348];
@@ -139,16 +156,23 @@ pub fn read_nifti_with_transform(
             ));
         }
     }
-    // Extensions between the header and the data.
-    std::io::copy(&mut (&mut reader).take(offset - 348), &mut std::io::sink())
-        .map_err(|e| SegmentationError::io(path, e))?;
-    // Grows with the data actually decompressed: a tiny file claiming huge sizes allocates
-    // little before it fails.
-    let mut data = Vec::with_capacity(bytes.min(64 << 20));
-    reader
-        .take(bytes as u64)
-        .read_to_end(&mut data)
-        .map_err(|e| SegmentationError::io(path, e))?;
+    let data: std::borrow::Cow<[u8]> = if gz {
+        // Extensions between the header and the data.
+        std::io::copy(&mut (&mut reader).take(offset - 348), &mut std::io::sink())
+            .map_err(|e| SegmentationError::data(path, format!("cannot decompress: {e}")))?;
+        // Grows with the data actually decompressed: a tiny file claiming huge sizes
+        // allocates little before it fails.
+        let mut data = Vec::with_capacity(bytes.min(64 << 20));
+        reader
+            .take(bytes as u64)
+            .read_to_end(&mut data)
+            .map_err(|e| SegmentationError::data(path, format!("cannot decompress: {e}")))?;
+        data.into()
+    } else {
+        // Uncompressed: the voxels are read straight from the file's bytes.
+        let start = (offset as usize).min(file.len());
+        file[start..(start + bytes).min(file.len())].into()
+    };
     if data.len() < bytes {
         return Err(SegmentationError::data(
             path,
@@ -234,21 +258,21 @@ fn dims_of(path: &Path, h: &NiftiHeader) -> Result<[usize; 3], SegmentationError
     Ok(dims)
 }
 
-fn sample_type(path: &Path, h: &NiftiHeader) -> Result<SampleType, SegmentationError> {
+fn sample_type(path: &Path, h: &NiftiHeader) -> Result<StoredScalar, SegmentationError> {
     let t = h.data_type().map_err(|_| {
         SegmentationError::header(path, "datatype", format!("unknown code {}", h.datatype))
     })?;
     Ok(match t {
-        NiftiType::Uint8 => SampleType::U8,
-        NiftiType::Int8 => SampleType::I8,
-        NiftiType::Int16 => SampleType::I16,
-        NiftiType::Uint16 => SampleType::U16,
-        NiftiType::Int32 => SampleType::I32,
-        NiftiType::Uint32 => SampleType::U32,
-        NiftiType::Int64 => SampleType::I64,
-        NiftiType::Uint64 => SampleType::U64,
-        NiftiType::Float32 => SampleType::F32,
-        NiftiType::Float64 => SampleType::F64,
+        NiftiType::Uint8 => StoredScalar::U8,
+        NiftiType::Int8 => StoredScalar::I8,
+        NiftiType::Int16 => StoredScalar::I16,
+        NiftiType::Uint16 => StoredScalar::U16,
+        NiftiType::Int32 => StoredScalar::I32,
+        NiftiType::Uint32 => StoredScalar::U32,
+        NiftiType::Int64 => StoredScalar::I64,
+        NiftiType::Uint64 => StoredScalar::U64,
+        NiftiType::Float32 => StoredScalar::F32,
+        NiftiType::Float64 => StoredScalar::F64,
         other => {
             return Err(SegmentationError::unsupported(
                 path,

@@ -16,8 +16,7 @@
 //! axis elsewhere than first, sizes over [`MAX_VOXELS`](super::labelmap::MAX_VOXELS) or larger
 //! than the data present.
 
-use std::fs::File;
-use std::io::{BufRead, BufReader, Read};
+use std::io::{BufRead, Read};
 use std::path::Path;
 
 use flate2::read::MultiGzDecoder;
@@ -25,7 +24,8 @@ use nalgebra::{Matrix4, Vector3};
 
 use super::error::SegmentationError;
 use super::labelmap::{voxel_count, Labelmap, Segment, MAX_VOXELS};
-use super::samples::{ascii_to_labels, to_labels, ByteOrder, SampleType};
+use super::samples::{ascii_to_labels, to_labels};
+use crate::stored_scalar::{ByteOrder, StoredScalar};
 
 /// Longest header accepted (bytes).
 const MAX_HEADER: usize = 1 << 20;
@@ -34,7 +34,14 @@ const MAX_HEADER: usize = 1 << 20;
 /// several layers is refused with an error saying how many: read it with
 /// [`read_nrrd_layers`].
 pub fn read_nrrd(path: &Path) -> Result<Labelmap, SegmentationError> {
-    let mut layers = read_nrrd_layers(path)?;
+    single_layer(path, read_nrrd_layers(path)?)
+}
+
+/// The one layer of `layers` read from `path`, or an error saying how many there are.
+pub(crate) fn single_layer(
+    path: &Path,
+    mut layers: Vec<Labelmap>,
+) -> Result<Labelmap, SegmentationError> {
     if layers.len() != 1 {
         return Err(SegmentationError::unsupported(
             path,
@@ -51,12 +58,17 @@ pub fn read_nrrd(path: &Path) -> Result<Labelmap, SegmentationError> {
 /// Reads every layer of a NRRD labelmap: one [`Labelmap`] per layer (a 3-D file has one),
 /// each with the segments whose `SegmentN_Layer` is that layer.
 pub fn read_nrrd_layers(path: &Path) -> Result<Vec<Labelmap>, SegmentationError> {
-    let file = File::open(path).map_err(|e| SegmentationError::io(path, e))?;
-    let file_len = file
-        .metadata()
-        .map_err(|e| SegmentationError::io(path, e))?
-        .len();
-    let mut reader = BufReader::new(file);
+    let bytes = std::fs::read(path).map_err(|e| SegmentationError::io(path, e))?;
+    read_nrrd_layers_bytes(path, &bytes)
+}
+
+/// [`read_nrrd_layers`] of a file's bytes already in memory; `path` names it in errors.
+pub fn read_nrrd_layers_bytes(
+    path: &Path,
+    file: &[u8],
+) -> Result<Vec<Labelmap>, SegmentationError> {
+    let file_len = file.len() as u64;
+    let mut reader: &[u8] = file;
     let header = Header::read(path, &mut reader)?;
     let layout = header.layout(path)?;
     let bytes_needed = layout.count * layout.ty.size();
@@ -127,47 +139,48 @@ pub fn read_nrrd_layers(path: &Path) -> Result<Vec<Labelmap>, SegmentationError>
     let dims = layout.dims;
     let values = match encoding {
         Encoding::Raw | Encoding::Gzip => {
-            let mut data: Box<dyn Read> = if encoding == Encoding::Gzip {
-                Box::new(MultiGzDecoder::new(reader))
-            } else {
-                if byte_skip == -1 {
-                    // Raw data at the very end of the file.
-                    let start = file_len
-                        .checked_sub(bytes_needed as u64)
-                        .ok_or_else(|| short(path, file_len as usize, bytes_needed, &layout))?;
-                    let mut f = File::open(path).map_err(|e| SegmentationError::io(path, e))?;
-                    std::io::Seek::seek(&mut f, std::io::SeekFrom::Start(start))
-                        .map_err(|e| SegmentationError::io(path, e))?;
-                    Box::new(BufReader::new(f))
-                } else {
-                    if file_len < bytes_needed as u64 {
-                        return Err(short(path, file_len as usize, bytes_needed, &layout));
-                    }
-                    Box::new(reader)
-                }
-            };
-            if byte_skip > 0 {
-                std::io::copy(
-                    &mut (&mut data).take(byte_skip as u64),
-                    &mut std::io::sink(),
-                )
-                .map_err(|e| SegmentationError::io(path, e))?;
-            } else if byte_skip < -1 || (byte_skip == -1 && encoding != Encoding::Raw) {
+            if byte_skip < -1 || (byte_skip == -1 && encoding != Encoding::Raw) {
                 return Err(SegmentationError::header(
                     path,
                     "byte skip",
                     format!("{byte_skip} (−1 is only meaningful with raw encoding)"),
                 ));
             }
-            let mut bytes = Vec::with_capacity(bytes_needed.min(64 << 20));
-            data.take(bytes_needed as u64)
-                .read_to_end(&mut bytes)
-                .map_err(|e| SegmentationError::data(path, format!("cannot decode: {e}")))?;
-            if bytes.len() < bytes_needed {
-                return Err(short(path, bytes.len(), bytes_needed, &layout));
-            }
             let all_dims = [dims[0] * layout.layers, dims[1], dims[2]];
-            to_labels(path, &bytes, layout.ty, order, None, all_dims)?
+            if encoding == Encoding::Raw {
+                // Raw data is converted straight from the file's bytes, without a copy.
+                let start = if byte_skip == -1 {
+                    // At the very end of the file.
+                    file_len.checked_sub(bytes_needed as u64)
+                } else {
+                    let header_len = (file.len() - reader.len()) as u64;
+                    Some(header_len + byte_skip as u64)
+                };
+                let data = start
+                    .and_then(|s| file.get(s as usize..)?.get(..bytes_needed))
+                    .ok_or_else(|| {
+                        let available = start.map_or(0, |s| file.len().saturating_sub(s as usize));
+                        short(path, available, bytes_needed, &layout)
+                    })?;
+                to_labels(path, data, layout.ty, order, None, all_dims)?
+            } else {
+                let mut data = MultiGzDecoder::new(reader);
+                if byte_skip > 0 {
+                    std::io::copy(
+                        &mut (&mut data).take(byte_skip as u64),
+                        &mut std::io::sink(),
+                    )
+                    .map_err(|e| SegmentationError::data(path, format!("cannot decode: {e}")))?;
+                }
+                let mut bytes = Vec::with_capacity(bytes_needed.min(64 << 20));
+                data.take(bytes_needed as u64)
+                    .read_to_end(&mut bytes)
+                    .map_err(|e| SegmentationError::data(path, format!("cannot decode: {e}")))?;
+                if bytes.len() < bytes_needed {
+                    return Err(short(path, bytes.len(), bytes_needed, &layout));
+                }
+                to_labels(path, &bytes, layout.ty, order, None, all_dims)?
+            }
         }
         Encoding::Ascii => {
             let mut text = String::new();
@@ -249,7 +262,7 @@ fn short(path: &Path, got: usize, need: usize, l: &Layout) -> SegmentationError 
 
 /// What the header says about the samples and their place in space.
 struct Layout {
-    ty: SampleType,
+    ty: StoredScalar,
     dims: [usize; 3],
     layers: usize,
     count: usize,
@@ -693,35 +706,35 @@ fn parse_vector(text: &str) -> Option<Vector3<f64>> {
     (v.len() == 3).then(|| Vector3::new(v[0], v[1], v[2]))
 }
 
-fn sample_type(name: &str) -> Option<SampleType> {
+fn sample_type(name: &str) -> Option<StoredScalar> {
     let n: String = name
         .split_ascii_whitespace()
         .collect::<Vec<_>>()
         .join(" ")
         .to_ascii_lowercase();
     Some(match n.as_str() {
-        "signed char" | "int8" | "int8_t" => SampleType::I8,
-        "uchar" | "unsigned char" | "uint8" | "uint8_t" => SampleType::U8,
+        "signed char" | "int8" | "int8_t" => StoredScalar::I8,
+        "uchar" | "unsigned char" | "uint8" | "uint8_t" => StoredScalar::U8,
         "short" | "short int" | "signed short" | "signed short int" | "int16" | "int16_t" => {
-            SampleType::I16
+            StoredScalar::I16
         }
         "ushort" | "unsigned short" | "unsigned short int" | "uint16" | "uint16_t" => {
-            SampleType::U16
+            StoredScalar::U16
         }
-        "int" | "signed int" | "int32" | "int32_t" => SampleType::I32,
-        "uint" | "unsigned int" | "uint32" | "uint32_t" => SampleType::U32,
+        "int" | "signed int" | "int32" | "int32_t" => StoredScalar::I32,
+        "uint" | "unsigned int" | "uint32" | "uint32_t" => StoredScalar::U32,
         "longlong"
         | "long long"
         | "long long int"
         | "signed long long"
         | "signed long long int"
         | "int64"
-        | "int64_t" => SampleType::I64,
+        | "int64_t" => StoredScalar::I64,
         "ulonglong" | "unsigned long long" | "unsigned long long int" | "uint64" | "uint64_t" => {
-            SampleType::U64
+            StoredScalar::U64
         }
-        "float" => SampleType::F32,
-        "double" => SampleType::F64,
+        "float" => StoredScalar::F32,
+        "double" => StoredScalar::F64,
         _ => return None,
     })
 }

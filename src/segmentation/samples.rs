@@ -5,56 +5,7 @@
 use std::path::Path;
 
 use super::error::SegmentationError;
-
-/// Storage type of one voxel sample.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum SampleType {
-    /// `i8`.
-    I8,
-    /// `u8`.
-    U8,
-    /// `i16`.
-    I16,
-    /// `u16`.
-    U16,
-    /// `i32`.
-    I32,
-    /// `u32`.
-    U32,
-    /// `i64`.
-    I64,
-    /// `u64`.
-    U64,
-    /// `f32`.
-    F32,
-    /// `f64`.
-    F64,
-}
-
-impl SampleType {
-    /// Bytes per sample.
-    pub fn size(self) -> usize {
-        match self {
-            Self::I8 | Self::U8 => 1,
-            Self::I16 | Self::U16 => 2,
-            Self::I32 | Self::U32 | Self::F32 => 4,
-            Self::I64 | Self::U64 | Self::F64 => 8,
-        }
-    }
-
-    fn is_float(self) -> bool {
-        matches!(self, Self::F32 | Self::F64)
-    }
-}
-
-/// Byte order of multi-byte samples.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ByteOrder {
-    /// Least significant byte first.
-    Little,
-    /// Most significant byte first.
-    Big,
-}
+use crate::stored_scalar::{ByteOrder, StoredScalar};
 
 /// Linear value scaling `value = stored × slope + inter` (NIfTI's `scl_slope`/`scl_inter`).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -65,39 +16,12 @@ pub struct Scaling {
     pub inter: f64,
 }
 
-/// Decodes one sample as f64 (exact for every integer type up to 2⁵³, which covers every
-/// acceptable label).
-#[inline]
-fn decode(ty: SampleType, order: ByteOrder, b: &[u8]) -> f64 {
-    macro_rules! num {
-        ($t:ty, $n:expr) => {{
-            let a: [u8; $n] = b[..$n].try_into().unwrap();
-            (match order {
-                ByteOrder::Little => <$t>::from_le_bytes(a),
-                ByteOrder::Big => <$t>::from_be_bytes(a),
-            }) as f64
-        }};
-    }
-    match ty {
-        SampleType::I8 => b[0] as i8 as f64,
-        SampleType::U8 => b[0] as f64,
-        SampleType::I16 => num!(i16, 2),
-        SampleType::U16 => num!(u16, 2),
-        SampleType::I32 => num!(i32, 4),
-        SampleType::U32 => num!(u32, 4),
-        SampleType::I64 => num!(i64, 8),
-        SampleType::U64 => num!(u64, 8),
-        SampleType::F32 => num!(f32, 4),
-        SampleType::F64 => num!(f64, 8),
-    }
-}
-
 /// Converts raw samples (first index fastest) into labels. `dims` only serves the error
 /// messages (voxel position of the first bad value).
 pub fn to_labels(
     path: &Path,
     bytes: &[u8],
-    ty: SampleType,
+    ty: StoredScalar,
     order: ByteOrder,
     scaling: Option<Scaling>,
     dims: [usize; 3],
@@ -107,8 +31,8 @@ pub fn to_labels(
     let mut out = Vec::with_capacity(n);
     // Fast paths: unscaled unsigned bytes and shorts in any order need no check at all.
     match (ty, scaling) {
-        (SampleType::U8, None) => return Ok(bytes.iter().map(|&b| b as u16).collect()),
-        (SampleType::U16, None) => {
+        (StoredScalar::U8, None) => return Ok(bytes.iter().map(|&b| b as u16).collect()),
+        (StoredScalar::U16, None) => {
             return Ok(bytes
                 .chunks_exact(2)
                 .map(|c| match order {
@@ -120,7 +44,7 @@ pub fn to_labels(
         _ => {}
     }
     for (idx, chunk) in bytes.chunks_exact(size).enumerate() {
-        let mut v = decode(ty, order, chunk);
+        let mut v = ty.decode(chunk, order);
         if let Some(s) = scaling {
             v = v * s.slope + s.inter;
         }
@@ -224,17 +148,25 @@ mod tests {
             .flat_map(|v| v.to_be_bytes())
             .collect();
         assert_eq!(
-            to_labels(p, &be, SampleType::I32, ByteOrder::Big, None, [3, 1, 1]).unwrap(),
+            to_labels(p, &be, StoredScalar::I32, ByteOrder::Big, None, [3, 1, 1]).unwrap(),
             vec![3, 0, 65535]
         );
         let le: Vec<u8> = [3u16, 9].iter().flat_map(|v| v.to_le_bytes()).collect();
         assert_eq!(
-            to_labels(p, &le, SampleType::U16, ByteOrder::Little, None, [2, 1, 1]).unwrap(),
+            to_labels(
+                p,
+                &le,
+                StoredScalar::U16,
+                ByteOrder::Little,
+                None,
+                [2, 1, 1]
+            )
+            .unwrap(),
             vec![3, 9]
         );
         let f: Vec<u8> = [1.0f64, 2.0].iter().flat_map(|v| v.to_le_bytes()).collect();
         assert_eq!(
-            to_labels(p, &f, SampleType::F64, ByteOrder::Little, None, [2, 1, 1]).unwrap(),
+            to_labels(p, &f, StoredScalar::F64, ByteOrder::Little, None, [2, 1, 1]).unwrap(),
             vec![1, 2]
         );
     }
@@ -246,7 +178,8 @@ mod tests {
             .iter()
             .flat_map(|v| v.to_le_bytes())
             .collect();
-        let e = to_labels(p, &f, SampleType::F32, ByteOrder::Little, None, [1, 3, 1]).unwrap_err();
+        let e =
+            to_labels(p, &f, StoredScalar::F32, ByteOrder::Little, None, [1, 3, 1]).unwrap_err();
         let s = e.to_string();
         assert!(
             s.contains("prob.nii") && s.contains("0.25") && s.contains("[0, 2, 0]"),
@@ -254,7 +187,14 @@ mod tests {
         );
         assert!(s.contains("not an integer"), "{s}");
         let neg: Vec<u8> = [-1i16].iter().flat_map(|v| v.to_le_bytes()).collect();
-        let e = to_labels(p, &neg, SampleType::I16, ByteOrder::Little, None, [1, 1, 1]);
+        let e = to_labels(
+            p,
+            &neg,
+            StoredScalar::I16,
+            ByteOrder::Little,
+            None,
+            [1, 1, 1],
+        );
         assert!(e
             .unwrap_err()
             .to_string()
@@ -264,14 +204,14 @@ mod tests {
             slope: 0.5,
             inter: 0.0,
         });
-        let e = to_labels(p, &[3], SampleType::U8, ByteOrder::Little, s, [1, 1, 1]).unwrap_err();
+        let e = to_labels(p, &[3], StoredScalar::U8, ByteOrder::Little, s, [1, 1, 1]).unwrap_err();
         assert!(e.to_string().contains("scl_slope"), "{e}");
         let s = Some(Scaling {
             slope: 2.0,
             inter: 1.0,
         });
         assert_eq!(
-            to_labels(p, &[3], SampleType::U8, ByteOrder::Little, s, [1, 1, 1]).unwrap(),
+            to_labels(p, &[3], StoredScalar::U8, ByteOrder::Little, s, [1, 1, 1]).unwrap(),
             vec![7]
         );
     }

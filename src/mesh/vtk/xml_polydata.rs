@@ -9,6 +9,7 @@
 //! compression or `vtkZLibDataCompressor` (blocked zlib), either byte order, and every
 //! integer and float array type.
 
+use crate::stored_scalar::{ByteOrder, StoredScalar};
 use std::path::Path;
 
 use base64::Engine;
@@ -43,7 +44,7 @@ struct Encoding {
 #[derive(Debug, Clone)]
 struct ArrayDecl {
     name: String,
-    scalar: Scalar,
+    scalar: StoredScalar,
     components: usize,
     format: Format,
     /// Inline text (ascii or base64).
@@ -58,72 +59,21 @@ enum Format {
     Appended(usize),
 }
 
-/// The numeric types of VTK data arrays.
-#[derive(Debug, Clone, Copy, PartialEq)]
-enum Scalar {
-    I8,
-    U8,
-    I16,
-    U16,
-    I32,
-    U32,
-    I64,
-    U64,
-    F32,
-    F64,
-}
-
-impl Scalar {
-    fn parse(s: &str) -> Option<Self> {
-        Some(match s {
-            "Int8" | "Char" => Self::I8,
-            "UInt8" | "UChar" => Self::U8,
-            "Int16" => Self::I16,
-            "UInt16" => Self::U16,
-            "Int32" => Self::I32,
-            "UInt32" => Self::U32,
-            "Int64" | "IdType" => Self::I64,
-            "UInt64" => Self::U64,
-            "Float32" => Self::F32,
-            "Float64" => Self::F64,
-            _ => return None,
-        })
-    }
-
-    fn size(self) -> usize {
-        match self {
-            Self::I8 | Self::U8 => 1,
-            Self::I16 | Self::U16 => 2,
-            Self::I32 | Self::U32 | Self::F32 => 4,
-            Self::I64 | Self::U64 | Self::F64 => 8,
-        }
-    }
-
-    /// The value of one element stored in `b` (`self.size()` bytes).
-    fn value(self, b: &[u8], little: bool) -> f64 {
-        macro_rules! get {
-            ($t:ty) => {{
-                let a = b.try_into().expect("element size");
-                if little {
-                    <$t>::from_le_bytes(a) as f64
-                } else {
-                    <$t>::from_be_bytes(a) as f64
-                }
-            }};
-        }
-        match self {
-            Self::I8 => b[0] as i8 as f64,
-            Self::U8 => b[0] as f64,
-            Self::I16 => get!(i16),
-            Self::U16 => get!(u16),
-            Self::I32 => get!(i32),
-            Self::U32 => get!(u32),
-            Self::I64 => get!(i64),
-            Self::U64 => get!(u64),
-            Self::F32 => get!(f32),
-            Self::F64 => get!(f64),
-        }
-    }
+/// The number type a VTK `DataArray`'s `type` attribute names.
+fn vtk_scalar(name: &str) -> Option<StoredScalar> {
+    Some(match name {
+        "Int8" | "Char" => StoredScalar::I8,
+        "UInt8" | "UChar" => StoredScalar::U8,
+        "Int16" => StoredScalar::I16,
+        "UInt16" => StoredScalar::U16,
+        "Int32" => StoredScalar::I32,
+        "UInt32" => StoredScalar::U32,
+        "Int64" | "IdType" => StoredScalar::I64,
+        "UInt64" => StoredScalar::U64,
+        "Float32" => StoredScalar::F32,
+        "Float64" => StoredScalar::F64,
+        _ => return None,
+    })
 }
 
 /// Which section of a piece the parser is in.
@@ -397,7 +347,7 @@ fn file_encoding(path: &Path, e: &BytesStart<'_>) -> Result<Encoding, MeshError>
 fn array_decl(path: &Path, e: &BytesStart<'_>) -> Result<ArrayDecl, MeshError> {
     let name = attr(path, e, "Name")?.unwrap_or_default();
     let ty = attr(path, e, "type")?.unwrap_or_default();
-    let scalar = Scalar::parse(&ty).ok_or_else(|| {
+    let scalar = vtk_scalar(&ty).ok_or_else(|| {
         MeshError::malformed(path, format!("DataArray {name:?}: unknown type {ty:?}"))
     })?;
     let components = match attr(path, e, "NumberOfComponents")? {
@@ -489,7 +439,7 @@ fn decode(
     }
     Ok(raw
         .chunks_exact(size)
-        .map(|b| decl.scalar.value(b, enc.little_endian))
+        .map(|b| decl.scalar.decode(b, ByteOrder::big_if(!enc.little_endian)))
         .collect())
 }
 
