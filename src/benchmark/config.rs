@@ -6,7 +6,6 @@ use serde::Serialize;
 use crate::grid::IntegrationMode;
 use crate::linalg::SolverKind;
 use crate::mechanics::LawKind;
-use crate::registration::non_rigid_icp::{PENALTY_END_PER_EH, PENALTY_START_PER_EH};
 use crate::scene::{validate_scene, LoadedScene, RegistrationSpec, Scene};
 
 /// Changes to a scene's registration model; `None` keeps the scene's value. The scene with
@@ -29,9 +28,9 @@ pub struct ModelConfig {
     pub linear_solver: Option<SolverKind>,
     /// Steps of the cold frames' penalty ramp.
     pub penalty_steps: Option<u32>,
-    /// Multiplies both ends of the penalty ramp (the automatic 0.02 E h … 2 E h, made
-    /// explicit and so without the cloud-noise weight, or the scene's
-    /// `penalty_start`/`penalty_end`).
+    /// Multiplies both ends of the penalty ramp: the automatic 0.02 E h … 2 E h through
+    /// `registration.penalty_scale` (so the cloud-noise weight stays), the scene's
+    /// `penalty_start`/`penalty_end` where given.
     pub penalty_factor: Option<f64>,
     /// Grid origin shift in cell units (moves the surface against the grid: cuts cells
     /// differently).
@@ -111,13 +110,13 @@ impl ModelConfig {
     /// configuration and the scene key that became invalid).
     pub fn apply(&self, scene: &LoadedScene) -> Result<LoadedScene, String> {
         let mut out = scene.clone();
-        self.apply_to(&mut out.scene, scene.length_scale())?;
+        self.apply_to(&mut out.scene)?;
         Ok(out)
     }
 
-    /// Applies the changes to a scene whose unit is `scale` metres, and validates it (see
+    /// Applies the changes to a scene (every change is unit-free), and validates it (see
     /// [`ModelConfig::apply`]).
-    pub fn apply_to(&self, s: &mut Scene, scale: f64) -> Result<(), String> {
+    pub fn apply_to(&self, s: &mut Scene) -> Result<(), String> {
         if let Some(f) = self.cell_size_factor {
             s.grid.cell_size *= f;
         }
@@ -172,10 +171,11 @@ impl ModelConfig {
                 r.coarse_to_fine = Some(v);
             }
             if let Some(f) = self.penalty_factor {
-                // The automatic ramp of the non-rigid stage, made explicit, times f.
-                let eh = s.material.young_modulus * s.grid.cell_size * scale;
-                r.penalty_start = Some(f * r.penalty_start.unwrap_or(PENALTY_START_PER_EH * eh));
-                r.penalty_end = Some(f * r.penalty_end.unwrap_or(PENALTY_END_PER_EH * eh));
+                // Given stiffnesses times f; the automatic ends through the scale, which
+                // keeps the noise weight.
+                r.penalty_start = r.penalty_start.map(|k| f * k);
+                r.penalty_end = r.penalty_end.map(|k| f * k);
+                r.penalty_scale *= f;
             }
         }
         let problems = validate_scene(s);
@@ -424,11 +424,21 @@ mod tests {
         let a = c.apply(&scene).unwrap();
         assert_eq!(a.scene.grid.cell_size, 2.0 * scene.scene.grid.cell_size);
         assert_eq!(a.scene.material.law, LawKind::Svk);
-        // The automatic ramp 0.02 E h … 2 E h (h of the new grid, metres) times 10.
-        let eh = 4500.0 * 2.0 * scene.scene.grid.cell_size * 1e-3;
+        // The automatic ramp stays automatic (so its noise weight stays), scaled by 10, and
+        // the session's stages get the scale.
         let r = a.scene.registration.as_ref().unwrap();
-        assert!((r.penalty_start.unwrap() - 10.0 * 0.02 * eh).abs() < 1e-9);
-        assert!((r.penalty_end.unwrap() - 10.0 * 2.0 * eh).abs() < 1e-9);
+        assert_eq!((r.penalty_start, r.penalty_end), (None, None));
+        assert_eq!(r.penalty_scale, 10.0);
+        let settings = crate::session::SessionSettings::from_scene(&a.scene, a.length_scale());
+        assert_eq!(settings.cold.penalty_scale, 10.0);
+        assert_eq!(settings.warm.penalty_scale, 10.0);
+        // Stiffnesses a scene gives are multiplied themselves.
+        let mut given = scene.clone();
+        let g = given.scene.registration.as_mut().unwrap();
+        (g.penalty_start, g.penalty_end) = (Some(3.0), Some(300.0));
+        let a = c.apply(&given).unwrap();
+        let r = a.scene.registration.as_ref().unwrap();
+        assert_eq!((r.penalty_start, r.penalty_end), (Some(30.0), Some(3000.0)));
         assert!((c.resolved(&a).cell_size_mm - 2.0 * scene.scene.grid.cell_size).abs() < 1e-9);
     }
 

@@ -149,7 +149,7 @@ fn write_scene(loaded: &LoadedScene, config: &ModelConfig, out: &Path) -> Result
     } else {
         loaded.scene.clone()
     };
-    config.apply_to(&mut scene, loaded.length_scale())?;
+    config.apply_to(&mut scene)?;
     let (out_format, _) = SceneFormat::from_path(out);
     let body = match out_format {
         SceneFormat::Toml => toml::to_string(&scene).map_err(|e| e.to_string())?,

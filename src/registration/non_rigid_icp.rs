@@ -32,6 +32,10 @@ pub struct NonRigidSettings {
     /// Last penalty stiffness k₁ (stiff: match detail). `None`: 2 E h ([`PENALTY_END_PER_EH`])
     /// times [`noise_weight`].
     pub penalty_end: Option<f64>,
+    /// Factor on the automatic ramp's k₀ and k₁ (those not given by `penalty_start` /
+    /// `penalty_end`), > 0; default 1. Unlike giving the stiffnesses, it keeps the
+    /// [`noise_weight`] (scene key `registration.penalty_scale`).
+    pub penalty_scale: f64,
     /// Steps of the exponential ramp from k₀ to k₁ (1: k₁ only).
     pub penalty_steps: usize,
     /// ICP iterations allowed per penalty step.
@@ -132,6 +136,7 @@ impl Default for NonRigidSettings {
             alpha: 0.75,
             penalty_start: None,
             penalty_end: None,
+            penalty_scale: 1.0,
             penalty_steps: 3,
             max_icp_iterations: 10,
             newton_iterations: 2,
@@ -190,6 +195,12 @@ impl NonRigidSettings {
         let bad = |m: String| Err(NonRigidError::InvalidSetting(m));
         if !(0.0..=1.0).contains(&self.alpha) {
             return bad(format!("alpha {} is outside [0, 1]", self.alpha));
+        }
+        if !(self.penalty_scale.is_finite() && self.penalty_scale > 0.0) {
+            return bad(format!(
+                "penalty_scale {} must be finite and > 0",
+                self.penalty_scale
+            ));
         }
         for (name, v) in [
             ("penalty_start", self.penalty_start),
@@ -415,7 +426,7 @@ struct PenaltyRamp {
 
 impl PenaltyRamp {
     /// The ramp of `settings` on `problem`: k₀ = 0.02 E h and k₁ = 2 E h unless set, times
-    /// [`noise_weight`] of the cloud's noise (E the
+    /// [`NonRigidSettings::penalty_scale`] and [`noise_weight`] of the cloud's noise (E the
     /// Young's modulus, Pa; h the cell size, m), both times
     /// [`NonRigidSettings::data_weight`].
     fn new(settings: &NonRigidSettings, problem: &StaticProblem) -> Self {
@@ -430,7 +441,7 @@ impl PenaltyRamp {
     /// (m).
     fn for_model(settings: &NonRigidSettings, young: f64, h: f64) -> Self {
         let w = settings.data_weight;
-        let automatic = noise_weight(settings.cloud_noise) * young * h;
+        let automatic = settings.penalty_scale * noise_weight(settings.cloud_noise) * young * h;
         Self {
             k0: w * settings
                 .penalty_start
@@ -1000,6 +1011,14 @@ mod tests {
             ..NonRigidSettings::default()
         });
         assert!((both.k1 - 0.5 * r.k1).abs() < 1e-12);
+        // So does the scale, at both ends, keeping the noise weight.
+        let scaled = ramp(NonRigidSettings {
+            cloud_noise: Some(1.5e-3),
+            penalty_scale: 4.0,
+            ..NonRigidSettings::default()
+        });
+        assert!((scaled.k1 - 4.0 * r.k1).abs() < 1e-12);
+        assert!((scaled.k0 - 4.0 * r.k0).abs() < 1e-12);
     }
 
     #[test]
@@ -1011,6 +1030,12 @@ mod tests {
             ..NonRigidSettings::default()
         };
         let r = ramp(given);
+        assert_eq!((r.k0, r.k1), (3.0, 300.0));
+        // Nor by the automatic ramp's scale.
+        let r = ramp(NonRigidSettings {
+            penalty_scale: 4.0,
+            ..given
+        });
         assert_eq!((r.k0, r.k1), (3.0, 300.0));
     }
 }

@@ -762,6 +762,11 @@ fn range_checks() {
             &["registration.penalty_end", "100"],
         ),
         (
+            "penalty_scale = 0",
+            "registration",
+            &["registration.penalty_scale", "must be > 0"],
+        ),
+        (
             "camera = { position = [0, 0, 1], look_at = [0, 0, 1] }",
             "registration",
             &["registration.camera.look_at"],

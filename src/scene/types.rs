@@ -615,6 +615,11 @@ pub struct RegistrationSpec {
     /// Last penalty stiffness k₁ of the ramp, N/m (`None`: automatic); > 0 and ≥ k₀.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub penalty_end: Option<f64>,
+    /// Factor on the automatic ramp's ends (those not given above), > 0 (default 1): stiffer
+    /// or softer springs that keep the cloud-noise weight (docs/registration.md, "The data
+    /// term's stiffness").
+    #[serde(default = "defaults::penalty_scale")]
+    pub penalty_scale: f64,
     /// Number of steps n_p of the ramp (default 3), ≥ 1.
     #[serde(default = "defaults::penalty_steps")]
     pub penalty_steps: u32,
@@ -701,6 +706,7 @@ impl Default for RegistrationSpec {
             alpha: defaults::alpha(),
             penalty_start: None,
             penalty_end: None,
+            penalty_scale: defaults::penalty_scale(),
             penalty_steps: defaults::penalty_steps(),
             max_icp_iterations: defaults::max_icp_iterations(),
             max_pair_distance: None,
@@ -794,6 +800,10 @@ pub mod defaults {
     /// `registration.remove_isolated_points`.
     pub fn remove_isolated_points() -> bool {
         true
+    }
+    /// `registration.penalty_scale`.
+    pub fn penalty_scale() -> f64 {
+        1.0
     }
     /// `registration.penalty_steps`.
     pub fn penalty_steps() -> u32 {

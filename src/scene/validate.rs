@@ -387,6 +387,7 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
         if let Some(k1) = r.penalty_end {
             c.positive("registration.penalty_end", k1, " N/m");
         }
+        c.positive("registration.penalty_scale", r.penalty_scale, "");
         if let (Some(k0), Some(k1)) = (r.penalty_start, r.penalty_end) {
             if k0.is_finite() && k1.is_finite() && k0 > k1 {
                 c.fail(

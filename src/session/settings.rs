@@ -150,6 +150,7 @@ impl SessionSettings {
             for n in [&mut s.cold, &mut s.warm] {
                 n.alpha = r.alpha;
                 n.penalty_end = r.penalty_end;
+                n.penalty_scale = r.penalty_scale;
                 n.max_pair_distance = r.max_pair_distance.map(|d| d * scale);
                 n.data_term = r.data_term;
                 n.normal_scale = match r.normal_radius {
