@@ -1,7 +1,9 @@
-//! Bounded load tests on loopback: concurrent sessions streaming over WebSocket at 30 Hz. The
-//! short one (8 sessions × 3 s, small scene) runs with `cargo test`; the full one of the issue
-//! (8 sessions × 20 s on the liver phantom) is ignored and meant for a release build:
-//! `cargo test --release --test server_load -- --ignored --nocapture`.
+//! Load on loopback: 8 sessions streaming over WebSocket at 30 Hz for 3 s (small scene). What
+//! is asserted is behaviour, not speed: no errors, every frame answered or counted as skipped
+//! (newest wins), and the server's own accounting agreeing with what the clients saw (each
+//! registered frame waited for a slot once; nothing is left queued). The latencies are printed
+//! only: performance is measured in release by the example client's `load` command against
+//! `livereg serve` (docs/server.md, "Load"), not asserted in a debug-build test.
 
 use std::time::Duration;
 
@@ -37,13 +39,14 @@ async fn run_load(
     frames: &[(String, Vec<[f64; 3]>)],
     seconds: f64,
     worker_threads: usize,
-) -> (LoadReport, (f64, f64, f64)) {
+) -> (LoadReport, [u64; 3], [u64; 3]) {
     let mut cfg = test_config(&format!("load-{}", seconds as u64));
     cfg.worker_threads = worker_threads;
     cfg.limits.max_frames_per_second = 60.0;
     let server = start(cfg).await;
     let scene = SceneFiles::read(&case.join("scene.toml")).unwrap();
     let single = single_session(server.http_addr, &scene, &frames[..frames.len().min(12)]).await;
+    let before = accounting(&server.state().metrics.render());
     let spec = LoadSpec {
         sessions: 8,
         hz: 30.0,
@@ -57,58 +60,60 @@ async fn run_load(
         .unwrap();
     let m = server.state().metrics.render();
     assert!(m.contains("livereg_sessions 0"), "sessions left open");
+    let after = accounting(&m);
     server.shutdown().await.unwrap();
     eprintln!(
         "single session: registration p50 {:.1} ms, p95 {:.1} ms, transport overhead p50 {:.2} ms",
         single.0, single.1, single.2
     );
     eprintln!("load: {}", serde_json::to_string_pretty(&rep).unwrap());
-    (rep, single)
+    (rep, before, after)
 }
 
-fn check(rep: &LoadReport, single: (f64, f64, f64), factor: f64, slack_ms: f64) {
+/// The value of the metric line starting with `key` (e.g. `livereg_frames_total{outcome="skipped"}`)
+/// in the Prometheus text `text`; 0 when absent (a counter never incremented).
+fn metric(text: &str, key: &str) -> u64 {
+    text.lines()
+        .find_map(|l| l.strip_prefix(key)?.trim().parse::<f64>().ok())
+        .map_or(0, |v| v as u64)
+}
+
+/// Frames registered, skipped and slot waits counted by the server, as metrics text.
+fn accounting(text: &str) -> [u64; 3] {
+    [
+        metric(text, "livereg_frames_total{outcome=\"registered\"}"),
+        metric(text, "livereg_frames_total{outcome=\"skipped\"}"),
+        metric(text, "livereg_queue_wait_seconds_count"),
+    ]
+}
+
+fn check(rep: &LoadReport, before: [u64; 3], after: [u64; 3]) {
     assert_eq!(rep.errors, 0, "errors: {:?}", rep.error_samples);
     assert!(rep.results >= 8, "too few results: {rep:?}");
     // Every frame sent is either answered or counted as skipped (newest wins).
     assert_eq!(rep.results + rep.skipped, rep.sent, "{rep:?}");
-    let bound = factor * single.1 + slack_ms;
-    assert!(
-        rep.e2e_p95_ms <= bound,
-        "p95 end-to-end {:.1} ms exceeds {bound:.1} ms ({factor} x single-session p95 {:.1} ms + {slack_ms} ms)",
-        rep.e2e_p95_ms,
-        single.1
+    let [registered, skipped, waits] = [0, 1, 2].map(|i| after[i] - before[i]);
+    // The server registered every answered frame plus each session's warm-up frame, skipped
+    // exactly the frames the clients were told about, and every registered frame left the
+    // queue (a frame still waiting would have no wait recorded).
+    assert_eq!(
+        registered,
+        rep.results + rep.sessions as u64,
+        "server registered {registered}, clients got {} results + {} warm-ups",
+        rep.results,
+        rep.sessions
+    );
+    assert_eq!(skipped, rep.skipped, "server skipped {skipped}: {rep:?}");
+    assert_eq!(
+        waits, registered,
+        "slot waits {waits} for {registered} frames"
     );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn eight_sessions_at_30_hz_for_3_s_no_errors_bounded_latency() {
+async fn eight_sessions_at_30_hz_for_3_s_every_frame_accounted_for() {
     let case = small_case("load", 30);
     let frames = read_frames(&case.join("frames")).unwrap();
-    let (rep, single) = run_load(&case, &frames, 3.0, 2).await;
-    // Debug build on a shared 2-core machine: a loose bound; the release numbers are in
-    // docs/server.md.
-    check(&rep, single, 3.0, 150.0);
-}
-
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-#[ignore = "20 s of load on the phantom; run in release: cargo test --release --test server_load -- --ignored --nocapture"]
-async fn eight_sessions_at_30_hz_for_20_s_on_the_phantom() {
-    let dir = temp_dir("load-phantom");
-    let o = std::process::Command::new(env!("CARGO_BIN_EXE_livereg"))
-        .args([
-            "demo",
-            "--out",
-            dir.to_str().unwrap(),
-            "--frames",
-            "12",
-            "--scenarios",
-            "tool-push",
-        ])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let case = dir.join("phantom");
-    let frames = read_frames(&dir.join("tool-push/frames")).unwrap();
-    let (rep, single) = run_load(&case, &frames, 20.0, 2).await;
-    check(&rep, single, 2.0, 0.0);
+    let (rep, before, after) = run_load(&case, &frames, 3.0, 2).await;
+    check(&rep, before, after);
 }
