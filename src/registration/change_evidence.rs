@@ -156,20 +156,37 @@ impl ChangeTest {
 /// of a χ² with `n` degrees of freedom is about `n (1 − 2/(9n))³`). 0 when the cloud has fewer
 /// than [`NOISE_NEIGHBOURS`] points.
 pub fn cloud_noise_sigma(cloud: &IndexedPoints) -> f64 {
+    cloud_noise_sigma_near(cloud, &[])
+}
+
+/// [`cloud_noise_sigma`] reusing neighbour lists already found (`near[i]`: the nearest points
+/// of point `i`, nearest first, itself included, e.g. [`ChangeTest::neighbours`]) when each
+/// holds at least [`NOISE_NEIGHBOURS`]; otherwise it searches the cloud itself. The same
+/// number either way (the first neighbours of a longer list are the nearest ones).
+pub fn cloud_noise_sigma_near(cloud: &IndexedPoints, near: &[Vec<usize>]) -> f64 {
     let k = NOISE_NEIGHBOURS;
     if cloud.len() < k {
         return 0.0;
     }
+    let reuse = near.len() == cloud.len()
+        && near
+            .iter()
+            .all(|n| n.len() >= k && n.iter().all(|&j| j < cloud.len()));
     let dof = (k - 6) as f64;
     let mut variances: Vec<f64> = cloud
         .points
         .iter()
-        .filter_map(|p| {
-            let near: Vec<Point3<f64>> = cloud
-                .nearest_k(p, k)
-                .iter()
-                .map(|&(j, _)| cloud.points[j])
-                .collect();
+        .enumerate()
+        .filter_map(|(i, p)| {
+            let near: Vec<Point3<f64>> = if reuse {
+                near[i][..k].iter().map(|&j| cloud.points[j]).collect()
+            } else {
+                cloud
+                    .nearest_k(p, k)
+                    .iter()
+                    .map(|&(j, _)| cloud.points[j])
+                    .collect()
+            };
             quadric_residual(&near).map(|ss| ss / dof)
         })
         .collect();
@@ -263,6 +280,25 @@ mod tests {
             let s = cloud_noise_sigma(&cloud);
             // Isotropic noise σ per axis is σ along the normal; the fit sees it within 20 %.
             assert!((s / sigma - 1.0).abs() < 0.2, "σ {sigma}: measured {s}");
+        }
+    }
+
+    /// The change test's neighbour lists give the estimator the same neighbours as its own
+    /// search, so the same σ; lists too short (or none) fall back to the search.
+    #[test]
+    fn the_noise_from_the_change_tests_neighbours_is_the_noise() {
+        for seed in 0..3 {
+            let (cloud, _) = patch(1.5e-3, 0.0, 50 + seed);
+            let own = cloud_noise_sigma(&cloud);
+            let near = ChangeTest::default().neighbours(&cloud);
+            assert_eq!(cloud_noise_sigma_near(&cloud, &near), own);
+            let short = ChangeTest {
+                neighbourhoods: vec![8],
+                threshold: 5.0,
+            }
+            .neighbours(&cloud);
+            assert_eq!(cloud_noise_sigma_near(&cloud, &short), own);
+            assert_eq!(cloud_noise_sigma_near(&cloud, &[]), own);
         }
     }
 

@@ -12,7 +12,7 @@ use crate::geometry::Camera;
 use crate::linalg::SolverKind;
 use crate::mechanics::{NewtonSettings, PenaltySprings};
 use crate::mesh::TriSurface;
-use crate::registration::change_evidence::{cloud_noise_sigma, ChangeTest};
+use crate::registration::change_evidence::{cloud_noise_sigma_near, ChangeTest};
 use crate::registration::correspondences::rejection_threshold;
 use crate::registration::isolated_points::{
     isolated_mask, ISOLATION_MEDIAN_FACTOR, ISOLATION_NEIGHBOURS, ISOLATION_SIGMA,
@@ -1158,7 +1158,7 @@ const SAME_VIEW_FIT_SLACK: f64 = 0.5e-3;
 struct CloudNoise {
     /// [`ChangeTest::neighbours`] of each cloud point (empty without a test).
     near: Vec<Vec<usize>>,
-    /// [`cloud_noise_sigma`], m.
+    /// [`cloud_noise_sigma`](crate::registration::change_evidence::cloud_noise_sigma), m.
     sigma: f64,
 }
 
@@ -1168,7 +1168,8 @@ impl CloudNoise {
     fn measure(aligned: &[Point3<f64>], test: Option<&ChangeTest>) -> Option<Self> {
         let cloud = IndexedPoints::new(aligned.to_vec())?;
         let near = test.map_or_else(Vec::new, |t| t.neighbours(&cloud));
-        let sigma = cloud_noise_sigma(&cloud);
+        // The test's neighbour lists (32 nearest) hold the estimator's 16: one search.
+        let sigma = cloud_noise_sigma_near(&cloud, &near);
         Some(Self { near, sigma })
     }
 }
@@ -1178,7 +1179,7 @@ impl CloudNoise {
 struct StillData {
     points: Vec<Point3<f64>>,
     weight: f64,
-    /// The frame's cloud noise (m, [`cloud_noise_sigma`]), which weakens the automatic
+    /// The frame's cloud noise (m, [`cloud_noise_sigma`](crate::registration::change_evidence::cloud_noise_sigma)), which weakens the automatic
     /// penalty ramp ([`NonRigidSettings::cloud_noise`]); `None` when not measured.
     noise: Option<f64>,
 }
