@@ -97,10 +97,17 @@ pub fn pair_cloud_to_surface(
         .collect();
     let index = IndexedPoints::new(searchable.iter().map(|&v| x[v]).collect())?;
     let mut found: Vec<(usize, SurfaceAnchor, f64)> = Vec::with_capacity(cloud.len());
+    let mut seen: Vec<usize> = Vec::with_capacity(4 * SEARCH_VERTICES * 8);
     for (j, q) in cloud.points.iter().enumerate() {
         let mut best: Option<(SurfaceAnchor, f64)> = None;
+        // Neighbouring vertices share triangles: each is projected onto once.
+        seen.clear();
         for (k, _) in index.nearest_k(q, SEARCH_VERTICES) {
             for &t in &incident[searchable[k]] {
+                if seen.contains(&t) {
+                    continue;
+                }
+                seen.push(t);
                 let tri = triangles[t];
                 let corners = [x[tri[0]], x[tri[1]], x[tri[2]]];
                 let (w, _) = closest_barycentric(q, &corners);
