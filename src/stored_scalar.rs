@@ -102,57 +102,28 @@ mod tests {
     /// Every type decodes what the standard library encoded, in both byte orders.
     #[test]
     fn decodes_what_to_bytes_encoded() {
-        let cases: Vec<(StoredScalar, f64, Vec<u8>, Vec<u8>)> = vec![
-            (StoredScalar::I8, -5.0, vec![0xfb], vec![0xfb]),
-            (StoredScalar::U8, 250.0, vec![250], vec![250]),
-            (
-                StoredScalar::I16,
-                -1234.0,
-                (-1234i16).to_le_bytes().to_vec(),
-                (-1234i16).to_be_bytes().to_vec(),
-            ),
-            (
-                StoredScalar::U16,
-                60000.0,
-                60000u16.to_le_bytes().to_vec(),
-                60000u16.to_be_bytes().to_vec(),
-            ),
-            (
-                StoredScalar::I32,
-                -70000.0,
-                (-70000i32).to_le_bytes().to_vec(),
-                (-70000i32).to_be_bytes().to_vec(),
-            ),
-            (
-                StoredScalar::U32,
-                4e9,
-                4_000_000_000u32.to_le_bytes().to_vec(),
-                4_000_000_000u32.to_be_bytes().to_vec(),
-            ),
-            (
-                StoredScalar::I64,
-                -(1i64 << 40) as f64,
-                (-(1i64 << 40)).to_le_bytes().to_vec(),
-                (-(1i64 << 40)).to_be_bytes().to_vec(),
-            ),
-            (
-                StoredScalar::U64,
-                (1u64 << 50) as f64,
-                (1u64 << 50).to_le_bytes().to_vec(),
-                (1u64 << 50).to_be_bytes().to_vec(),
-            ),
-            (
-                StoredScalar::F32,
-                1.5,
-                1.5f32.to_le_bytes().to_vec(),
-                1.5f32.to_be_bytes().to_vec(),
-            ),
-            (
-                StoredScalar::F64,
-                -0.1,
-                (-0.1f64).to_le_bytes().to_vec(),
-                (-0.1f64).to_be_bytes().to_vec(),
-            ),
+        // (type, value, little-endian bytes, big-endian bytes), encoded by the standard library.
+        macro_rules! case {
+            ($ty:ident, $t:ty, $v:expr) => {
+                (
+                    StoredScalar::$ty,
+                    ($v as $t) as f64,
+                    <$t>::to_le_bytes($v).to_vec(),
+                    <$t>::to_be_bytes($v).to_vec(),
+                )
+            };
+        }
+        let cases = [
+            case!(I8, i8, -5),
+            case!(U8, u8, 250),
+            case!(I16, i16, -1234),
+            case!(U16, u16, 60000),
+            case!(I32, i32, -70000),
+            case!(U32, u32, 4_000_000_000),
+            case!(I64, i64, -(1i64 << 40)),
+            case!(U64, u64, 1u64 << 50),
+            case!(F32, f32, 1.5),
+            case!(F64, f64, -0.1),
         ];
         for (ty, value, le, be) in cases {
             assert_eq!(le.len(), ty.size(), "{ty:?}");

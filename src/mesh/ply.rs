@@ -2,7 +2,6 @@
 //! x, y, z and the `face` element's vertex index lists; every other property and element is
 //! skipped.
 
-use crate::stored_scalar::{ByteOrder, StoredScalar};
 use std::path::Path;
 
 use nalgebra::Point3;
@@ -11,6 +10,7 @@ use super::assemble::{bounded_capacity, fan, finish, is_finite};
 use super::error::MeshError;
 use super::surface::TriSurface;
 use super::text::{decode, quote, read_bytes, Line, Lines, Tokens};
+use crate::stored_scalar::{ByteOrder, StoredScalar};
 
 /// Reads a PLY surface: vertices from the `vertex` element (x, y, z of any scalar type) and
 /// fan-triangulated polygons from the `face` element's `vertex_indices` (or `vertex_index`) list.
@@ -223,7 +223,7 @@ enum Body<'a> {
         path: &'a Path,
         data: &'a [u8],
         pos: usize,
-        big_endian: bool,
+        order: ByteOrder,
     },
 }
 
@@ -275,16 +275,13 @@ impl<'a> Body<'a> {
                 }
             }
             Self::Binary {
-                data,
-                pos,
-                big_endian,
-                ..
+                data, pos, order, ..
             } => {
                 let Some(bytes) = data.get(*pos..*pos + ty.size()) else {
                     return Err(self.truncated(what));
                 };
                 *pos += ty.size();
-                Ok(ty.decode(bytes, ByteOrder::big_if(*big_endian)))
+                Ok(ty.decode(bytes, *order))
             }
         }
     }
@@ -374,7 +371,7 @@ fn parse(path: &Path, data: &[u8], faces: bool) -> Result<Parsed, MeshError> {
             path,
             data,
             pos: header.body,
-            big_endian,
+            order: ByteOrder::big_if(big_endian),
         },
     };
     // Each ASCII value takes at least two bytes (digit and separator).

@@ -63,7 +63,7 @@ pub fn derive_into(scene: &mut Scene, dir: &Path) -> Result<(), String> {
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     let leaf = format!("{name}-{key:016x}");
-    let source = Labelmap {
+    let source = LabelmapFile {
         path: &labelmap,
         bytes: &bytes,
     };
@@ -96,7 +96,7 @@ pub fn derive_into(scene: &mut Scene, dir: &Path) -> Result<(), String> {
 }
 
 /// A labelmap file read once: its path (for the reader's choice and for errors) and bytes.
-struct Labelmap<'a> {
+struct LabelmapFile<'a> {
     path: &'a Path,
     bytes: &'a [u8],
 }
@@ -105,7 +105,7 @@ struct Labelmap<'a> {
 /// derivation), or derived now, written beside it and renamed into place.
 fn cached_or_derived(
     target: &Path,
-    source: &Labelmap,
+    source: &LabelmapFile,
     request: &ModelRequest,
 ) -> Result<PathBuf, String> {
     if target.join("complete").is_file() {

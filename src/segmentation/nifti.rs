@@ -71,7 +71,7 @@ pub fn read_nifti_bytes(
 ) -> Result<(Labelmap, NiftiTransform), SegmentationError> {
     refuse_pairs(path)?;
     let name = path.to_string_lossy().to_ascii_lowercase();
-    let file_len = Some(file.len() as u64);
+    let file_len = file.len() as u64;
     let gz = name.ends_with(".gz");
     let mut reader: Box<dyn Read + '_> = if gz {
         Box::new(MultiGzDecoder::new(file))
@@ -144,17 +144,15 @@ pub fn read_nifti_bytes(
         ));
     }
     let offset = offset as u64;
-    if let (false, Some(len)) = (gz, file_len) {
-        if len < offset + bytes as u64 {
-            return Err(SegmentationError::data(
-                path,
-                format!(
-                    "the file has {len} bytes but dim {dims:?} of {ty:?} from vox_offset {offset} \
-                     needs {}",
-                    offset + bytes as u64
-                ),
-            ));
-        }
+    if !gz && file_len < offset + bytes as u64 {
+        return Err(SegmentationError::data(
+            path,
+            format!(
+                "the file has {file_len} bytes but dim {dims:?} of {ty:?} from vox_offset {offset} \
+                 needs {}",
+                offset + bytes as u64
+            ),
+        ));
     }
     let data: std::borrow::Cow<[u8]> = if gz {
         // Extensions between the header and the data.

@@ -9,7 +9,6 @@
 //! compression or `vtkZLibDataCompressor` (blocked zlib), either byte order, and every
 //! integer and float array type.
 
-use crate::stored_scalar::{ByteOrder, StoredScalar};
 use std::path::Path;
 
 use base64::Engine;
@@ -19,6 +18,7 @@ use quick_xml::Reader;
 
 use super::super::assemble::is_finite;
 use super::super::error::MeshError;
+use crate::stored_scalar::{ByteOrder, StoredScalar};
 
 /// The surface cells of one piece: polygons and triangle strips as point-index lists.
 #[derive(Debug, Default)]
@@ -34,7 +34,7 @@ pub(super) struct XmlPiece {
 /// How the file encodes binary data.
 #[derive(Debug, Clone, Copy)]
 struct Encoding {
-    little_endian: bool,
+    order: ByteOrder,
     /// Bytes of a header word: 4 (`UInt32`) or 8 (`UInt64`).
     header_bytes: usize,
     zlib: bool,
@@ -303,9 +303,9 @@ fn file_encoding(path: &Path, e: &BytesStart<'_>) -> Result<Encoding, MeshError>
             format!("a VTK XML {ty:?} file holds no PolyData (expected type=\"PolyData\")"),
         ));
     }
-    let little_endian = match attr(path, e, "byte_order")?.as_deref() {
-        None | Some("LittleEndian") => true,
-        Some("BigEndian") => false,
+    let order = match attr(path, e, "byte_order")?.as_deref() {
+        None | Some("LittleEndian") => ByteOrder::Little,
+        Some("BigEndian") => ByteOrder::Big,
         Some(other) => {
             return Err(MeshError::malformed(
                 path,
@@ -337,7 +337,7 @@ fn file_encoding(path: &Path, e: &BytesStart<'_>) -> Result<Encoding, MeshError>
         }
     };
     Ok(Encoding {
-        little_endian,
+        order,
         header_bytes,
         zlib,
     })
@@ -439,7 +439,7 @@ fn decode(
     }
     Ok(raw
         .chunks_exact(size)
-        .map(|b| decl.scalar.decode(b, ByteOrder::big_if(!enc.little_endian)))
+        .map(|b| decl.scalar.decode(b, enc.order))
         .collect())
 }
 
@@ -528,17 +528,15 @@ const MAX_ARRAY_BYTES: usize = 1 << 31;
 fn word(b: &[u8], enc: Encoding) -> usize {
     let v = if enc.header_bytes == 8 {
         let a: [u8; 8] = b.try_into().expect("8 bytes");
-        if enc.little_endian {
-            u64::from_le_bytes(a)
-        } else {
-            u64::from_be_bytes(a)
+        match enc.order {
+            ByteOrder::Little => u64::from_le_bytes(a),
+            ByteOrder::Big => u64::from_be_bytes(a),
         }
     } else {
         let a: [u8; 4] = b.try_into().expect("4 bytes");
-        u64::from(if enc.little_endian {
-            u32::from_le_bytes(a)
-        } else {
-            u32::from_be_bytes(a)
+        u64::from(match enc.order {
+            ByteOrder::Little => u32::from_le_bytes(a),
+            ByteOrder::Big => u32::from_be_bytes(a),
         })
     };
     usize::try_from(v).unwrap_or(usize::MAX)
