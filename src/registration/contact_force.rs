@@ -195,19 +195,23 @@ impl RestCompliance {
             return None;
         }
         let weights: Vec<f64> = weights.iter().map(|w| w / total).collect();
-        let mut responses = Vec::with_capacity(3);
-        for axis in 0..3 {
+        // The three unit loads' nodal forces, one column each, solved in one pass.
+        let mut b = vec![0.0; 3 * n];
+        for (axis, column) in b.chunks_mut(n).enumerate() {
             let forces: Vec<Vector3<f64>> =
                 weights.iter().map(|w| Vector3::ith(axis, *w)).collect();
-            let mut b = vec![0.0; n];
-            load.spread_forces(&forces, &mut b);
-            let mut column = vec![0.0; n];
-            let stats = self.solver.solve(&self.stiffness, &b, &mut column).ok()?;
-            if stats.relative_residual > MAX_SOLVE_RESIDUAL {
-                return None;
-            }
-            responses.push(points.interpolate(&column));
+            load.spread_forces(&forces, column);
         }
+        let mut fields = vec![0.0; 3 * n];
+        let stats = self
+            .solver
+            .solve_columns(&self.stiffness, &b, &mut fields, 3)
+            .ok()?;
+        if stats.relative_residual > MAX_SOLVE_RESIDUAL {
+            return None;
+        }
+        let responses: Vec<Vec<Vector3<f64>>> =
+            fields.chunks(n).map(|f| points.interpolate(f)).collect();
         let mut normal = Matrix3::zeros();
         let mut rhs = Vector3::zeros();
         let mut used = 0;
