@@ -23,6 +23,7 @@
 //! Lengths in metres.
 
 use nalgebra::{Matrix3, Point3, SMatrix, SVector, Vector3};
+use rayon::prelude::*;
 use serde::Serialize;
 
 use super::correspondences::IndexedPoints;
@@ -104,7 +105,7 @@ impl ChangeTest {
         }
         cloud
             .points
-            .iter()
+            .par_iter()
             .map(|p| cloud.nearest_k(p, k_max).iter().map(|&(j, _)| j).collect())
             .collect()
     }
@@ -128,17 +129,23 @@ impl ChangeTest {
                 significant: true,
             };
         }
-        let mut statistic: f64 = 0.0;
-        let mut values = Vec::with_capacity(k_max);
-        for list in near {
-            for &k in &self.neighbourhoods {
-                values.clear();
-                values.extend(list.iter().take(k).map(|&j| signed[j]));
-                let m = median(&mut values);
-                let deviation = MEDIAN_DEVIATION * sigma / (values.len() as f64).sqrt();
-                statistic = statistic.max(m.abs() / deviation);
-            }
-        }
+        let statistic = near
+            .par_iter()
+            .map_init(
+                || Vec::with_capacity(k_max),
+                |values: &mut Vec<f64>, list| {
+                    let mut largest: f64 = 0.0;
+                    for &k in &self.neighbourhoods {
+                        values.clear();
+                        values.extend(list.iter().take(k).map(|&j| signed[j]));
+                        let m = median(values);
+                        let deviation = MEDIAN_DEVIATION * sigma / (values.len() as f64).sqrt();
+                        largest = largest.max(m.abs() / deviation);
+                    }
+                    largest
+                },
+            )
+            .reduce(|| 0.0, f64::max);
         ChangeEvidence {
             noise_sigma: sigma,
             statistic,
@@ -175,7 +182,7 @@ pub fn cloud_noise_sigma_near(cloud: &IndexedPoints, near: &[Vec<usize>]) -> f64
     let dof = (k - 6) as f64;
     let mut variances: Vec<f64> = cloud
         .points
-        .iter()
+        .par_iter()
         .enumerate()
         .filter_map(|(i, p)| {
             let near: Vec<Point3<f64>> = if reuse {

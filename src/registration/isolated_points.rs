@@ -8,6 +8,8 @@
 //! prune its pairs with median/MAD (docs/scene.md, `registration.robust_pruning`). It keeps
 //! outliers within about one spacing of the surface; those pull little. Lengths in metres.
 
+use rayon::prelude::*;
+
 use super::correspondences::{robust_threshold, IndexedPoints};
 
 /// Neighbours whose mean distance measures a point's spacing.
@@ -26,7 +28,7 @@ pub const ISOLATION_MEDIAN_FACTOR: f64 = 2.5;
 pub fn neighbour_spacing(cloud: &IndexedPoints, k: usize) -> Vec<f64> {
     cloud
         .points
-        .iter()
+        .par_iter()
         .enumerate()
         .map(|(i, p)| {
             let nn = cloud.nearest_k(p, k + 1);

@@ -7,6 +7,7 @@
 //! surface point above it however far it is. Lengths in metres.
 
 use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
 
 use super::correspondences::{IndexedPoints, PairingRule};
 use super::model_target::closest_barycentric;
@@ -96,38 +97,44 @@ pub fn pair_cloud_to_surface(
         .filter(|&v| allowed.is_none_or(|a| a[v]) && !incident[v].is_empty())
         .collect();
     let index = IndexedPoints::new(searchable.iter().map(|&v| x[v]).collect())?;
-    let mut found: Vec<(usize, SurfaceAnchor, f64)> = Vec::with_capacity(cloud.len());
-    let mut seen: Vec<usize> = Vec::with_capacity(4 * SEARCH_VERTICES * 8);
-    for (j, q) in cloud.points.iter().enumerate() {
-        let mut best: Option<(SurfaceAnchor, f64)> = None;
-        // Neighbouring vertices share triangles: each is projected onto once.
-        seen.clear();
-        for (k, _) in index.nearest_k(q, SEARCH_VERTICES) {
-            for &t in &incident[searchable[k]] {
-                if seen.contains(&t) {
-                    continue;
+    // Each cloud point is paired on its own: in parallel, in the cloud's order.
+    let found: Vec<(usize, SurfaceAnchor, f64)> = cloud
+        .points
+        .par_iter()
+        .enumerate()
+        .map_init(
+            || Vec::with_capacity(4 * SEARCH_VERTICES * 8),
+            |seen: &mut Vec<usize>, (j, q)| {
+                let mut best: Option<(SurfaceAnchor, f64)> = None;
+                // Neighbouring vertices share triangles: each is projected onto once.
+                seen.clear();
+                for (k, _) in index.nearest_k(q, SEARCH_VERTICES) {
+                    for &t in &incident[searchable[k]] {
+                        if seen.contains(&t) {
+                            continue;
+                        }
+                        seen.push(t);
+                        let tri = triangles[t];
+                        let corners = [x[tri[0]], x[tri[1]], x[tri[2]]];
+                        let (w, _) = closest_barycentric(q, &corners);
+                        if !w.iter().all(|v| v.is_finite()) {
+                            continue;
+                        }
+                        let a = SurfaceAnchor {
+                            triangle: t,
+                            weights: w,
+                        };
+                        let d2 = (q - a.position(x, triangles)).norm_squared();
+                        if best.is_none_or(|(_, b)| d2 < b) {
+                            best = Some((a, d2));
+                        }
+                    }
                 }
-                seen.push(t);
-                let tri = triangles[t];
-                let corners = [x[tri[0]], x[tri[1]], x[tri[2]]];
-                let (w, _) = closest_barycentric(q, &corners);
-                if !w.iter().all(|v| v.is_finite()) {
-                    continue;
-                }
-                let a = SurfaceAnchor {
-                    triangle: t,
-                    weights: w,
-                };
-                let d2 = (q - a.position(x, triangles)).norm_squared();
-                if best.is_none_or(|(_, b)| d2 < b) {
-                    best = Some((a, d2));
-                }
-            }
-        }
-        if let Some((a, d2)) = best {
-            found.push((j, a, d2.sqrt()));
-        }
-    }
+                best.map(|(a, d2)| (j, a, d2.sqrt()))
+            },
+        )
+        .flatten()
+        .collect();
     let dists: Vec<f64> = found.iter().map(|f| f.2).collect();
     let limit = rule.limit(&dists);
     let mut out = AnchoredPairs {
