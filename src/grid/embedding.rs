@@ -7,6 +7,7 @@
 //! block `(a, b)` (eq. 4.21).
 
 use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
 
 use super::hex8::shape_values;
 use super::weighted_cell_grid::WeightedCellGrid;
@@ -68,10 +69,13 @@ impl Embedding {
     /// but within [`MAX_OUTSIDE_DISTANCE_CELLS`] of one is embedded in the nearest active cell
     /// by extrapolating its trilinear field; farther points are an error naming the point.
     pub fn new(grid: &WeightedCellGrid, points: &[Point3<f64>]) -> Result<Self, EmbeddingError> {
-        let mut out = Vec::with_capacity(points.len());
-        for (index, p) in points.iter().enumerate() {
-            out.push(embed_point(grid, p, index)?);
-        }
+        // Each point is located on its own (in parallel); the first failure in order is reported.
+        let embedded: Vec<Result<EmbeddedPoint, EmbeddingError>> = points
+            .par_iter()
+            .enumerate()
+            .map(|(index, p)| embed_point(grid, p, index))
+            .collect();
+        let out = embedded.into_iter().collect::<Result<Vec<_>, _>>()?;
         Ok(Self {
             points: out,
             rest: points.to_vec(),

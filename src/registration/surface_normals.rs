@@ -31,6 +31,7 @@ use std::collections::HashMap;
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
 
 use crate::geometry::Aabb;
 use crate::mechanics::loads::samples_by_triangle;
@@ -193,6 +194,7 @@ impl NormalsAtScale {
             cluster[c as usize] += (n[a] * w[0] + n[b] * w[1] + n[d] * w[2]) * area;
         }
         (0..n.len())
+            .into_par_iter()
             .map(|v| {
                 let sum = self.reach[self.reach_start[v]..self.reach_start[v + 1]]
                     .iter()

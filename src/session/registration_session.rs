@@ -3,6 +3,7 @@
 use std::time::{Duration, Instant};
 
 use nalgebra::Point3;
+use rayon::prelude::*;
 
 use super::frame::{Frame, FrameError, FrameResult, StageTimes};
 use super::memory_estimate::ModelSize;
@@ -112,7 +113,7 @@ impl SurfaceIndex {
     /// nearest vertex, positive outside.
     fn signed_distances(&self, cloud: &[Point3<f64>]) -> Vec<f64> {
         cloud
-            .iter()
+            .par_iter()
             .map(|q| {
                 let (i, _) = self.vertices.nearest(q);
                 self.normals[i].dot(&(*q - self.vertices.points[i]))
