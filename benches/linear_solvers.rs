@@ -12,6 +12,9 @@
 //! coordinates (`SparseSolver::with_node_coordinates`); the factor sizes
 //! (`factor_nnz`) of both are printed to stderr.
 //!
+//! `three-rhs` times three right-hand sides solved one by one against one
+//! `solve_columns` pass (the contact force's three unit loads).
+//!
 //! Run: `cargo bench --bench linear_solvers -- --warm-up-time 1 --measurement-time 3`
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
@@ -92,5 +95,40 @@ fn bench_linear_solvers(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, bench_linear_solvers);
+/// Three right-hand sides with one kept factorisation (the contact force's unit loads, every
+/// frame): one `solve` each against one `solve_columns` pass over the factor, on the 1,000-node
+/// ball (nested dissection).
+fn bench_several_right_hand_sides(c: &mut Criterion) {
+    let (k, coords) = node_set_elasticity_matrix(14, ball(6, 6.3));
+    let mut solver = solver(SolverKind::Cholesky, Some(&coords));
+    solver.factorize(&k).expect("factorize");
+    let n = k.n;
+    let b: Vec<f64> = (0..3).flat_map(|s| random_vector(n, 50 + s)).collect();
+    let mut x = vec![0.0; 3 * n];
+    let mut group = c.benchmark_group(format!("linear_solvers/three-rhs-{n}dofs"));
+    group.sample_size(20);
+    group.bench_function("solve x3", |bench| {
+        bench.iter(|| {
+            for (bj, xj) in b.chunks(n).zip(x.chunks_mut(n)) {
+                black_box(solver.solve(&k, black_box(bj), xj).expect("solve"));
+            }
+        })
+    });
+    group.bench_function("solve_columns", |bench| {
+        bench.iter(|| {
+            black_box(
+                solver
+                    .solve_columns(&k, black_box(&b), &mut x, 3)
+                    .expect("solve"),
+            )
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(
+    benches,
+    bench_linear_solvers,
+    bench_several_right_hand_sides
+);
 criterion_main!(benches);

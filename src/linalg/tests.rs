@@ -756,7 +756,11 @@ fn several_columns_solve_like_each_column_alone_and_match_the_dense_reference() 
         let stats = s
             .solve_columns(&k, &b, &mut x, 4)
             .unwrap_or_else(|e| panic!("{name}: {e}"));
-        let tol = if kind == SolverKind::JacobiCg { 1e-4 } else { 1e-8 };
+        let tol = if kind == SolverKind::JacobiCg {
+            1e-4
+        } else {
+            1e-8
+        };
         let mut worst: f64 = 0.0;
         for (bj, xj) in b.chunks(n).zip(x.chunks(n)).take(3) {
             let err = rel_diff(xj, &dense_solve(&k, bj));
