@@ -1,7 +1,6 @@
 //! Scenario tests of the synthetic camera against analytic expectations.
 
 use std::f64::consts::PI;
-use std::time::Instant;
 
 use nalgebra::{Point3, Rotation3, Vector3};
 
@@ -512,43 +511,4 @@ fn invalid_inputs_are_rejected_with_clear_messages() {
     let huge = icosphere(Point3::origin(), 100.0, 2);
     let e = synthesize_cloud(&huge, &cam, &d).unwrap_err();
     assert!(e.to_string().contains("is the surface in metres"), "{e}");
-}
-
-#[test]
-#[ignore = "timing; run with --ignored --nocapture"]
-fn timing_2000_points_from_5000_triangles() {
-    let s = icosphere(Point3::origin(), R, 4);
-    assert_eq!(s.triangles.len(), 5_120);
-    let cam = skew_camera(3.0 * R);
-    let spec = CloudSpec {
-        density_per_cm2: 5.0,
-        noise_sigma: 1e-3,
-        outlier_fraction: 0.05,
-        seed: 1,
-        ..Default::default()
-    };
-    let _ = synthesize_cloud(&s, &cam, &spec).unwrap();
-    let runs = 20;
-    let start = Instant::now();
-    let mut n = 0;
-    for i in 0..runs {
-        n = synthesize_cloud(&s, &cam, &CloudSpec { seed: i, ..spec })
-            .unwrap()
-            .points
-            .len();
-    }
-    let ms = start.elapsed().as_secs_f64() * 1e3 / runs as f64;
-    let start = Instant::now();
-    let vs = VisibleSurface::new(&s).unwrap();
-    let build = start.elapsed().as_secs_f64() * 1e3;
-    let start = Instant::now();
-    let vis = vs.visible_vertices(&cam);
-    let query = start.elapsed().as_secs_f64() * 1e3;
-    println!(
-        "synthesize_cloud: {n} points from {} triangles in {ms:.2} ms/cloud \
-         (BVH build {build:.2} ms; {} vertex visibility queries {query:.2} ms, {} visible)",
-        s.triangles.len(),
-        vis.len(),
-        vis.iter().filter(|&&v| v).count()
-    );
 }
