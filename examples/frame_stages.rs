@@ -1,0 +1,88 @@
+//! Registers a tool-indentation sequence (`fixtures/liver_indentation`) or the phantom's three
+//! synthetic scenarios and prints, per frame, the wall time and each stage's share
+//! (`FrameResult::times`), the ICP and Newton iterations, the factorisations and the flags;
+//! then the warm frames' p50, p95 and mean. A diagnostic for where a warm frame's time goes
+//! (docs/registration.md, "The cost of a warm frame"). Run:
+//!
+//! `cargo run --release --example frame_stages -- press-slide linear` (a sequence and a truth
+//! law of the fixture; clouds in the model's frame, no camera), or
+//! `cargo run --release --example frame_stages -- phantom` (10 frames per scenario).
+//! `REPEAT=N` registers it N times, each with a fresh session; `QUIET=1` prints the summary only.
+
+use livereg::benchmark::indentation::{
+    indentation_cases, indentation_workload, scene_for, IndentationVariant,
+};
+use livereg::benchmark::Workload;
+use livereg::scene::{load_scene, LoadedScene};
+use livereg::session::Session;
+
+fn workloads(args: &[String]) -> Result<(LoadedScene, Vec<Workload>), String> {
+    let what = args.get(1).map_or("press-slide", String::as_str);
+    if what == "phantom" {
+        let dir = std::env::temp_dir().join("livereg-frame-stages-phantom");
+        livereg::phantom::write_phantom(&dir).map_err(|e| e.to_string())?;
+        let scene = load_scene(&dir.join("scene.toml")).map_err(|e| e.to_string())?;
+        let w = livereg::cli::bench::synthetic_workloads(&scene, &[], 10, false, 0, None)?;
+        return Ok((scene, w));
+    }
+    let law = args.get(2).map_or("linear", String::as_str);
+    let dir = livereg::synthetic::indentation::bundled_fixture_dir();
+    let scene = load_scene(&dir.join("scene.toml")).map_err(|e| e.to_string())?;
+    let cases = indentation_cases(&dir, &[what], &[law], &[IndentationVariant::NoCamera], None)?;
+    let case = cases.first().ok_or("no such case")?;
+    let applied = scene_for(&scene, case.variant);
+    let w = indentation_workload(&case.truth, &case.frames, applied.length_scale(), false);
+    Ok((applied, vec![w]))
+}
+
+fn main() -> Result<(), String> {
+    let args: Vec<String> = std::env::args().collect();
+    let repeat: usize = std::env::var("REPEAT")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(1);
+    let quiet = std::env::var("QUIET").is_ok();
+    let (scene, workloads) = workloads(&args)?;
+    let mut warm = Vec::new();
+    for _ in 0..repeat {
+        for w in &workloads {
+            let mut session = Session::from_scene(&scene).map_err(|e| e.to_string())?;
+            for (i, frame) in w.frames.iter().enumerate() {
+                let r = session.register(frame);
+                if r.warm {
+                    warm.push(r.wall_ms);
+                }
+                if quiet {
+                    continue;
+                }
+                let t = &r.times;
+                println!(
+                    "{i:3} {:7.1} ms | prepare {:5.1} rigid {:5.1} visibility {:5.1} pairing {:5.1} \
+                     newton {:5.1} output {:5.1} | icp {} newton {} factorisations {} | {:?}",
+                    r.wall_ms,
+                    t.prepare_ms,
+                    t.rigid_ms,
+                    t.visibility_ms,
+                    t.pairing_ms,
+                    t.newton_ms,
+                    t.output_ms,
+                    r.icp_iterations,
+                    r.newton_iterations,
+                    r.factorizations,
+                    r.flags
+                );
+            }
+        }
+    }
+    warm.sort_by(f64::total_cmp);
+    if let (Some(_), n) = (warm.first(), warm.len()) {
+        let at = |q: f64| warm[((n - 1) as f64 * q).round() as usize];
+        println!(
+            "warm frames {n}: p50 {:.2} ms, p95 {:.2} ms, mean {:.2} ms",
+            at(0.5),
+            at(0.95),
+            warm.iter().sum::<f64>() / n as f64
+        );
+    }
+    Ok(())
+}
