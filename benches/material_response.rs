@@ -10,25 +10,23 @@ use std::hint::black_box;
 use criterion::{criterion_group, criterion_main, Criterion};
 use livereg::mechanics::material::Mat3;
 use livereg::mechanics::{LawKind, Material, Part};
+use livereg::synthetic::Rng;
 use nalgebra::{Rotation3, Vector3};
 
-/// Deterministic gradients: a small linear congruential generator (no test RNG is public).
+/// A rotation about a random axis by a random angle in [0, π).
+fn rotation(rng: &mut Rng) -> Mat3 {
+    let axis = Vector3::from_fn(|_, _| rng.uniform_in(-0.5, 0.5));
+    Rotation3::from_scaled_axis(axis.normalize() * rng.uniform_in(0.0, std::f64::consts::PI))
+        .into_inner()
+}
+
+/// The 64 gradients, from the crate's seeded generator (the same every run).
 fn gradients() -> Vec<Mat3> {
-    let mut state: u64 = 0x5EED_0007;
-    let mut unit = move || {
-        state = state
-            .wrapping_mul(6_364_136_223_846_793_005)
-            .wrapping_add(1_442_695_040_888_963_407);
-        (state >> 11) as f64 / (1u64 << 53) as f64
-    };
-    let rotation = |unit: &mut dyn FnMut() -> f64| {
-        let axis = Vector3::new(unit() - 0.5, unit() - 0.5, unit() - 0.5);
-        Rotation3::from_scaled_axis(axis.normalize() * (unit() * std::f64::consts::PI)).into_inner()
-    };
+    let mut rng = Rng::new(0x5EED_0007);
     (0..64)
         .map(|_| {
-            let (q1, q2) = (rotation(&mut unit), rotation(&mut unit));
-            let l = Vector3::new(0.7 + 0.7 * unit(), 0.7 + 0.7 * unit(), 0.7 + 0.7 * unit());
+            let (q1, q2) = (rotation(&mut rng), rotation(&mut rng));
+            let l = Vector3::from_fn(|_, _| rng.uniform_in(0.7, 1.4));
             q1 * Mat3::from_diagonal(&l) * q2
         })
         .collect()

@@ -13,6 +13,7 @@ use livereg::benchmark::indentation::{
     indentation_cases, indentation_workload, scene_for, IndentationVariant,
 };
 use livereg::benchmark::Workload;
+use livereg::evaluation::percentile;
 use livereg::scene::{load_scene, LoadedScene};
 use livereg::session::Session;
 
@@ -75,13 +76,13 @@ fn main() -> Result<(), String> {
         }
     }
     warm.sort_by(f64::total_cmp);
-    if let (Some(_), n) = (warm.first(), warm.len()) {
-        let at = |q: f64| warm[((n - 1) as f64 * q).round() as usize];
+    if !warm.is_empty() {
         println!(
-            "warm frames {n}: p50 {:.2} ms, p95 {:.2} ms, mean {:.2} ms",
-            at(0.5),
-            at(0.95),
-            warm.iter().sum::<f64>() / n as f64
+            "warm frames {}: p50 {:.2} ms, p95 {:.2} ms, mean {:.2} ms",
+            warm.len(),
+            percentile(&warm, 0.5),
+            percentile(&warm, 0.95),
+            warm.iter().sum::<f64>() / warm.len() as f64
         );
     }
     Ok(())

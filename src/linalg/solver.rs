@@ -523,16 +523,7 @@ impl SparseSolver {
     ) -> Result<SolveStats, LinalgError> {
         let t0 = Instant::now();
         let active = self.active.ok_or(LinalgError::NotFactorized)?;
-        let key = self.factorized_key.ok_or(LinalgError::NotFactorized)?;
-        if k.n != key.1 || k.row_idx.len() != key.2 || k.values.len() != key.2 {
-            return Err(LinalgError::InvalidPattern(format!(
-                "solve: matrix (n = {}, nnz = {}) differs from the factorised one (n = {}, nnz = {})",
-                k.n,
-                k.row_idx.len(),
-                key.1,
-                key.2
-            )));
-        }
+        self.check_factorised_pattern(k, "solve")?;
         if b.len() != k.n || x.len() != k.n {
             return Err(LinalgError::InvalidPattern(format!(
                 "solve: b has length {} and x has length {}, expected {}",
@@ -580,9 +571,9 @@ impl SparseSolver {
     /// Solves `K X = B` for `columns` right-hand sides stored column after column in `b`
     /// (`n × columns`, column-major); `x` (the same shape) is overwritten. The same contract
     /// as [`SparseSolver::solve`] per column; a direct factorisation serves all columns in one
-    /// pass over the factor (a solve's cost is reading the factor, so three columns cost
-    /// little more than one), then each column is refined on its own. CG solves the columns
-    /// one after the other. The statistics are the worst column's residual and the summed
+    /// pass over the factor (on these grid sizes, whose factors stay in cache, that saves only
+    /// a few per cent: `benches/linear_solvers.rs`, `three-rhs`), then each column is refined
+    /// on its own. CG solves the columns one after the other. The statistics are the worst column's residual and the summed
     /// iterations and refinement steps.
     pub fn solve_columns(
         &mut self,
@@ -620,16 +611,7 @@ impl SparseSolver {
             total.solve_ms = ms_since(t0);
             return Ok(total);
         }
-        // The pattern checks of `solve`, once.
-        let key = self.factorized_key.ok_or(LinalgError::NotFactorized)?;
-        if n != key.1 || k.row_idx.len() != key.2 || k.values.len() != key.2 {
-            return Err(LinalgError::InvalidPattern(format!(
-                "solve_columns: matrix (n = {n}, nnz = {}) differs from the factorised one (n = {}, nnz = {})",
-                k.row_idx.len(),
-                key.1,
-                key.2
-            )));
-        }
+        self.check_factorised_pattern(k, "solve_columns")?;
         let method = self.factorized_method().unwrap_or(M_CG);
         let single_precision = self.single_precision;
         let d = self.direct.as_mut().ok_or(LinalgError::NotFactorized)?;
@@ -654,6 +636,22 @@ impl SparseSolver {
         }
         stats.solve_ms = ms_since(t0);
         Ok(stats)
+    }
+
+    /// `Ok` when `k` has the dimension and number of stored entries of the last factorised
+    /// matrix; the error names `caller`.
+    fn check_factorised_pattern(&self, k: &SymmetricCsc, caller: &str) -> Result<(), LinalgError> {
+        let key = self.factorized_key.ok_or(LinalgError::NotFactorized)?;
+        if k.n != key.1 || k.row_idx.len() != key.2 || k.values.len() != key.2 {
+            return Err(LinalgError::InvalidPattern(format!(
+                "{caller}: matrix (n = {}, nnz = {}) differs from the factorised one (n = {}, nnz = {})",
+                k.n,
+                k.row_idx.len(),
+                key.1,
+                key.2
+            )));
+        }
+        Ok(())
     }
 
     fn solve_cg(
@@ -704,7 +702,6 @@ impl Direct {
         single_precision: Option<f64>,
     ) -> Result<(usize, f64), LinalgError> {
         let n = k.n;
-        let d = self;
         let par = par();
         if !x.iter().all(|v| v.is_finite()) {
             x.fill(0.0);
@@ -722,14 +719,14 @@ impl Direct {
         let mut rel = residual(x, &mut r);
         let mut steps = 0;
         let mut trial = vec![0.0; n];
-        let (tol, max_steps) = match (d.factor, single_precision) {
+        let (tol, max_steps) = match (self.factor, single_precision) {
             (Some(DirectFactor::LltF32), Some(t)) => (t, MAX_REFINE_F32),
             _ => (REFINE_TOL, MAX_REFINE),
         };
         while rel > tol && steps < max_steps && rel.is_finite() {
             steps += 1;
             // r ← K⁻¹ r; trial = x + r.
-            d.apply_inverse(&mut r, 1, par)?;
+            self.apply_inverse(&mut r, 1, par)?;
             for ((t, xi), di) in trial.iter_mut().zip(x.iter()).zip(&r) {
                 *t = xi + di;
             }
@@ -789,10 +786,8 @@ impl Direct {
         Ok(ok && self.l_values_f32.iter().all(|v| v.is_finite()))
     }
 
-    /// rhs ← K⁻¹ rhs with the current factor.
     /// Overwrites the `columns` right-hand sides stored column after column in `rhs` with
-    /// `K⁻¹` of them, in one pass over the factor (its memory traffic, which bounds a solve,
-    /// is shared by the columns).
+    /// `K⁻¹` of them (the current factor), in one pass over the factor.
     fn apply_inverse(
         &mut self,
         rhs: &mut [f64],
