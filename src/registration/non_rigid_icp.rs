@@ -285,7 +285,7 @@ pub struct NonRigidReport {
     /// Tangent factorisations.
     pub factorizations: usize,
     /// RMS distance (m) between the kept source points and their nearest cloud points at the
-    /// last pairing.
+    /// last pairing (the one that made the last Newton iterations' springs).
     pub surface_rms: f64,
     /// Source points used in the last iteration.
     pub sources: usize,
@@ -593,10 +593,12 @@ impl NonRigidIcp {
 
     /// One penalty step at stiffness `k` (N/m per spring): at most `max_icp_iterations` ICP
     /// iterations, each of visibility ([`NonRigidIcp::update_visibility`]), pairing
-    /// ([`NonRigidIcp::pair_points`]), the convergence check ([`surface_settled`]), spring
-    /// building ([`NonRigidIcp::data_springs`]) and `newton_iterations` Newton iterations
-    /// ([`NonRigidIcp::newton_stage`]). The deadline is checked before each iteration but the
-    /// first of the call.
+    /// ([`NonRigidIcp::pair_points`]), spring building ([`NonRigidIcp::data_springs`]) and
+    /// `newton_iterations` Newton iterations ([`NonRigidIcp::newton_stage`]). Before each
+    /// iteration but the first, the convergence check ([`surface_settled`]): the surface
+    /// points the last iteration pulled stopped moving. It needs no pairing, so a converged
+    /// step ends without one (the pairs it would make are not used). The deadline is checked
+    /// next, before each iteration but the first of the call.
     #[allow(clippy::too_many_arguments)]
     fn penalty_step(
         &mut self,
@@ -610,37 +612,38 @@ impl NonRigidIcp {
         pull: &mut Option<PenaltySprings>,
     ) -> Result<StepEnd, NonRigidError> {
         let settings = self.settings;
-        // Surface positions at the start of the previous ICP iteration.
-        let mut previous: Option<Vec<Point3<f64>>> = None;
+        // Surface positions at the start of the previous ICP iteration, and the surface
+        // points it pulled.
+        let mut previous: Option<(Vec<Point3<f64>>, Vec<usize>)> = None;
         let mut solver_settled = false;
         for _ in 0..settings.max_icp_iterations {
+            let x = model.surface_embedding.positions(u);
+            // A solver that only made shortened steps has not moved the surface because it
+            // could not, not because it is done.
+            let converged = solver_settled
+                && previous.as_ref().is_some_and(|(prev, sources)| {
+                    surface_settled(sources, &x, prev, settings.tolerance)
+                });
+            if converged {
+                return Ok(StepEnd::Converged);
+            }
             if deadline.is_some_and(|d| Instant::now() >= d) && report.icp_iterations > 0 {
                 return Ok(StepEnd::Deadline);
             }
             report.icp_iterations += 1;
-            let x = model.surface_embedding.positions(u);
             self.update_visibility(model, &x, camera, &mut report.timings)?;
             let t = Instant::now();
             let paired = self.pair_points(model, target, &x, camera, u, k)?;
             let (sources, rms) = paired.sources_and_rms();
             report.sources = sources.len();
             report.surface_rms = rms;
-            // A solver that only made shortened steps has not moved the surface because it
-            // could not, not because it is done.
-            let converged = solver_settled
-                && previous
-                    .as_ref()
-                    .is_some_and(|prev| surface_settled(&sources, &x, prev, settings.tolerance));
             report.timings.pairing_ms += ms(t);
-            if converged {
-                return Ok(StepEnd::Converged);
-            }
             let t = Instant::now();
             let springs = self.data_springs(paired, &model.surface_embedding, k);
             solver_settled = self.newton_stage(model, &springs, u, report);
             *pull = Some(springs);
             report.timings.newton_ms += ms(t);
-            previous = Some(x);
+            previous = Some((x, sources));
         }
         Ok(StepEnd::IterationCap)
     }

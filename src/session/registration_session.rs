@@ -83,6 +83,10 @@ pub struct Session {
     /// the rest shape explains it ([`Session::rest_shape_if_unchanged`]): the same every
     /// frame.
     rest_surface: std::sync::OnceLock<Option<SurfaceIndex>>,
+    /// The last good state's deformed surface index, which the next frame's held-pose check,
+    /// still-frame test and re-acquisition read: the one the frame's own fit built, kept with
+    /// the state it measured, or built on first use.
+    good_surface: std::sync::OnceLock<Option<SurfaceIndex>>,
     /// The model's rest compliance for the contact force, factorised on the first frame that
     /// estimates one (an error, kept, when it cannot be: no estimate then).
     rest_compliance: Option<Result<RestCompliance, String>>,
@@ -107,6 +111,23 @@ impl SurfaceIndex {
             vertices: IndexedPoints::new(x)?,
             normals,
         })
+    }
+
+    /// RMS distance (metres) from `cloud` (metres, model frame) to this surface, measured to
+    /// the tangent plane at the nearest vertex, after the mean + 2σ outlier rule; infinite
+    /// when no point is kept.
+    fn fit_rms(&self, cloud: &[Point3<f64>]) -> f64 {
+        let d: Vec<f64> = self
+            .signed_distances(cloud)
+            .into_iter()
+            .map(f64::abs)
+            .collect();
+        let limit = rejection_threshold(&d, 2.0);
+        let kept: Vec<f64> = d.into_iter().filter(|&v| v <= limit).collect();
+        if kept.is_empty() {
+            return f64::INFINITY;
+        }
+        (kept.iter().map(|v| v * v).sum::<f64>() / kept.len() as f64).sqrt()
     }
 
     /// Signed distance (m) of each point of `cloud` (m, model frame): along the normal at its
@@ -256,6 +277,7 @@ impl Session {
             rigid_target: None,
             still: StillWindow::default(),
             rest_surface: std::sync::OnceLock::new(),
+            good_surface: std::sync::OnceLock::new(),
             rest_compliance: None,
             fitted_pose_uncertainty: None,
         }
@@ -273,6 +295,7 @@ impl Session {
             pose_ambiguous: false,
             pose_uncertainty: None,
         };
+        self.good_surface = std::sync::OnceLock::new();
         self.non_rigid_cold.invalidate();
         self.non_rigid_warm.invalidate();
         self.still.clear();
@@ -390,6 +413,11 @@ impl Session {
                     result.flags.push("pose_uncertain".into());
                 }
                 result.pose_uncertainty = pose_uncertainty.map(|v| v / scale);
+                if let Some(surface) = done.surface {
+                    self.good_surface = std::sync::OnceLock::from(Some(surface));
+                } else if done.u != self.good.u {
+                    self.good_surface = std::sync::OnceLock::new();
+                }
                 self.good = GoodState {
                     u: done.u,
                     model_to_cloud: done.model_to_cloud,
@@ -533,7 +561,10 @@ impl Session {
             }
         }
         // The gate on what the frame is: does the cloud lie on the registered surface?
-        let fit = self.fit_rms(&aligned, &u);
+        let surface = SurfaceIndex::new(&self.model, &u);
+        let fit = surface
+            .as_ref()
+            .map_or(f64::INFINITY, |s| s.fit_rms(&aligned));
         if fit > self.settings.max_rigid_rms {
             return Err(FrameError::NoFit {
                 rms_mm: fit * 1e3,
@@ -559,6 +590,7 @@ impl Session {
             warnings: report.warnings,
             contact_force,
             still,
+            surface,
         })
     }
 
@@ -1041,7 +1073,16 @@ impl Session {
     fn pose_rms(&self, cloud: &[Point3<f64>], model_to_cloud: &RigidTransform) -> f64 {
         let to_model = model_to_cloud.inverse();
         let aligned: Vec<Point3<f64>> = cloud.iter().map(|p| to_model.apply(p)).collect();
-        self.fit_rms(&aligned, &self.good.u)
+        self.good_surface()
+            .map_or(f64::INFINITY, |s| s.fit_rms(&aligned))
+    }
+
+    /// The last good state's deformed surface index ([`Session::good_surface`]'s cache);
+    /// `None` for an empty surface.
+    fn good_surface(&self) -> Option<&SurfaceIndex> {
+        self.good_surface
+            .get_or_init(|| SurfaceIndex::new(&self.model, &self.good.u))
+            .as_ref()
     }
 
     /// The rest shape, kept without registering when it explains the frame's cloud
@@ -1095,7 +1136,7 @@ impl Session {
         let max_frames = self.settings.still_frames.max(1);
         let unchanged = max_frames > 1
             && self.good.registered
-            && noise.is_some_and(|n| self.explains(&self.good.u, aligned, n));
+            && noise.is_some_and(|n| self.explains_good(aligned, n));
         let mut still = self.still.clone();
         let n = still.admit(
             aligned.to_vec(),
@@ -1115,33 +1156,17 @@ impl Session {
         (still, data)
     }
 
-    /// Whether the surface deformed by `u` (m) explains the cloud `aligned` (model frame, m)
+    /// Whether the last good state's surface explains the cloud `aligned` (model frame, m)
     /// within its `noise` ([`SessionSettings::rest_test`]'s test; false without it).
-    fn explains(&self, u: &[f64], aligned: &[Point3<f64>], noise: &CloudNoise) -> bool {
+    fn explains_good(&self, aligned: &[Point3<f64>], noise: &CloudNoise) -> bool {
         let Some(test) = &self.settings.rest_test else {
             return false;
         };
-        let Some(surface) = SurfaceIndex::new(&self.model, u) else {
+        let Some(surface) = self.good_surface() else {
             return false;
         };
         let d = surface.signed_distances(aligned);
         !test.evaluate_near(&noise.near, &d, noise.sigma).significant
-    }
-
-    /// RMS distance (metres) from `cloud` (metres, model frame) to the surface deformed by `u`,
-    /// measured to the tangent plane at the nearest vertex, after the mean + 2σ outlier rule.
-    fn fit_rms(&self, cloud: &[Point3<f64>], u: &[f64]) -> f64 {
-        let Some(surface) = SurfaceIndex::new(&self.model, u) else {
-            return f64::INFINITY;
-        };
-        let signed = surface.signed_distances(cloud);
-        let d: Vec<f64> = signed.into_iter().map(f64::abs).collect();
-        let limit = rejection_threshold(&d, 2.0);
-        let kept: Vec<f64> = d.into_iter().filter(|&v| v <= limit).collect();
-        if kept.is_empty() {
-            return f64::INFINITY;
-        }
-        (kept.iter().map(|v| v * v).sum::<f64>() / kept.len() as f64).sqrt()
     }
 }
 
@@ -1203,6 +1228,9 @@ struct Done {
     /// The still window with this frame's cloud (empty for a frame without the non-rigid
     /// stage): it replaces the session's when the frame succeeds.
     still: StillWindow,
+    /// The surface index of `u` the frame's fit built (`None` when it built none): the next
+    /// frame's [`Session::good_surface`].
+    surface: Option<SurfaceIndex>,
 }
 
 impl Done {
@@ -1232,6 +1260,7 @@ impl Done {
             warnings: Vec::new(),
             contact_force,
             still: StillWindow::default(),
+            surface: None,
         }
     }
 }
