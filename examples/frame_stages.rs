@@ -1,8 +1,8 @@
 //! Registers a tool-indentation sequence (`fixtures/liver_indentation`) or the phantom's three
 //! synthetic scenarios and prints, per frame, the wall time and each stage's share
 //! (`FrameResult::times`), the ICP and Newton iterations, the factorisations and the flags;
-//! then the warm frames' p50, p95 and mean. A diagnostic for where a warm frame's time goes
-//! (docs/registration.md, "The cost of a warm frame"). Run:
+//! then the warm frames' p50, p95 and mean, and each stage's mean over them. A diagnostic for
+//! where a warm frame's time goes (docs/registration.md, "The cost of a warm frame"). Run:
 //!
 //! `cargo run --release --example frame_stages -- press-slide linear` (a sequence and a truth
 //! law of the fixture; clouds in the model's frame, no camera), or
@@ -15,7 +15,7 @@ use livereg::benchmark::indentation::{
 use livereg::benchmark::Workload;
 use livereg::evaluation::percentile;
 use livereg::scene::{load_scene, LoadedScene};
-use livereg::session::Session;
+use livereg::session::{Session, StageTimes};
 
 fn workloads(args: &[String]) -> Result<(LoadedScene, Vec<Workload>), String> {
     let what = args.get(1).map_or("press-slide", String::as_str);
@@ -36,6 +36,34 @@ fn workloads(args: &[String]) -> Result<(LoadedScene, Vec<Workload>), String> {
     Ok((applied, vec![w]))
 }
 
+/// The stages of [`StageTimes`], in the order of [`stages`].
+const STAGES: [&str; 9] = [
+    "prepare",
+    "rigid",
+    "change",
+    "visibility",
+    "pairing",
+    "newton",
+    "gate",
+    "force",
+    "output",
+];
+
+/// A frame's stage times (ms) in the order of [`STAGES`].
+fn stages(t: &StageTimes) -> [f64; 9] {
+    [
+        t.prepare_ms,
+        t.rigid_ms,
+        t.change_ms,
+        t.visibility_ms,
+        t.pairing_ms,
+        t.newton_ms,
+        t.gate_ms,
+        t.force_ms,
+        t.output_ms,
+    ]
+}
+
 fn main() -> Result<(), String> {
     let args: Vec<String> = std::env::args().collect();
     let repeat: usize = std::env::var("REPEAT")
@@ -45,6 +73,7 @@ fn main() -> Result<(), String> {
     let quiet = std::env::var("QUIET").is_ok();
     let (scene, workloads) = workloads(&args)?;
     let mut warm = Vec::new();
+    let mut stage_sums = [0.0; 9];
     for _ in 0..repeat {
         for w in &workloads {
             let mut session = Session::from_scene(&scene).map_err(|e| e.to_string())?;
@@ -52,20 +81,27 @@ fn main() -> Result<(), String> {
                 let r = session.register(frame);
                 if r.warm {
                     warm.push(r.wall_ms);
+                    for (sum, v) in stage_sums.iter_mut().zip(stages(&r.times)) {
+                        *sum += v;
+                    }
                 }
                 if quiet {
                     continue;
                 }
                 let t = &r.times;
                 println!(
-                    "{i:3} {:7.1} ms | prepare {:5.1} rigid {:5.1} visibility {:5.1} pairing {:5.1} \
-                     newton {:5.1} output {:5.1} | icp {} newton {} factorisations {} | {:?}",
+                    "{i:3} {:7.1} ms | prepare {:5.1} rigid {:5.1} change {:5.1} visibility {:5.1} \
+                     pairing {:5.1} newton {:5.1} gate {:5.1} force {:5.1} output {:5.1} | icp {} \
+                     newton {} factorisations {} | {:?}",
                     r.wall_ms,
                     t.prepare_ms,
                     t.rigid_ms,
+                    t.change_ms,
                     t.visibility_ms,
                     t.pairing_ms,
                     t.newton_ms,
+                    t.gate_ms,
+                    t.force_ms,
                     t.output_ms,
                     r.icp_iterations,
                     r.newton_iterations,
@@ -84,6 +120,12 @@ fn main() -> Result<(), String> {
             percentile(&warm, 0.95),
             warm.iter().sum::<f64>() / warm.len() as f64
         );
+        let means: Vec<String> = STAGES
+            .iter()
+            .zip(stage_sums)
+            .map(|(name, sum)| format!("{name} {:.2}", sum / warm.len() as f64))
+            .collect();
+        println!("warm frames' stage means, ms: {}", means.join(", "));
     }
     Ok(())
 }

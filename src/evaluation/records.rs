@@ -149,6 +149,9 @@ impl ResultRecord {
             ("visibility", r.times.visibility_ms),
             ("pairing", r.times.pairing_ms),
             ("newton", r.times.newton_ms),
+            ("change", r.times.change_ms),
+            ("gate", r.times.gate_ms),
+            ("force", r.times.force_ms),
             ("output", r.times.output_ms),
         ] {
             timings_ms.insert(name.to_string(), v);

@@ -138,6 +138,13 @@ pub struct StageTimes {
     pub pairing_ms: f64,
     /// Newton iterations inside the non-rigid stage.
     pub newton_ms: f64,
+    /// The tests of change before the non-rigid stage: the cloud's noise and neighbour lists,
+    /// whether the rest shape or the last registered one explains it (rest test, still frames).
+    pub change_ms: f64,
+    /// The gate on the registered fit (the cloud's distances to the registered surface).
+    pub gate_ms: f64,
+    /// The contact force estimate.
+    pub force_ms: f64,
     /// Deformed surface and structures.
     pub output_ms: f64,
 }

@@ -515,9 +515,11 @@ impl Session {
         // Non-rigid stage in the model frame.
         let cloud_to_model = model_to_cloud.inverse();
         let aligned: Vec<Point3<f64>> = cloud.iter().map(|p| cloud_to_model.apply(p)).collect();
+        let t = Instant::now();
         let noise = CloudNoise::measure(&aligned, self.settings.rest_test.as_ref());
-        if let Some((u, fit, force)) = self.rest_shape_if_unchanged(&aligned, noise.as_ref(), flags)
-        {
+        let at_rest = self.rest_shape_if_unchanged(&aligned, noise.as_ref(), flags);
+        times.change_ms = ms(t);
+        if let Some((u, fit, force)) = at_rest {
             return Ok(Done::without_non_rigid(
                 u,
                 model_to_cloud,
@@ -535,7 +537,9 @@ impl Session {
             .settings
             .time_budget_ms
             .map(|b| start + Duration::from_secs_f64(b.max(0.0) * 1e-3));
+        let t = Instant::now();
         let (still, data) = self.still_frames(&aligned, frame.camera, noise.as_ref(), flags);
+        times.change_ms += ms(t);
         let (u, report, spent) = self.non_rigid_stage(&data, camera.as_ref(), deadline, flags)?;
         times.visibility_ms = spent.visibility_ms;
         times.pairing_ms = spent.pairing_ms;
@@ -561,20 +565,24 @@ impl Session {
             }
         }
         // The gate on what the frame is: does the cloud lie on the registered surface?
+        let t = Instant::now();
         let surface = SurfaceIndex::new(&self.model, &u);
         let fit = surface
             .as_ref()
             .map_or(f64::INFINITY, |s| s.fit_rms(&aligned));
+        times.gate_ms = ms(t);
         if fit > self.settings.max_rigid_rms {
             return Err(FrameError::NoFit {
                 rms_mm: fit * 1e3,
                 limit_mm: self.settings.max_rigid_rms * 1e3,
             });
         }
+        let t = Instant::now();
         let contact_force = report
             .data_term
             .as_ref()
             .and_then(|springs| self.contact_force(springs, &u));
+        times.force_ms = ms(t);
         Ok(Done {
             u,
             model_to_cloud,
