@@ -41,6 +41,7 @@ pub mod camera;
 pub mod holes;
 pub mod inside;
 pub mod line_crossings;
+pub mod neighbour_grid;
 pub mod predicates;
 pub mod shapes;
 pub mod tri_box;

@@ -104,9 +104,9 @@ impl ChangeTest {
             return Vec::new();
         }
         cloud
-            .points
-            .par_iter()
-            .map(|p| cloud.nearest_k(p, k_max).iter().map(|&(j, _)| j).collect())
+            .nearest_k_all(k_max)
+            .into_iter()
+            .map(|near| near.into_iter().map(|(j, _)| j).collect())
             .collect()
     }
 
