@@ -189,19 +189,7 @@ impl NeighbourGrid {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// A seeded uniform generator on [0, 1) (the geometry layer's tests need no more).
-    struct Uniform(u64);
-
-    impl Uniform {
-        fn next(&mut self) -> f64 {
-            self.0 = self
-                .0
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (self.0 >> 11) as f64 / (1u64 << 53) as f64
-        }
-    }
+    use crate::geometry::test_rng::Rng;
 
     /// The `k` nearest by brute force: every distance, sorted (ties by index).
     fn brute_force(points: &[Point3<f64>], i: usize, k: usize) -> Vec<(usize, f64)> {
@@ -232,7 +220,7 @@ mod tests {
     /// above the neighbours' distance, so the edge decides only the speed.
     #[test]
     fn lists_equal_brute_force_whatever_the_cell() {
-        let mut rng = Uniform(7);
+        let mut rng = Rng(7);
         let mut points: Vec<Point3<f64>> = (0..600)
             .map(|_| {
                 let (x, y) = (rng.next() * 0.1, rng.next() * 0.08);

@@ -6,22 +6,8 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
 use super::shapes::{self, Mesh};
+use super::test_rng::Rng;
 use super::{triangle_overlaps_box, Aabb, InsideTest};
-
-/// Deterministic xorshift64* generator.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.next()
-    }
-}
 
 /// Removes the triangles having all corners with `cut(p)` true (keeps the vertex array).
 fn remove_faces(mesh: &Mesh, cut: impl Fn(&Point3<f64>) -> bool) -> Mesh {

@@ -82,22 +82,7 @@ fn interval_separated(axis: &Vector3<f64>, tmin: f64, tmax: f64, b: &Aabb) -> bo
 mod tests {
     use super::*;
 
-    /// Small deterministic generator (xorshift64*), good enough for test sampling.
-    struct Rng(u64);
-    impl Rng {
-        fn next(&mut self) -> f64 {
-            self.0 ^= self.0 >> 12;
-            self.0 ^= self.0 << 25;
-            self.0 ^= self.0 >> 27;
-            (self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64
-        }
-        fn range(&mut self, lo: f64, hi: f64) -> f64 {
-            lo + (hi - lo) * self.next()
-        }
-        fn point(&mut self, lo: f64, hi: f64) -> Point3<f64> {
-            Point3::new(self.range(lo, hi), self.range(lo, hi), self.range(lo, hi))
-        }
-    }
+    use crate::geometry::test_rng::Rng;
 
     fn p(x: f64, y: f64, z: f64) -> Point3<f64> {
         Point3::new(x, y, z)
