@@ -13,7 +13,8 @@
 //! (`factor_nnz`) of both are printed to stderr.
 //!
 //! `three-rhs` times three right-hand sides solved one by one against one
-//! `solve_columns` pass (the contact force's three unit loads).
+//! `solve_columns` pass (the contact force's three unit loads); `mixed-precision` one
+//! factorisation and the eight solves it serves in warm frames, f64 against single precision.
 //!
 //! Run: `cargo bench --bench linear_solvers -- --warm-up-time 1 --measurement-time 3`
 
@@ -22,6 +23,7 @@ use livereg::linalg::testing::{
     ball, elasticity_grid_matrix, grid_node_coordinates, node_set_elasticity_matrix, random_vector,
 };
 use livereg::linalg::{SolverKind, SparseSolver, SymmetricCsc};
+use livereg::mechanics::newton::MIXED_PRECISION_TOLERANCE;
 use std::hint::black_box;
 
 /// Solver variants: (benchmark name, kind, use node coordinates).
@@ -126,9 +128,49 @@ fn bench_several_right_hand_sides(c: &mut Criterion) {
     group.finish();
 }
 
+/// What a kept factorisation costs over its life in warm frames (one factorisation, then
+/// [`REUSED_SOLVES`] solves: the warm reuse cap) in f64 and in single precision refined to
+/// `MIXED_PRECISION_TOLERANCE`, on boxes of 7³ to 15³ nodes (1,029 to 10,125 unknowns; the
+/// phantom's warm grid has 1,020, the indentation liver's 4,539): where mixed precision
+/// starts to pay.
+fn bench_mixed_precision(c: &mut Criterion) {
+    for m in [7usize, 10, 12, 15] {
+        let k = elasticity_grid_matrix(m);
+        let coords = grid_node_coordinates(m);
+        let b = random_vector(k.n, 7);
+        let mut x = vec![0.0; k.n];
+        let mut group = c.benchmark_group(format!("linear_solvers/mixed-precision-{}dofs", k.n));
+        group.sample_size(10);
+        for (name, tol) in [
+            ("f64", None),
+            ("f32-refined", Some(MIXED_PRECISION_TOLERANCE)),
+        ] {
+            let mut solver = solver(SolverKind::Cholesky, Some(&coords));
+            solver.set_single_precision(tol);
+            solver.factorize(&k).expect("factorize");
+            group.bench_function(
+                format!("factorize + {REUSED_SOLVES} solves, {name}"),
+                |bench| {
+                    bench.iter(|| {
+                        solver.factorize(black_box(&k)).expect("factorize");
+                        for _ in 0..REUSED_SOLVES {
+                            black_box(solver.solve(&k, black_box(&b), &mut x).expect("solve"));
+                        }
+                    })
+                },
+            );
+        }
+        group.finish();
+    }
+}
+
+/// Solves one warm factorisation serves (`NonRigidSettings::warm`'s `factor_reuse`).
+const REUSED_SOLVES: usize = 8;
+
 criterion_group!(
     benches,
     bench_linear_solvers,
-    bench_several_right_hand_sides
+    bench_several_right_hand_sides,
+    bench_mixed_precision
 );
 criterion_main!(benches);
