@@ -582,53 +582,6 @@ fn triangles_overlapping_matches_brute_force() {
     assert!(total > 1000);
 }
 
-/// Prints the accuracy/speed table quoted in `FastWinding::eval` (20k-triangle unit sphere,
-/// points farther than 1 % of the radius from it). Run in release with
-/// `cargo test --release winding_accuracy_survey -- --ignored --nocapture`.
-#[test]
-#[ignore]
-fn winding_accuracy_survey() {
-    use super::bvh::Bvh;
-    use super::winding::{ExpansionOrder, FastWinding};
-    let (v, tris) = shapes::icosphere(5, 1.0);
-    let corners: Vec<[Point3<f64>; 3]> = tris.iter().map(|t| t.map(|i| v[i])).collect();
-    let boxes: Vec<Aabb> = corners.iter().map(Aabb::from_points).collect();
-    let bvh = Bvh::build(&boxes, 4);
-    let mut rng = Rng(5);
-    let pts: Vec<Point3<f64>> = (0..2000)
-        .map(|_| {
-            Point3::new(
-                rng.range(-2.0, 2.0),
-                rng.range(-2.0, 2.0),
-                rng.range(-2.0, 2.0),
-            )
-        })
-        .filter(|p| (p.coords.norm() - 1.0).abs() > 0.01)
-        .collect();
-    let exact: Vec<f64> = pts
-        .iter()
-        .map(|p| super::winding_number_brute(&corners, p))
-        .collect();
-    for order in [
-        ExpansionOrder::Dipole,
-        ExpansionOrder::FirstOrder,
-        ExpansionOrder::SecondOrder,
-    ] {
-        let fw = FastWinding::new(&bvh, &corners);
-        for beta in [1.5, 2.0, 2.5, 3.0, 4.0] {
-            let t0 = std::time::Instant::now();
-            let mut max_err: f64 = 0.0;
-            for (p, e) in pts.iter().zip(&exact) {
-                max_err = max_err.max((fw.eval(&bvh, p, beta, order) - e).abs());
-            }
-            eprintln!(
-                "{order:?} beta {beta}: max err {max_err:.3e}, {:.2} us/query",
-                t0.elapsed().as_secs_f64() * 1e6 / pts.len() as f64
-            );
-        }
-    }
-}
-
 #[test]
 fn far_field_expansion_orders_converge() {
     use super::bvh::Bvh;
