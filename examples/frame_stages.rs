@@ -36,34 +36,6 @@ fn workloads(args: &[String]) -> Result<(LoadedScene, Vec<Workload>), String> {
     Ok((applied, vec![w]))
 }
 
-/// The stages of [`StageTimes`], in the order of [`stages`].
-const STAGES: [&str; 9] = [
-    "prepare",
-    "rigid",
-    "change",
-    "visibility",
-    "pairing",
-    "newton",
-    "gate",
-    "force",
-    "output",
-];
-
-/// A frame's stage times (ms) in the order of [`STAGES`].
-fn stages(t: &StageTimes) -> [f64; 9] {
-    [
-        t.prepare_ms,
-        t.rigid_ms,
-        t.change_ms,
-        t.visibility_ms,
-        t.pairing_ms,
-        t.newton_ms,
-        t.gate_ms,
-        t.force_ms,
-        t.output_ms,
-    ]
-}
-
 fn main() -> Result<(), String> {
     let args: Vec<String> = std::env::args().collect();
     let repeat: usize = std::env::var("REPEAT")
@@ -73,7 +45,8 @@ fn main() -> Result<(), String> {
     let quiet = std::env::var("QUIET").is_ok();
     let (scene, workloads) = workloads(&args)?;
     let mut warm = Vec::new();
-    let mut stage_sums = [0.0; 9];
+    // Each stage's name and summed time over the warm frames.
+    let mut stage_sums = StageTimes::default().named();
     for _ in 0..repeat {
         for w in &workloads {
             let mut session = Session::from_scene(&scene).map_err(|e| e.to_string())?;
@@ -81,28 +54,23 @@ fn main() -> Result<(), String> {
                 let r = session.register(frame);
                 if r.warm {
                     warm.push(r.wall_ms);
-                    for (sum, v) in stage_sums.iter_mut().zip(stages(&r.times)) {
-                        *sum += v;
+                    for (sum, (_, v)) in stage_sums.iter_mut().zip(r.times.named()) {
+                        sum.1 += v;
                     }
                 }
                 if quiet {
                     continue;
                 }
-                let t = &r.times;
+                let stages: Vec<String> = r
+                    .times
+                    .named()
+                    .iter()
+                    .map(|(name, v)| format!("{name} {v:5.1}"))
+                    .collect();
                 println!(
-                    "{i:3} {:7.1} ms | prepare {:5.1} rigid {:5.1} change {:5.1} visibility {:5.1} \
-                     pairing {:5.1} newton {:5.1} gate {:5.1} force {:5.1} output {:5.1} | icp {} \
-                     newton {} factorisations {} | {:?}",
+                    "{i:3} {:7.1} ms | {} | icp {} newton {} factorisations {} | {:?}",
                     r.wall_ms,
-                    t.prepare_ms,
-                    t.rigid_ms,
-                    t.change_ms,
-                    t.visibility_ms,
-                    t.pairing_ms,
-                    t.newton_ms,
-                    t.gate_ms,
-                    t.force_ms,
-                    t.output_ms,
+                    stages.join(" "),
                     r.icp_iterations,
                     r.newton_iterations,
                     r.factorizations,
@@ -120,9 +88,8 @@ fn main() -> Result<(), String> {
             percentile(&warm, 0.95),
             warm.iter().sum::<f64>() / warm.len() as f64
         );
-        let means: Vec<String> = STAGES
+        let means: Vec<String> = stage_sums
             .iter()
-            .zip(stage_sums)
             .map(|(name, sum)| format!("{name} {:.2}", sum / warm.len() as f64))
             .collect();
         println!("warm frames' stage means, ms: {}", means.join(", "));

@@ -142,20 +142,12 @@ impl ResultRecord {
     /// The line of `results.jsonl` for a session's frame result; `length_scale` is metres per
     /// scene unit (the rigid translation is converted to scene units).
     pub fn from_frame(r: &FrameResult, length_scale: f64) -> Self {
-        let mut timings_ms = BTreeMap::new();
-        for (name, v) in [
-            ("prepare", r.times.prepare_ms),
-            ("rigid", r.times.rigid_ms),
-            ("visibility", r.times.visibility_ms),
-            ("pairing", r.times.pairing_ms),
-            ("newton", r.times.newton_ms),
-            ("change", r.times.change_ms),
-            ("gate", r.times.gate_ms),
-            ("force", r.times.force_ms),
-            ("output", r.times.output_ms),
-        ] {
-            timings_ms.insert(name.to_string(), v);
-        }
+        let timings_ms: BTreeMap<String, f64> = r
+            .times
+            .named()
+            .iter()
+            .map(|&(name, v)| (name.to_string(), v))
+            .collect();
         ResultRecord {
             frame: r.frame,
             source: r.source.clone(),

@@ -573,8 +573,8 @@ impl SparseSolver {
     /// as [`SparseSolver::solve`] per column; a direct factorisation serves all columns in one
     /// pass over the factor (on these grid sizes, whose factors stay in cache, that saves only
     /// a few per cent: `benches/linear_solvers.rs`, `three-rhs`), then each column is refined
-    /// on its own. CG solves the columns one after the other. The statistics are the worst column's residual and the summed
-    /// iterations and refinement steps.
+    /// on its own. CG solves the columns one after the other. The statistics are the worst
+    /// column's residual and the summed iterations and refinement steps.
     pub fn solve_columns(
         &mut self,
         k: &SymmetricCsc,

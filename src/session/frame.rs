@@ -149,6 +149,24 @@ pub struct StageTimes {
     pub output_ms: f64,
 }
 
+impl StageTimes {
+    /// Each stage's name (the key of `results.jsonl`'s `timings_ms`) and time, ms, in the
+    /// order a frame runs them.
+    pub fn named(&self) -> [(&'static str, f64); 9] {
+        [
+            ("prepare", self.prepare_ms),
+            ("rigid", self.rigid_ms),
+            ("change", self.change_ms),
+            ("visibility", self.visibility_ms),
+            ("pairing", self.pairing_ms),
+            ("newton", self.newton_ms),
+            ("gate", self.gate_ms),
+            ("force", self.force_ms),
+            ("output", self.output_ms),
+        ]
+    }
+}
+
 /// The registration of one frame. Positions are in the scene's units and the cloud's frame
 /// (what an AR display overlays on its video).
 #[derive(Debug, Clone, PartialEq)]
