@@ -21,10 +21,10 @@ pub const MAX_CELLS_PER_POINT: usize = 8;
 /// Cells allowed whatever the number of points.
 pub const MIN_CELLS: usize = 4096;
 
-/// A uniform grid over a point set (compressed: each cell's points are a range of
+/// A uniform grid over a borrowed point set (compressed: each cell's points are a range of
 /// `order`).
 #[derive(Debug, Clone)]
-pub struct NeighbourGrid {
+pub struct NeighbourGrid<'a> {
     origin: Point3<f64>,
     cell: f64,
     dims: [usize; 3],
@@ -32,13 +32,13 @@ pub struct NeighbourGrid {
     starts: Vec<u32>,
     /// Point indices, grouped by cell.
     order: Vec<u32>,
-    points: Vec<Point3<f64>>,
+    points: &'a [Point3<f64>],
 }
 
-impl NeighbourGrid {
+impl<'a> NeighbourGrid<'a> {
     /// Bins `points` (finite) into cubic cells of edge `cell` (> 0, finite). `None` when the
     /// set is empty or its box needs more than `MAX_CELLS_PER_POINT × n + MIN_CELLS` cells.
-    pub fn new(points: &[Point3<f64>], cell: f64) -> Option<Self> {
+    pub fn new(points: &'a [Point3<f64>], cell: f64) -> Option<Self> {
         if points.is_empty()
             || points.len() > u32::MAX as usize
             || !(cell.is_finite() && cell > 0.0)
@@ -73,7 +73,7 @@ impl NeighbourGrid {
             dims,
             starts: vec![0; total + 1],
             order: vec![0; points.len()],
-            points: points.to_vec(),
+            points,
         };
         let cells: Vec<usize> = points.iter().map(|p| grid.flat(grid.cell_of(p))).collect();
         for &c in &cells {
@@ -88,11 +88,6 @@ impl NeighbourGrid {
             next[c] += 1;
         }
         Some(grid)
-    }
-
-    /// The points, in the order given.
-    pub fn points(&self) -> &[Point3<f64>] {
-        &self.points
     }
 
     /// Integer cell coordinates of `p` (clamped to the grid).
