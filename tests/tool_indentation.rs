@@ -5,10 +5,12 @@
 //! docs/registration.md (release build, `livereg bench --indentation`), with margin.
 
 use livereg::benchmark::indentation::{
-    indentation_cases, run_indentation, IndentationMetrics, IndentationVariant,
+    indentation_cases, run_indentation, IndentationCase, IndentationMetrics, IndentationVariant,
 };
 use livereg::scene::{load_scene, DataTerm, LoadedScene};
-use livereg::synthetic::indentation::bundled_fixture_dir;
+use livereg::synthetic::indentation::{
+    bundled_fixture_dir, whole_surface_sequence, IndentationTruth,
+};
 
 /// The fixture's scene (every default: the derived 11.5 mm cells, neo-Hookean), with the given
 /// data term.
@@ -262,5 +264,48 @@ fn a_noisy_clouds_springs_weigh_less_and_its_noise_is_not_registered() {
         "{:.2} mm against {:.2} mm unregistered",
         weighted.mean_mm,
         weighted.none_mean_mm
+    );
+}
+
+/// The model's own error, apart from the data's: the press of press-slide (frames 0–11, to
+/// 50 mm deep, linear truth) registered with the defaults from the whole deformed truth
+/// surface, noise-free (`whole_surface_sequence`), must end within 16 % of no registration
+/// and, inside the indented region, within 35 %. Measured on these twelve frames: 0.42 mm
+/// against 3.23 mm (13 %), region 1.49 against 5.47 mm (27 %); over the whole sequence
+/// (`cargo run --release --example indentation_error_budget`) 0.47 mm, 10 %. The camera's
+/// clouds (15 % of the surface, 1.5 mm noise) end at 23 % of no registration on that
+/// sequence and 18 % noise-free: what keeps issue 18's 20 % out of reach is what the cloud
+/// does not show, not the grid (docs/registration.md, "The error budget").
+#[test]
+fn the_whole_surface_seen_without_noise_leaves_the_models_own_error() {
+    let dir = bundled_fixture_dir();
+    let mut truth = IndentationTruth::load(&dir, "press-slide", "linear").expect("truth");
+    truth.frames.truncate(12);
+    truth.displacements.truncate(12);
+    let frames = whole_surface_sequence(&truth).expect("frames");
+    let case = IndentationCase {
+        truth,
+        frames,
+        variant: IndentationVariant::NoCamera,
+    };
+    let m = run_indentation(&scene(DataTerm::CloudToSurface), &[case], &mut |_| {})
+        .expect("runs")
+        .remove(0);
+    println!(
+        "whole surface: mean {:.2} mm (none {:.2}), region {:.2} (none {:.2}), p95 {:.2} (none {:.2})",
+        m.mean_mm, m.none_mean_mm, m.region_mean_mm, m.none_region_mean_mm, m.p95_mm, m.none_p95_mm
+    );
+    assert_eq!(m.failed_frames, 0);
+    assert!(
+        m.mean_mm <= 0.16 * m.none_mean_mm,
+        "mean {:.2} mm against {:.2} mm unregistered",
+        m.mean_mm,
+        m.none_mean_mm
+    );
+    assert!(
+        m.region_mean_mm <= 0.35 * m.none_region_mean_mm,
+        "region {:.2} mm against {:.2} mm",
+        m.region_mean_mm,
+        m.none_region_mean_mm
     );
 }

@@ -466,3 +466,82 @@ pub fn indentation_sequence(
         })
         .collect()
 }
+
+/// Per frame of `truth`, the whole deformed surface as a noise-free cloud: every vertex of the
+/// truth's surface and every triangle's centroid, metres, model frame (the camera is the one
+/// [`IndentationCloudSpec::default`] places, for the record only). Not what a camera gives: an
+/// oracle's cloud, with nothing hidden and nothing noise, so that what the registration misses
+/// on it is the model's error (grid, law, hold) and not the data's (docs/registration.md, "The
+/// error budget").
+pub fn whole_surface_sequence(
+    truth: &IndentationTruth,
+) -> Result<Vec<IndentationFrame>, IndentationError> {
+    let spec = IndentationCloudSpec::default();
+    (0..truth.len())
+        .map(|k| {
+            let camera =
+                contact_camera(&truth.frames[k], spec.camera_distance, spec.camera_tilt_deg)
+                    .map_err(|message| IndentationError::Cloud { frame: k, message })?;
+            let nodes = truth.deformed_nodes(k);
+            let surface = truth.surface_of(&nodes);
+            let centroids = surface.triangles.iter().map(|t| {
+                Point3::from(
+                    (surface.vertices[t[0]].coords
+                        + surface.vertices[t[1]].coords
+                        + surface.vertices[t[2]].coords)
+                        / 3.0,
+                )
+            });
+            let cloud = surface.vertices.iter().copied().chain(centroids).collect();
+            Ok(IndentationFrame {
+                cloud,
+                outliers: 0,
+                camera,
+                truth_nodes: nodes,
+            })
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The whole-surface cloud is the deformed truth itself: its first points are the moved
+    /// surface vertices (node `i` + its displacement), then one centroid per triangle, each
+    /// on its triangle's plane.
+    #[test]
+    fn the_whole_surface_cloud_is_the_deformed_truth_surface() {
+        let truth =
+            IndentationTruth::load(&bundled_fixture_dir(), "two-sites", "linear").expect("truth");
+        let frames = whole_surface_sequence(&truth).expect("frames");
+        assert_eq!(frames.len(), truth.len());
+        let k = truth.len() - 1;
+        let f = &frames[k];
+        let nv = truth.surface.vertices.len();
+        assert_eq!(f.cloud.len(), nv + truth.surface.triangles.len());
+        assert_eq!(f.outliers, 0);
+        let moved = |i: usize| truth.nodes[i] + truth.displacements[k][i];
+        for i in [0, nv / 2, nv - 1] {
+            assert!((f.cloud[i] - moved(i)).norm() < 1e-12);
+        }
+        // The last frame moves the surface by centimetres: the cloud is not the rest shape.
+        let largest = (0..nv)
+            .map(|i| (f.cloud[i] - truth.nodes[i]).norm())
+            .fold(0.0, f64::max);
+        assert!(largest > 0.03, "largest surface motion {largest} m");
+        for (t, c) in truth
+            .surface
+            .triangles
+            .iter()
+            .zip(&f.cloud[nv..])
+            .step_by(97)
+        {
+            let (a, b, d) = (moved(t[0]), moved(t[1]), moved(t[2]));
+            let normal = (b - a).cross(&(d - a)).normalize();
+            assert!((c - a).dot(&normal).abs() < 1e-12);
+            assert!((c.coords * 3.0 - a.coords - b.coords - d.coords).norm() < 1e-12);
+        }
+        assert_eq!(f.truth_nodes.len(), truth.nodes.len());
+    }
+}
