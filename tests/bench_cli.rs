@@ -42,6 +42,8 @@ fn quick_sweep_reports_finite_numbers_for_every_configuration_and_draws_the_char
     // serde_json writes NaN/inf as null: a null metric would be a non-finite number.
     let configs = v["configs"].as_array().unwrap();
     assert!(configs.len() >= 5, "{v}");
+    assert_numbers_finite(&v["rigid_only"], "rigid_only");
+    let rigid_worst = v["rigid_only"]["tre_max_mm"].as_f64().unwrap();
     for c in configs {
         let m = &c["metrics"];
         assert!(
@@ -63,13 +65,27 @@ fn quick_sweep_reports_finite_numbers_for_every_configuration_and_draws_the_char
             assert!(m[key].is_number(), "{}.{key} = {}", c["name"], m[key]);
         }
         assert_numbers_finite(c, c["name"].as_str().unwrap());
-        // A TRE no larger than the rigid baseline's by much, and positive: the model was
-        // really registered (an unregistered liver is ~28 mm off on these frames).
-        let tre = m["tre_mean_mm"].as_f64().unwrap();
-        assert!(tre > 0.0 && tre < 10.0, "{}: TRE {tre} mm", c["name"]);
         assert_eq!(m["frames"], 3);
+        // The tool pushes a vessel target by centimetres (the workload's largest surface
+        // motion: 31.7 mm), which rigid alignment cannot follow: its worst target is 7.2 mm
+        // off. Every model must follow part of the push: measured worst targets 1.8–4.6 mm
+        // (0.25–0.64 of rigid's; default 3.5 mm).
+        let worst = m["tre_max_mm"].as_f64().unwrap();
+        assert!(
+            worst < 0.8 * rigid_worst,
+            "{}: worst target {worst:.2} mm against rigid's {rigid_worst:.2} mm",
+            c["name"]
+        );
     }
-    assert_numbers_finite(&v["rigid_only"], "rigid_only");
+    // The default's mean, over targets most of which barely move on these three frames:
+    // near rigid's (measured 0.46 against 0.41 mm), not the ~28 mm of an unregistered model.
+    let default = configs.iter().find(|c| c["default"] == true).unwrap();
+    let tre = default["metrics"]["tre_mean_mm"].as_f64().unwrap();
+    let rigid_tre = v["rigid_only"]["tre_mean_mm"].as_f64().unwrap();
+    assert!(
+        tre <= 1.5 * rigid_tre,
+        "default mean TRE {tre:.3} mm against rigid's {rigid_tre:.3} mm"
+    );
     assert_eq!(
         configs.iter().filter(|c| c["default"] == true).count(),
         1,
@@ -121,8 +137,16 @@ fn reduced_stability_matrix_has_no_crash_and_no_non_finite_output() {
             continue;
         }
         assert_numbers_finite(c, &what);
+        // Registered, not merely finite: the mean target error is a small share of the
+        // deformation the cell's truth applies (measured at most 0.09 of its largest surface
+        // motion, the 10 % visible cell: 3.0 mm of 31.7 mm; an unregistered model is ~28 mm
+        // off through the camera's pose alone).
         let tre = c["metrics"]["tre_mean_mm"].as_f64().unwrap();
-        assert!(tre.is_finite() && tre >= 0.0, "{what}: {tre}");
+        let motion = c["max_displacement_mm"].as_f64().unwrap();
+        assert!(
+            tre < 0.25 * motion,
+            "{what}: mean TRE {tre:.2} mm against a {motion:.1} mm deformation"
+        );
     }
     let md = std::fs::read_to_string(d.join("stability.md")).unwrap();
     for axis in [
