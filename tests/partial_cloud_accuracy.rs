@@ -137,7 +137,7 @@ struct Row {
 }
 
 #[test]
-fn non_rigid_tre_is_at_most_60_percent_of_rigid_on_partial_clouds() {
+fn non_rigid_tre_is_at_most_60_percent_of_the_thesis_rigid_stage_on_partial_clouds() {
     let start = Instant::now();
     let default_scene = phantom("all");
     assert!(
