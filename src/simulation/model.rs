@@ -152,6 +152,195 @@ fn source_points(
     }
 }
 
+/// `pts` (m) embedded in `grid`; an error names `what` when a point lies outside it.
+fn embed(
+    what: String,
+    pts: &[Point3<f64>],
+    grid: &WeightedCellGrid,
+) -> Result<Embedding, ModelError> {
+    Embedding::new(grid, pts).map_err(|source| ModelError::Embedding { what, source })
+}
+
+/// The model's surface read from `path`, in metres (`scale` metres per scene unit) and
+/// oriented outwards, with the validation report of the file as read.
+fn read_model_surface(
+    path: &std::path::Path,
+    scale: f64,
+) -> Result<(TriSurface, SurfaceReport), ModelError> {
+    let mut surface = read_surface(path)?;
+    let report = validate(&surface);
+    surface.scale(scale);
+    if surface.signed_volume() < 0.0 {
+        crate::mesh::orient_outward(&mut surface);
+    }
+    Ok((surface, report))
+}
+
+/// Grid forces (N, 3 per node) of `[load]`: each `traction` box's dead traction on the
+/// surface (a box that holds no part of it is an error) and gravity.
+fn external_loads(
+    loaded: &LoadedScene,
+    grid: &WeightedCellGrid,
+    surface: &TriSurface,
+) -> Result<Vec<f64>, ModelError> {
+    let scene = &loaded.scene;
+    let scale = loaded.length_scale();
+    let mut external = vec![0.0; 3 * grid.node_count()];
+    for (i, t) in scene.load.traction.iter().enumerate() {
+        let b = region_box(t.bbox.min, t.bbox.max, scale);
+        let n = traction_forces(grid, surface, &b, Vector3::from(t.value), &mut external).map_err(
+            |source| ModelError::Embedding {
+                what: format!("load.traction[{i}]"),
+                source,
+            },
+        )?;
+        if n == 0 {
+            return Err(ModelError::Invalid(format!(
+                "{}: load.traction[{i}]: the box holds no part of the surface",
+                loaded.path.display()
+            )));
+        }
+    }
+    let g = Vector3::from(scene.load.gravity);
+    if g.norm() > 0.0 {
+        gravity_forces(grid, scene.material.density, g, &mut external);
+    }
+    Ok(external)
+}
+
+/// The penalty springs of `[[boundary.fixed]]`, one set per entry in order, and the indices
+/// of the sets given as points (the holds [`SceneModel::point_holds`] lists). A box holds its
+/// surface samples at a spring density of κE/h per unit area, points each get κ E h, unless
+/// the entry or `[solver]` gives a stiffness; a region that holds nothing is an error.
+fn fixed_regions(
+    loaded: &LoadedScene,
+    grid: &WeightedCellGrid,
+    surface: &TriSurface,
+) -> Result<(Vec<PenaltySprings>, Vec<usize>), ModelError> {
+    let scene = &loaded.scene;
+    let scale = loaded.length_scale();
+    let young = scene.material.young_modulus;
+    let h = grid.grid.cell_size;
+    let mut springs = Vec::new();
+    let mut point_holds = Vec::new();
+    for (i, f) in scene.boundary.fixed.iter().enumerate() {
+        let key = format!("boundary.fixed[{i}]");
+        let set = match f.region() {
+            Some(FixedRegion::Box(b)) => {
+                let region = region_box(b.min, b.max, scale);
+                let density = DEFAULT_FIXED_PENALTY_FACTOR * young / h;
+                let set = PenaltySprings::fixed_surface_region(grid, surface, &region, density)
+                    .map_err(|source| ModelError::Embedding {
+                        what: key.clone(),
+                        source,
+                    })?;
+                set.map(|mut s| {
+                    if let Some(k) = f.stiffness.or(scene.solver.penalty_stiffness) {
+                        s.stiffness.iter_mut().for_each(|v| *v = k);
+                    }
+                    s
+                })
+            }
+            Some(FixedRegion::Points(src)) => {
+                let pts = source_points(src, loaded, scale)?;
+                let k = f
+                    .stiffness
+                    .or(scene.solver.penalty_stiffness)
+                    .unwrap_or(DEFAULT_FIXED_PENALTY_FACTOR * young * h);
+                let emb = embed(key.clone(), &pts, grid)?;
+                point_holds.push(springs.len());
+                (!pts.is_empty()).then(|| PenaltySprings::fixed(emb, vec![k; pts.len()]))
+            }
+            None => {
+                return Err(ModelError::Invalid(format!(
+                    "{}: {key}: give exactly one of box or points",
+                    loaded.path.display()
+                )))
+            }
+        };
+        match set {
+            Some(s) => springs.push(s),
+            None => {
+                return Err(ModelError::Invalid(format!(
+                    "{}: {key}: the region holds no point of the surface",
+                    loaded.path.display()
+                )))
+            }
+        }
+    }
+    Ok((springs, point_holds))
+}
+
+/// The springs of `[[boundary.support]]` (elastic beds), one set per entry in order; a box
+/// that holds no part of the surface is an error.
+fn supports(
+    loaded: &LoadedScene,
+    grid: &WeightedCellGrid,
+    surface: &TriSurface,
+) -> Result<Vec<PenaltySprings>, ModelError> {
+    let scale = loaded.length_scale();
+    let mut springs = Vec::new();
+    for (i, sup) in loaded.scene.boundary.support.iter().enumerate() {
+        let key = format!("boundary.support[{i}]");
+        let region = region_box(sup.bbox.min, sup.bbox.max, scale);
+        let set = PenaltySprings::support_surface_region(
+            grid,
+            surface,
+            &region,
+            sup.stiffness,
+            sup.sliding,
+        )
+        .map_err(|source| ModelError::Embedding {
+            what: key.clone(),
+            source,
+        })?
+        .ok_or_else(|| {
+            ModelError::Invalid(format!(
+                "{}: {key}: the box holds no part of the surface",
+                loaded.path.display()
+            ))
+        })?;
+        springs.push(set);
+    }
+    Ok(springs)
+}
+
+/// `model.structures`, each read (points or a mesh, metres) and embedded in `grid`.
+fn embedded_structures(
+    loaded: &LoadedScene,
+    grid: &WeightedCellGrid,
+) -> Result<Vec<EmbeddedStructure>, ModelError> {
+    let scale = loaded.length_scale();
+    let mut structures = Vec::new();
+    for s in &loaded.scene.model.structures {
+        let (points, triangles) = match (&s.points, &s.mesh) {
+            (Some(p), None) => (
+                source_points(&PointSource::File(p.clone()), loaded, scale)?,
+                None,
+            ),
+            (None, Some(m)) => {
+                let mut mesh = read_surface(&loaded.resolve(m))?;
+                mesh.scale(scale);
+                (mesh.vertices, Some(mesh.triangles))
+            }
+            _ => {
+                return Err(ModelError::Invalid(format!(
+                    "{}: model.structures '{}': give exactly one of points or mesh",
+                    loaded.path.display(),
+                    s.name
+                )))
+            }
+        };
+        let embedding = embed(format!("model.structures '{}'", s.name), &points, grid)?;
+        structures.push(EmbeddedStructure {
+            name: s.name.clone(),
+            embedding,
+            triangles,
+        });
+    }
+    Ok(structures)
+}
+
 impl SceneModel {
     /// Each structure's name and number of points, in order (what a workload's truth must
     /// match).
@@ -162,161 +351,36 @@ impl SceneModel {
             .collect()
     }
 
-    /// Reads the scene's files and builds the model.
+    /// Reads the scene's files and builds the model, stage by stage: the surface (metres,
+    /// outward), the grid around it, the dead loads, the boundary springs, the probes and the
+    /// internal structures, each embedded in the grid.
     pub fn build(loaded: &LoadedScene) -> Result<Self, ModelError> {
         let scene = &loaded.scene;
         let scale = loaded.length_scale();
         let surface_path = loaded.resolve(&scene.model.surface);
-        let mut surface = read_surface(&surface_path)?;
-        let surface_report = validate(&surface);
-        surface.scale(scale);
-        if surface.signed_volume() < 0.0 {
-            crate::mesh::orient_outward(&mut surface);
-        }
-        let options = grid_options(scene, scale);
+        let (surface, surface_report) = read_model_surface(&surface_path, scale)?;
         let grid =
-            WeightedCellGrid::build(&surface, &options).map_err(|source| ModelError::Grid {
-                file: surface_path.clone(),
-                source,
+            WeightedCellGrid::build(&surface, &grid_options(scene, scale)).map_err(|source| {
+                ModelError::Grid {
+                    file: surface_path.clone(),
+                    source,
+                }
             })?;
-        let h = grid.grid.cell_size;
         let (material, volumetric) = material(scene)?;
-        let young = scene.material.young_modulus;
-        let embed = |what: String, pts: &[Point3<f64>], grid: &WeightedCellGrid| {
-            Embedding::new(grid, pts).map_err(|source| ModelError::Embedding { what, source })
-        };
         let surface_embedding = embed(
             format!("{}: surface vertices", surface_path.display()),
             &surface.vertices,
             &grid,
         )?;
-
-        let mut external = vec![0.0; 3 * grid.node_count()];
-        for (i, t) in scene.load.traction.iter().enumerate() {
-            let b = region_box(t.bbox.min, t.bbox.max, scale);
-            let n = traction_forces(&grid, &surface, &b, Vector3::from(t.value), &mut external)
-                .map_err(|source| ModelError::Embedding {
-                    what: format!("load.traction[{i}]"),
-                    source,
-                })?;
-            if n == 0 {
-                return Err(ModelError::Invalid(format!(
-                    "{}: load.traction[{i}]: the box holds no part of the surface",
-                    loaded.path.display()
-                )));
-            }
-        }
-        let g = Vector3::from(scene.load.gravity);
-        if g.norm() > 0.0 {
-            gravity_forces(&grid, scene.material.density, g, &mut external);
-        }
-
-        let mut springs = Vec::new();
-        let mut point_holds = Vec::new();
-        for (i, f) in scene.boundary.fixed.iter().enumerate() {
-            let key = format!("boundary.fixed[{i}]");
-            let set = match f.region() {
-                Some(FixedRegion::Box(b)) => {
-                    // Spring density κE/h per unit area, or the given stiffness per sample.
-                    let region = region_box(b.min, b.max, scale);
-                    let density = DEFAULT_FIXED_PENALTY_FACTOR * young / h;
-                    let set =
-                        PenaltySprings::fixed_surface_region(&grid, &surface, &region, density)
-                            .map_err(|source| ModelError::Embedding {
-                                what: key.clone(),
-                                source,
-                            })?;
-                    set.map(|mut s| {
-                        if let Some(k) = f.stiffness.or(scene.solver.penalty_stiffness) {
-                            s.stiffness.iter_mut().for_each(|v| *v = k);
-                        }
-                        s
-                    })
-                }
-                Some(FixedRegion::Points(src)) => {
-                    let pts = source_points(src, loaded, scale)?;
-                    let k = f
-                        .stiffness
-                        .or(scene.solver.penalty_stiffness)
-                        .unwrap_or(DEFAULT_FIXED_PENALTY_FACTOR * young * h);
-                    let emb = embed(key.clone(), &pts, &grid)?;
-                    point_holds.push(springs.len());
-                    (!pts.is_empty()).then(|| PenaltySprings::fixed(emb, vec![k; pts.len()]))
-                }
-                None => {
-                    return Err(ModelError::Invalid(format!(
-                        "{}: {key}: give exactly one of box or points",
-                        loaded.path.display()
-                    )))
-                }
-            };
-            match set {
-                Some(s) => springs.push(s),
-                None => {
-                    return Err(ModelError::Invalid(format!(
-                        "{}: {key}: the region holds no point of the surface",
-                        loaded.path.display()
-                    )))
-                }
-            }
-        }
-
-        for (i, sup) in scene.boundary.support.iter().enumerate() {
-            let key = format!("boundary.support[{i}]");
-            let region = region_box(sup.bbox.min, sup.bbox.max, scale);
-            let set = PenaltySprings::support_surface_region(
-                &grid,
-                &surface,
-                &region,
-                sup.stiffness,
-                sup.sliding,
-            )
-            .map_err(|source| ModelError::Embedding {
-                what: key.clone(),
-                source,
-            })?
-            .ok_or_else(|| {
-                ModelError::Invalid(format!(
-                    "{}: {key}: the box holds no part of the surface",
-                    loaded.path.display()
-                ))
-            })?;
-            springs.push(set);
-        }
-
+        let external = external_loads(loaded, &grid, &surface)?;
+        let (mut springs, point_holds) = fixed_regions(loaded, &grid, &surface)?;
+        springs.extend(supports(loaded, &grid, &surface)?);
         let mut probe_points = Vec::new();
         for p in &scene.probe {
             probe_points.extend(source_points(&p.points, loaded, scale)?);
         }
         let probes = embed("probe".into(), &probe_points, &grid)?;
-
-        let mut structures = Vec::new();
-        for s in &scene.model.structures {
-            let (points, triangles) = match (&s.points, &s.mesh) {
-                (Some(p), None) => (
-                    source_points(&PointSource::File(p.clone()), loaded, scale)?,
-                    None,
-                ),
-                (None, Some(m)) => {
-                    let mut mesh = read_surface(&loaded.resolve(m))?;
-                    mesh.scale(scale);
-                    (mesh.vertices, Some(mesh.triangles))
-                }
-                _ => {
-                    return Err(ModelError::Invalid(format!(
-                        "{}: model.structures '{}': give exactly one of points or mesh",
-                        loaded.path.display(),
-                        s.name
-                    )))
-                }
-            };
-            let embedding = embed(format!("model.structures '{}'", s.name), &points, &grid)?;
-            structures.push(EmbeddedStructure {
-                name: s.name.clone(),
-                embedding,
-                triangles,
-            });
-        }
+        let structures = embedded_structures(loaded, &grid)?;
 
         let mut problem = StaticProblem::new(grid, material, volumetric);
         problem.external = external;
