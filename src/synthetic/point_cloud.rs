@@ -136,6 +136,21 @@ impl SyntheticCloud {
     pub fn inlier_count(&self) -> usize {
         self.points.len() - self.outlier_count()
     }
+
+    /// The inliers (noisy surface samples), in cloud order.
+    pub fn inliers(&self) -> Vec<Point3<f64>> {
+        inliers_of(&self.points, &self.is_outlier)
+    }
+}
+
+/// The points of `points` not flagged in `is_outlier` (parallel to it), in order.
+pub(crate) fn inliers_of(points: &[Point3<f64>], is_outlier: &[bool]) -> Vec<Point3<f64>> {
+    points
+        .iter()
+        .zip(is_outlier)
+        .filter(|(_, &o)| !o)
+        .map(|(p, _)| *p)
+        .collect()
 }
 
 /// Uniform sample of triangle `[a, b, c]` from two uniforms in `[0, 1)`.

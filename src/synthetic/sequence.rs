@@ -603,6 +603,13 @@ pub struct SyntheticFrame {
     pub solve_ms: f64,
 }
 
+impl SyntheticFrame {
+    /// The cloud's inliers (noisy surface samples), camera frame, in cloud order.
+    pub fn inliers(&self) -> Vec<Point3<f64>> {
+        super::point_cloud::inliers_of(&self.cloud, &self.is_outlier)
+    }
+}
+
 /// A synthetic sequence: frames with clouds and ground truth. Lengths in metres.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SyntheticSequence {

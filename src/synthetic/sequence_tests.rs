@@ -48,15 +48,6 @@ fn shared() -> &'static SyntheticSequence {
 }
 
 /// The inliers of a frame's cloud.
-fn inliers(f: &SyntheticFrame) -> Vec<Point3<f64>> {
-    f.cloud
-        .iter()
-        .zip(&f.is_outlier)
-        .filter(|(_, &o)| !o)
-        .map(|(p, _)| *p)
-        .collect()
-}
-
 fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len() as f64
 }
@@ -220,7 +211,7 @@ fn clouds_lie_on_their_frames_truth_not_on_the_rest_surface() {
     let expected_inliers = seq.spec.cloud.density_per_m2() * 0.3 * area;
     for (k, f) in seq.frames.iter().enumerate() {
         let truth = seq.truth_surface(k);
-        let pts = inliers(f);
+        let pts = f.inliers();
         let d: Vec<f64> = pts.iter().map(|p| distance_to_surface(&truth, p)).collect();
         // Isotropic Gaussian noise: the distance to a plane is |N(0, σ)|, of mean 0.80 σ.
         let m = mean(&d) / sigma;
@@ -240,7 +231,8 @@ fn clouds_lie_on_their_frames_truth_not_on_the_rest_surface() {
     }
     // The last frame's cloud is far from the undeformed liver (rigidly placed).
     let last = seq.frames.last().unwrap();
-    let d_rest: Vec<f64> = inliers(last)
+    let d_rest: Vec<f64> = last
+        .inliers()
         .iter()
         .map(|p| distance_to_surface(&rest, p))
         .collect();
@@ -454,61 +446,4 @@ fn bad_inputs_are_errors() {
         matches!(e, SequenceError::TruthSolve { frame: 0, .. }),
         "{e}"
     );
-}
-
-/// Prints, for every scenario, what the phantom defaults give (10 frames, default truth):
-/// `cargo test --lib report_default_sequences -- --ignored --nocapture`.
-#[test]
-#[ignore]
-fn report_default_sequences() {
-    for kind in ScenarioKind::ALL {
-        let spec = SequenceSpec::phantom_default(kind);
-        let seq = generate_sequence(phantom(), &spec).unwrap();
-        println!(
-            "{kind}: {} {}, truth {} nodes {} cells, {:.0} ms",
-            spec.magnitude,
-            kind.magnitude_unit(),
-            seq.truth_nodes,
-            seq.truth_cells,
-            seq.truth_ms,
-        );
-        let rest: Vec<Point3<f64>> = seq
-            .rest_structures
-            .iter()
-            .flat_map(|(_, r)| r.iter().copied())
-            .collect();
-        for (k, f) in seq.frames.iter().enumerate() {
-            let truth: Vec<Point3<f64>> = f
-                .truth_structures
-                .iter()
-                .flat_map(|(_, r)| r.iter().copied())
-                .collect();
-            // Structure error left by the best rigid fit of the surface the camera sees
-            // (truth vertices within 4 mm of an inlier): what rigid alignment alone can at
-            // best achieve from the cloud.
-            let pts = inliers(f);
-            let seen: Vec<usize> = (0..f.truth_surface.len())
-                .filter(|&i| pts.iter().any(|p| (p - f.truth_surface[i]).norm() < 4e-3))
-                .collect();
-            let a: Vec<Point3<f64>> = seen.iter().map(|&i| seq.rest_surface[i]).collect();
-            let b: Vec<Point3<f64>> = seen.iter().map(|&i| f.truth_surface[i]).collect();
-            let fit = kabsch(&a, &b, None).unwrap();
-            let tre = rest
-                .iter()
-                .zip(&truth)
-                .map(|(p, q)| (fit.apply(p) - q).norm())
-                .sum::<f64>()
-                / rest.len() as f64;
-            println!(
-                "  frame {k}: load {:.3}, max displacement {:.1} mm, {} Newton iterations, {:.0} ms, {} points ({} outliers), target TRE after a rigid fit of the seen surface {:.2} mm",
-                f.load_fraction,
-                f.max_displacement * 1e3,
-                f.newton_iterations,
-                f.solve_ms,
-                f.cloud.len(),
-                f.outliers,
-                tre * 1e3
-            );
-        }
-    }
 }

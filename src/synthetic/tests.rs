@@ -41,15 +41,6 @@ fn merge(a: &TriSurface, b: &TriSurface) -> TriSurface {
     s
 }
 
-fn inliers(c: &SyntheticCloud) -> Vec<Point3<f64>> {
-    c.points
-        .iter()
-        .zip(&c.is_outlier)
-        .filter(|(_, &o)| !o)
-        .map(|(p, _)| *p)
-        .collect()
-}
-
 #[test]
 fn sphere_visible_cap_matches_analytic_area_and_lies_on_near_side() {
     let s = sphere(5);
@@ -298,7 +289,7 @@ fn outliers_are_the_requested_share_and_flagged() {
             "{share} vs {f}"
         );
         // Flags agree with provenance; inliers lie on the (faceted) sphere, outliers in the box.
-        let (lo, hi) = inliers(&clean).iter().fold(
+        let (lo, hi) = clean.inliers().iter().fold(
             (Point3::from([f64::MAX; 3]), Point3::from([f64::MIN; 3])),
             |(lo, hi), p| (lo.inf(p), hi.sup(p)),
         );
@@ -325,7 +316,7 @@ fn outliers_are_the_requested_share_and_flagged() {
         assert!(off_surface as f64 > 0.8 * n_out as f64);
         // Same inliers as the clean cloud, just shuffled in with the outliers.
         let key = |p: &Point3<f64>| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
-        let mut a: Vec<_> = inliers(&cloud).iter().map(key).collect();
+        let mut a: Vec<_> = cloud.inliers().iter().map(key).collect();
         let mut b: Vec<_> = clean.points.iter().map(key).collect();
         a.sort();
         b.sort();
