@@ -76,6 +76,13 @@ impl TriSurface {
         }
     }
 
+    /// Total area of the triangles, in units² (the sum of half their scaled normals' lengths).
+    pub fn area(&self) -> f64 {
+        (0..self.triangles.len())
+            .map(|t| 0.5 * self.scaled_normal(t).norm())
+            .sum()
+    }
+
     /// Enclosed volume by the divergence theorem, in units³ (positive when normals point out).
     ///
     /// The triple products are summed before the single division by 6, so a mesh with integer

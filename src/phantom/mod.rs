@@ -17,6 +17,7 @@
 pub mod distance;
 pub mod ligament;
 pub mod liver_surface;
+pub mod measure;
 pub mod targets;
 pub mod tumour;
 pub mod write;
@@ -32,6 +33,7 @@ use crate::mesh::TriSurface;
 pub use distance::distance_to_surface;
 pub use ligament::ligament_box;
 pub use liver_surface::{liver_map, liver_surface};
+pub use measure::{area_in_box, max_thickness_at};
 pub use targets::vessel_targets;
 pub use tumour::tumour_surface;
 pub use write::{scene_toml, write_phantom, write_phantom_files};

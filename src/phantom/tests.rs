@@ -32,93 +32,9 @@ fn inside_test(s: &TriSurface) -> InsideTest {
     InsideTest::new(&s.vertices, &s.triangles)
 }
 
-/// Largest total inside length (metres) along z-lines at `x`, over a fine sweep of y.
-fn max_thickness_at(s: &TriSurface, x: f64) -> f64 {
-    let inside = inside_test(s);
-    let (lo, hi) = s.bounding_box().unwrap();
-    let mut crossings = Vec::new();
-    let mut best: f64 = 0.0;
-    for k in 0..=400 {
-        let y = lo.y + (hi.y - lo.y) * k as f64 / 400.0;
-        inside.line_crossings(x, y, &mut crossings);
-        let mut depth = 0;
-        let mut start = 0.0;
-        let mut total = 0.0;
-        for &(z, w) in &crossings {
-            let before = depth;
-            depth += w;
-            if before < 1 && depth >= 1 {
-                start = z;
-            } else if before >= 1 && depth < 1 {
-                total += z - start;
-            }
-        }
-        best = best.max(total);
-    }
-    best
-}
-
-/// Sum of the areas (m²) of the triangles whose centroid is inside `b`.
-fn area_in_box(s: &TriSurface, b: &crate::geometry::Aabb) -> f64 {
-    (0..s.triangles.len())
-        .filter(|&t| {
-            let [a, bb, c] = s.corners(t);
-            b.contains(&Point3::from((a.coords + bb.coords + c.coords) / 3.0))
-        })
-        .map(|t| 0.5 * s.scaled_normal(t).norm())
-        .sum()
-}
-
-fn total_area(s: &TriSurface) -> f64 {
-    (0..s.triangles.len())
-        .map(|t| 0.5 * s.scaled_normal(t).norm())
-        .sum()
-}
-
 /// Point of the exact (smooth) liver surface in reference direction `n`.
 fn on_surface(n: Vector3<f64>) -> Point3<f64> {
     liver_map(reference_boundary(n))
-}
-
-/// Prints the measured numbers: `cargo test print_numbers -- --ignored --nocapture`.
-#[test]
-#[ignore = "prints numbers only"]
-fn print_numbers() {
-    let p = liver_phantom();
-    let s = &p.surface;
-    let (lo, hi) = s.bounding_box().unwrap();
-    let e = hi - lo;
-    println!(
-        "triangles {} vertices {}",
-        s.triangles.len(),
-        s.vertices.len()
-    );
-    println!("bbox {lo:?} {hi:?} extents {e:?}");
-    println!(
-        "volume {} L, area {} m2",
-        s.signed_volume() * 1000.0,
-        total_area(s)
-    );
-    for f in [0.1, 0.25, 0.5, 0.7, 0.85, 0.95] {
-        println!("thickness at {f}: {}", max_thickness_at(s, lo.x + f * e.x));
-    }
-    println!(
-        "ligament {:?} share {}",
-        p.ligament,
-        area_in_box(s, &p.ligament) / total_area(s)
-    );
-    let d = p.targets.iter().map(|t| distance_to_surface(s, t));
-    println!(
-        "targets {} min dist {}",
-        p.targets.len(),
-        d.fold(1.0, f64::min)
-    );
-    let td = p.tumour.vertices.iter().map(|t| distance_to_surface(s, t));
-    println!(
-        "tumour min dist {} bbox {:?}",
-        td.fold(1.0, f64::min),
-        p.tumour.bounding_box()
-    );
 }
 
 #[test]
@@ -253,7 +169,7 @@ fn tumour_is_small_closed_and_fully_inside_the_right_lobe() {
 #[test]
 fn ligament_box_holds_a_few_percent_of_the_posterior_superior_surface() {
     let p = liver_phantom();
-    let share = area_in_box(&p.surface, &p.ligament) / total_area(&p.surface);
+    let share = area_in_box(&p.surface, &p.ligament) / p.surface.area();
     assert!((0.03..=0.08).contains(&share), "share {share}");
     let (lo, hi) = p.surface.bounding_box().unwrap();
     let c = p.ligament.center();
