@@ -1,6 +1,6 @@
 //! Tests of synthetic sequences on the bundled phantom. Most use a coarser truth (14 mm
-//! finite-cell cells, 1 octree level) and few frames to stay fast; the ignored
-//! `report_default_sequences` prints what the defaults give.
+//! finite-cell cells, 1 octree level) and few frames to stay fast;
+//! `examples/phantom_sequences.rs` prints what the defaults give.
 
 use std::collections::BTreeSet;
 use std::sync::OnceLock;
