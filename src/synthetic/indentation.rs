@@ -425,9 +425,7 @@ pub fn indentation_sequence(
     spec: &IndentationCloudSpec,
 ) -> Result<Vec<IndentationFrame>, IndentationError> {
     spec.validate()?;
-    let area: f64 = (0..truth.surface.triangles.len())
-        .map(|t| truth.surface.scaled_normal(t).norm() * 0.5)
-        .sum();
+    let area = truth.surface.area();
     let density_per_cm2 = spec.points as f64 / (spec.visible_fraction * area * 1e4);
     let offset = spec.rigid_offset.unwrap_or_else(RigidTransform::identity);
     (0..truth.len())
