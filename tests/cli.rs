@@ -71,8 +71,9 @@ fn a_good_scene_prints_the_contract_json() {
     // centre's displacement along +x (cm, scene units) against an independent solve,
     // quadratic tetrahedra in scikit-fem refined to 16 × 16 × 16 (0.1118 cm; 4 / 8 / 12 / 16:
     // 0.1091 / 0.1110 / 0.1116 / 0.1118, `fixtures/reference/cube_shear.py`). The grid
-    // converges to it from below, as trilinear cells do: 4 / 8 / 12 / 16 / 20 cells a side
-    // 0.1056 / 0.1097 / 0.1108 / 0.1113 / 0.1116 cm (−5.6 % here, 4 cells). The boxes are
+    // converges to it from below, as trilinear cells do (linear law): 4 / 8 / 12 / 16 / 20
+    // cells a side 0.1056 / 0.1097 / 0.1108 / 0.1113 / 0.1116 cm; this scene's neo-Hookean
+    // law gives 0.1055 cm on its 4 cells (−5.6 %). The boxes are
     // 0.1 µm thin: a box reaching 0.01 cm past the faces (as this scene had) also loads and
     // holds strips of the side faces, by more of their area as the cells (and the surface
     // samples) shrink, and the same scene went 0.1056 / 0.1140 / 0.1068 cm on 4 / 8 / 16
