@@ -9,21 +9,18 @@
 
 use std::hint::black_box;
 
+#[path = "support/camera_patch.rs"]
+mod camera_patch;
+use camera_patch::camera_patch;
+
 use criterion::{criterion_group, criterion_main, Criterion};
 use livereg::registration::change_evidence::{cloud_noise_sigma_near, ChangeTest};
 use livereg::registration::correspondences::IndexedPoints;
 use livereg::synthetic::Rng;
-use nalgebra::Point3;
 
 fn bench_change_test(c: &mut Criterion) {
     let mut rng = Rng::new(11);
-    let points: Vec<Point3<f64>> = (0..680)
-        .map(|_| {
-            let (x, y) = (rng.uniform_in(0.0, 0.12), rng.uniform_in(0.0, 0.09));
-            let z = 0.03 * (25.0 * x).sin() * (15.0 * y).cos() + 0.0015 * rng.gaussian();
-            Point3::new(x, y, z)
-        })
-        .collect();
+    let points = camera_patch(&mut rng);
     // Signed distances as a cloud at rest gives them: noise only.
     let signed: Vec<f64> = points.iter().map(|_| 0.0015 * rng.gaussian()).collect();
     let test = ChangeTest::default();

@@ -8,21 +8,18 @@
 
 use std::hint::black_box;
 
+#[path = "support/camera_patch.rs"]
+mod camera_patch;
+use camera_patch::camera_patch;
+
 use criterion::{criterion_group, criterion_main, Criterion};
 use livereg::registration::correspondences::IndexedPoints;
 use livereg::synthetic::Rng;
-use nalgebra::Point3;
 use rayon::prelude::*;
 
 fn bench_neighbour_lists(c: &mut Criterion) {
     let mut rng = Rng::new(11);
-    let points: Vec<Point3<f64>> = (0..680)
-        .map(|_| {
-            let (x, y) = (rng.uniform_in(0.0, 0.12), rng.uniform_in(0.0, 0.09));
-            let z = 0.03 * (25.0 * x).sin() * (15.0 * y).cos() + 0.0015 * rng.gaussian();
-            Point3::new(x, y, z)
-        })
-        .collect();
+    let points = camera_patch(&mut rng);
     let cloud = IndexedPoints::new(points).unwrap();
     let mut group = c.benchmark_group("neighbour_lists");
     for k in [32, 9] {

@@ -215,8 +215,7 @@ fn an_ambiguous_pose_is_flagged_on_every_frame_that_holds_it() {
     };
     let dir = bundled_fixture_dir();
     let mut truth = IndentationTruth::load(&dir, "press-slide", "linear").unwrap();
-    truth.frames.truncate(4);
-    truth.displacements.truncate(4);
+    truth.truncate(4);
     let spec = IndentationCloudSpec {
         visible_fraction: 0.05,
         rigid_offset: IndentationVariant::RigidIcp.offset(),

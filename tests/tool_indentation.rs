@@ -280,8 +280,7 @@ fn a_noisy_clouds_springs_weigh_less_and_its_noise_is_not_registered() {
 fn the_whole_surface_seen_without_noise_leaves_the_models_own_error() {
     let dir = bundled_fixture_dir();
     let mut truth = IndentationTruth::load(&dir, "press-slide", "linear").expect("truth");
-    truth.frames.truncate(12);
-    truth.displacements.truncate(12);
+    truth.truncate(12);
     let frames = whole_surface_sequence(&truth).expect("frames");
     let case = IndentationCase {
         truth,

@@ -350,8 +350,7 @@ pub fn indentation_cases(
         for law in laws {
             let mut truth = IndentationTruth::load(dir, seq, law).map_err(|e| e.to_string())?;
             if let Some(n) = frames {
-                truth.frames.truncate(n);
-                truth.displacements.truncate(n);
+                truth.truncate(n);
             }
             for &variant in variants {
                 let spec = IndentationCloudSpec {

@@ -76,10 +76,21 @@ impl TriSurface {
         }
     }
 
-    /// Total area of the triangles, in units² (the sum of half their scaled normals' lengths).
+    /// Area of triangle `t`, in units² (half its scaled normal's length).
+    pub fn triangle_area(&self, t: usize) -> f64 {
+        0.5 * self.scaled_normal(t).norm()
+    }
+
+    /// Centroid of triangle `t` (the mean of its corners).
+    pub fn centroid(&self, t: usize) -> Point3<f64> {
+        let [a, b, c] = self.corners(t);
+        Point3::from((a.coords + b.coords + c.coords) / 3.0)
+    }
+
+    /// Total area of the triangles, in units².
     pub fn area(&self) -> f64 {
         (0..self.triangles.len())
-            .map(|t| 0.5 * self.scaled_normal(t).norm())
+            .map(|t| self.triangle_area(t))
             .sum()
     }
 
@@ -102,6 +113,21 @@ impl TriSurface {
 mod tests {
     use super::*;
     use crate::mesh::primitives::icosphere;
+
+    #[test]
+    fn a_right_triangle_has_half_its_legs_product_as_area_and_the_corners_mean_as_centroid() {
+        let s = TriSurface::new(
+            vec![
+                Point3::new(0.0, 0.0, 1.0),
+                Point3::new(3.0, 0.0, 1.0),
+                Point3::new(0.0, 2.0, 1.0),
+            ],
+            vec![[0, 1, 2]],
+        );
+        assert_eq!(s.triangle_area(0), 3.0);
+        assert_eq!(s.area(), 3.0);
+        assert!((s.centroid(0) - Point3::new(1.0, 2.0 / 3.0, 1.0)).norm() < 1e-15);
+    }
 
     #[test]
     fn vertex_normals_of_a_sphere_are_radial() {

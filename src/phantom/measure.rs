@@ -2,8 +2,6 @@
 //! prints: how thick the liver is across x, and how much of its surface lies in a box (the
 //! ligament's share). Metres.
 
-use nalgebra::Point3;
-
 use crate::geometry::{Aabb, InsideTest};
 use crate::mesh::TriSurface;
 
@@ -40,11 +38,8 @@ pub fn max_thickness_at(surface: &TriSurface, x: f64) -> f64 {
 /// Area (m²) of the triangles of `surface` whose centroid lies inside `region`.
 pub fn area_in_box(surface: &TriSurface, region: &Aabb) -> f64 {
     (0..surface.triangles.len())
-        .filter(|&t| {
-            let [a, b, c] = surface.corners(t);
-            region.contains(&Point3::from((a.coords + b.coords + c.coords) / 3.0))
-        })
-        .map(|t| 0.5 * surface.scaled_normal(t).norm())
+        .filter(|&t| region.contains(&surface.centroid(t)))
+        .map(|t| surface.triangle_area(t))
         .sum()
 }
 
@@ -52,6 +47,7 @@ pub fn area_in_box(surface: &TriSurface, region: &Aabb) -> f64 {
 mod tests {
     use super::*;
     use crate::mesh::primitives::box_surface;
+    use nalgebra::Point3;
 
     /// A 2 × 3 × 4 box: every z-line through it crosses 4 of inside; the box around its
     /// bottom face holds that face's area (6), half a box holds what its centroids reach.

@@ -93,7 +93,7 @@ fn cumulative_areas(s: &TriSurface) -> Vec<f64> {
     let mut acc = 0.0;
     (0..s.triangles.len())
         .map(|t| {
-            acc += 0.5 * s.scaled_normal(t).norm();
+            acc += s.triangle_area(t);
             acc
         })
         .collect()

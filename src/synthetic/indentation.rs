@@ -249,6 +249,12 @@ impl IndentationTruth {
         self.frames.is_empty()
     }
 
+    /// Keeps the first `n` frames (all of them when there are fewer).
+    pub fn truncate(&mut self, n: usize) {
+        self.frames.truncate(n);
+        self.displacements.truncate(n);
+    }
+
     /// The truth restricted to the frames `indices` (in that order): a frame subset or stride
     /// of the sequence. An index past the last frame is an error.
     pub fn select_frames(&self, indices: &[usize]) -> Result<Self, IndentationError> {
@@ -482,14 +488,7 @@ pub fn whole_surface_sequence(
                     .map_err(|message| IndentationError::Cloud { frame: k, message })?;
             let nodes = truth.deformed_nodes(k);
             let surface = truth.surface_of(&nodes);
-            let centroids = surface.triangles.iter().map(|t| {
-                Point3::from(
-                    (surface.vertices[t[0]].coords
-                        + surface.vertices[t[1]].coords
-                        + surface.vertices[t[2]].coords)
-                        / 3.0,
-                )
-            });
+            let centroids = (0..surface.triangles.len()).map(|t| surface.centroid(t));
             let cloud = surface.vertices.iter().copied().chain(centroids).collect();
             Ok(IndentationFrame {
                 cloud,

@@ -246,7 +246,7 @@ pub fn synthesize_cloud(
     spec.validate()?;
 
     let areas: Vec<f64> = (0..surface.triangles.len())
-        .map(|t| 0.5 * surface.scaled_normal(t).norm())
+        .map(|t| surface.triangle_area(t))
         .collect();
     let surface_area: f64 = areas.iter().sum();
     let density = spec.density_per_m2();

@@ -47,7 +47,6 @@ fn shared() -> &'static SyntheticSequence {
     })
 }
 
-/// The inliers of a frame's cloud.
 fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len() as f64
 }
@@ -205,9 +204,7 @@ fn clouds_lie_on_their_frames_truth_not_on_the_rest_surface() {
     let seq = shared();
     let sigma = seq.spec.cloud.noise_sigma;
     let rest = seq.rest_surface_in_camera();
-    let area: f64 = (0..rest.triangles.len())
-        .map(|t| 0.5 * rest.scaled_normal(t).norm())
-        .sum();
+    let area = rest.area();
     let expected_inliers = seq.spec.cloud.density_per_m2() * 0.3 * area;
     for (k, f) in seq.frames.iter().enumerate() {
         let truth = seq.truth_surface(k);
