@@ -17,13 +17,18 @@ use std::time::{Duration, Instant};
 
 use tokio::sync::oneshot;
 
-use super::worker::SessionHandle;
-
 /// The starvation limit is never below this (a few sessions on fast frames).
 pub const MIN_STARVATION_LIMIT: Duration = Duration::from_millis(50);
 
 /// How many fair shares a session may wait before it is served ahead of fresher frames.
 pub const STARVATION_SHARES: f64 = 2.0;
+
+/// What the slots need to know of a session that waits for one: when its pending frame
+/// arrived. The server's session handle implements it; the slots know nothing else of it.
+pub trait PendingFrame: Send + Sync {
+    /// When the frame waiting for registration was received (`None`: none waits).
+    fn pending_received(&self) -> Option<Instant>;
+}
 
 /// What the choice looks at for one waiting session.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -81,7 +86,7 @@ pub fn choose(
 }
 
 struct Waiter {
-    handle: Arc<SessionHandle>,
+    session: Arc<dyn PendingFrame>,
     since: Instant,
     wake: oneshot::Sender<()>,
 }
@@ -167,10 +172,10 @@ impl RegistrationSlots {
         Duration::from_secs_f64(STARVATION_SHARES * share).max(self.min_starvation)
     }
 
-    /// Waits for a slot for `handle`'s session, last registered at `since`.
-    pub async fn acquire(
+    /// Waits for a slot for `session`, last registered at `since`.
+    pub async fn acquire<S: PendingFrame + 'static>(
         self: &Arc<Self>,
-        handle: &Arc<SessionHandle>,
+        session: &Arc<S>,
         since: Instant,
     ) -> SlotPermit {
         let rx = {
@@ -184,7 +189,7 @@ impl RegistrationSlots {
             }
             let (tx, rx) = oneshot::channel();
             inner.waiting.push(Waiter {
-                handle: handle.clone(),
+                session: session.clone(),
                 since,
                 wake: tx,
             });
@@ -226,7 +231,7 @@ impl RegistrationSlots {
                 .iter()
                 .map(|w| WaitingSession {
                     since: w.since,
-                    pending: w.handle.pending_received(),
+                    pending: w.session.pending_received(),
                 })
                 .collect();
             let Some(i) = choose(&view, now, starvation, fresh_enough) else {
@@ -258,47 +263,28 @@ impl RegistrationSlots {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::server::auth::Owner;
-    use crate::server::codec::Incoming;
-    use crate::server::metrics::Metrics;
-    use crate::server::worker::{Job, ModelInfo, Reply};
-    use crate::session::Frame;
 
-    fn session(name: &str) -> Arc<SessionHandle> {
-        let info = ModelInfo {
-            units: "m".into(),
-            length_scale: 1.0,
-            surface_vertices: 0,
-            surface_triangles: 0,
-            structures: Vec::new(),
-            meshes: Default::default(),
-            recording: None,
-            memory_estimate_bytes: 0,
-        };
-        Arc::new(SessionHandle::new(
-            name.into(),
-            Owner(name.into()),
-            info,
-            std::env::temp_dir(),
-            100.0,
-        ))
+    /// A session as the slots see it: a name and the arrival of its pending frame.
+    struct Waiting {
+        id: String,
+        pending: Mutex<Option<Instant>>,
     }
 
-    fn frame_now(h: &SessionHandle, metrics: &Metrics) {
-        let (tx, _rx) = oneshot::channel();
-        let job = Job {
-            incoming: Incoming {
-                seq: 1,
-                frame: Frame {
-                    source: "f".into(),
-                    points: Vec::new(),
-                    camera: None,
-                },
-            },
-            received: Instant::now(),
-            reply: Reply::Once(tx),
-        };
-        h.submit(job, metrics);
+    fn session(name: &str) -> Arc<Waiting> {
+        Arc::new(Waiting {
+            id: name.into(),
+            pending: Mutex::new(None),
+        })
+    }
+
+    impl PendingFrame for Waiting {
+        fn pending_received(&self) -> Option<Instant> {
+            *self.pending.lock().unwrap()
+        }
+    }
+
+    fn frame_now(h: &Waiting) {
+        *h.pending.lock().unwrap() = Some(Instant::now());
     }
 
     /// With the one slot held, two sessions wait with frames received 20 ms apart: the slot
@@ -306,16 +292,15 @@ mod tests {
     /// chosen hands its slot on.
     #[tokio::test]
     async fn a_freed_slot_goes_to_the_freshest_pending_frame() {
-        let metrics = Metrics::default();
         let slots = RegistrationSlots::new(1);
         let (a, b, c) = (session("a"), session("b"), session("c"));
         let start = Instant::now();
         let held = slots.acquire(&c, start).await;
-        frame_now(&a, &metrics);
+        frame_now(&a);
         tokio::time::sleep(Duration::from_millis(20)).await;
-        frame_now(&b, &metrics);
+        frame_now(&b);
         let order = Arc::new(Mutex::new(Vec::new()));
-        let task = |h: Arc<SessionHandle>| {
+        let task = |h: Arc<Waiting>| {
             let (slots, order) = (slots.clone(), order.clone());
             tokio::spawn(async move {
                 let p = slots.acquire(&h, start).await;

@@ -21,7 +21,7 @@ use super::codec::Incoming;
 use super::error::ApiError;
 use super::limits::RateLimiter;
 use super::metrics::Metrics;
-use super::slots::RegistrationSlots;
+use super::slots::{PendingFrame, RegistrationSlots};
 use crate::recording::{now_ns, Recorder};
 use crate::session::{FrameResult, Session};
 
@@ -188,6 +188,16 @@ pub struct SessionHandle {
     recording_failure: Mutex<Option<String>>,
 }
 
+impl PendingFrame for SessionHandle {
+    /// When the frame waiting in the mailbox was received (`None`: none waits).
+    fn pending_received(&self) -> Option<Instant> {
+        self.mailbox
+            .lock()
+            .ok()
+            .and_then(|mb| mb.pending.as_ref().map(|j| j.received))
+    }
+}
+
 impl SessionHandle {
     /// A handle for a new session.
     pub fn new(
@@ -327,14 +337,6 @@ impl SessionHandle {
             }
             notified.await;
         }
-    }
-
-    /// When the frame waiting in the mailbox was received (`None`: none waits).
-    pub fn pending_received(&self) -> Option<Instant> {
-        self.mailbox
-            .lock()
-            .ok()
-            .and_then(|mb| mb.pending.as_ref().map(|j| j.received))
     }
 
     fn take(&self) -> Option<Job> {
@@ -636,4 +638,69 @@ fn finish(handle: &SessionHandle) {
     handle.ended_flag.store(true, Ordering::Release);
     handle.ended.notify_waiters();
     tracing::info!(session = %handle.id, owner = handle.owner.name(), "session ended");
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::session::Frame;
+
+    fn handle() -> SessionHandle {
+        let info = ModelInfo {
+            units: "m".into(),
+            length_scale: 1.0,
+            surface_vertices: 0,
+            surface_triangles: 0,
+            structures: Vec::new(),
+            meshes: Default::default(),
+            recording: None,
+            memory_estimate_bytes: 0,
+        };
+        SessionHandle::new(
+            "s".into(),
+            Owner("s".into()),
+            info,
+            std::env::temp_dir(),
+            100.0,
+        )
+    }
+
+    fn job(seq: u64, received: Instant) -> (Job, oneshot::Receiver<Outcome>) {
+        let (tx, rx) = oneshot::channel();
+        let job = Job {
+            incoming: Incoming {
+                seq,
+                frame: Frame {
+                    source: format!("f{seq}"),
+                    points: Vec::new(),
+                    camera: None,
+                },
+            },
+            received,
+            reply: Reply::Once(tx),
+        };
+        (job, rx)
+    }
+
+    /// What the registration slots read of a session: the arrival of the one frame its
+    /// mailbox holds. A newer frame replaces the waiting one (which is answered `Skipped`
+    /// and counted), and once the worker takes it nothing is pending.
+    #[test]
+    fn the_pending_frame_is_the_newest_until_the_worker_takes_it() {
+        let (h, metrics) = (handle(), Metrics::default());
+        assert_eq!(h.pending_received(), None);
+        let t0 = Instant::now();
+        let t1 = t0 + Duration::from_millis(20);
+        let (first, mut first_reply) = job(1, t0);
+        h.submit(first, &metrics);
+        assert_eq!(h.pending_received(), Some(t0));
+        let (second, _second_reply) = job(2, t1);
+        h.submit(second, &metrics);
+        assert_eq!(h.pending_received(), Some(t1));
+        assert!(matches!(first_reply.try_recv(), Ok(Outcome::Skipped)));
+        assert_eq!(h.counters.skipped.load(Ordering::Relaxed), 1);
+        let taken = h.take().expect("a frame waits");
+        assert_eq!(taken.incoming.seq, 2);
+        assert_eq!(h.pending_received(), None);
+    }
 }
