@@ -14,9 +14,9 @@ mod camera_patch;
 use camera_patch::camera_patch;
 
 use criterion::{criterion_group, criterion_main, Criterion};
+use livereg::random::Rng;
 use livereg::registration::change_evidence::{cloud_noise_sigma_near, ChangeTest};
 use livereg::registration::correspondences::IndexedPoints;
-use livereg::synthetic::Rng;
 
 fn bench_change_test(c: &mut Criterion) {
     let mut rng = Rng::new(11);

@@ -10,7 +10,7 @@ use std::hint::black_box;
 use criterion::{criterion_group, criterion_main, Criterion};
 use livereg::mechanics::material::Mat3;
 use livereg::mechanics::{LawKind, Material, Part};
-use livereg::synthetic::Rng;
+use livereg::random::Rng;
 use nalgebra::{Rotation3, Vector3};
 
 /// A rotation about a random axis by a random angle in [0, π).

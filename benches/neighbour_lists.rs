@@ -13,8 +13,8 @@ mod camera_patch;
 use camera_patch::camera_patch;
 
 use criterion::{criterion_group, criterion_main, Criterion};
+use livereg::random::Rng;
 use livereg::registration::correspondences::IndexedPoints;
-use livereg::synthetic::Rng;
 use rayon::prelude::*;
 
 fn bench_neighbour_lists(c: &mut Criterion) {

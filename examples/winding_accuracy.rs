@@ -7,7 +7,7 @@
 //! `cargo run --release --example winding_accuracy`
 
 use livereg::geometry::{shapes, winding_number_brute, Aabb, Bvh, ExpansionOrder, FastWinding};
-use livereg::synthetic::Rng;
+use livereg::random::Rng;
 use nalgebra::Point3;
 
 fn main() {

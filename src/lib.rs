@@ -36,6 +36,7 @@ pub mod mechanics;
 pub mod mesh;
 pub mod openigtlink;
 pub mod phantom;
+pub mod random;
 pub mod recording;
 pub mod registration;
 pub mod scenarios;

@@ -12,10 +12,10 @@
 
 use livereg::geometry::Camera;
 use livereg::phantom::liver_phantom;
+use livereg::random::Rng;
 use livereg::registration::{ModelTarget, PoseSearch, RigidIcp, RigidTransform};
 use livereg::scene::load_scene;
 use livereg::session::{Frame, Session};
-use livereg::synthetic::rng::Rng;
 use livereg::synthetic::{synthesize_cloud, CloudSpec};
 use nalgebra::{Point3, Rotation3, Unit, Vector3};
 

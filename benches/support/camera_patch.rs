@@ -1,7 +1,7 @@
 //! The cloud the neighbour-list and change-test benchmarks share: a camera's patch of 680
 //! points (the phantom's warm clouds) on a curved 12 × 9 cm surface with 1.5 mm noise, m.
 
-use livereg::synthetic::Rng;
+use livereg::random::Rng;
 use nalgebra::Point3;
 
 /// 680 points drawn from `rng` (the stream continues after them).

@@ -44,8 +44,6 @@ pub mod line_crossings;
 pub mod neighbour_grid;
 pub mod predicates;
 pub mod shapes;
-#[cfg(test)]
-mod test_rng;
 pub mod tri_box;
 pub mod view_error;
 pub mod visibility;

@@ -184,7 +184,7 @@ impl<'a> NeighbourGrid<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::test_rng::Rng;
+    use crate::random::Rng;
 
     /// The `k` nearest by brute force: every distance, sorted (ties by index).
     fn brute_force(points: &[Point3<f64>], i: usize, k: usize) -> Vec<(usize, f64)> {
@@ -215,18 +215,21 @@ mod tests {
     /// above the neighbours' distance, so the edge decides only the speed.
     #[test]
     fn lists_equal_brute_force_whatever_the_cell() {
-        let mut rng = Rng(7);
+        let mut rng = Rng::new(7);
         let mut points: Vec<Point3<f64>> = (0..600)
             .map(|_| {
-                let (x, y) = (rng.next() * 0.1, rng.next() * 0.08);
-                let z = 0.02 * (30.0 * x).sin() * (20.0 * y).cos() + 0.002 * (rng.next() - 0.5);
+                let (x, y) = (rng.uniform() * 0.1, rng.uniform() * 0.08);
+                let z = 0.02 * (30.0 * x).sin() * (20.0 * y).cos() + 0.002 * (rng.uniform() - 0.5);
                 Point3::new(x, y, z)
             })
             .collect();
-        points.extend(
-            (0..150)
-                .map(|_| Point3::new(0.05 + 0.005 * rng.next(), 0.04 + 0.005 * rng.next(), 0.0)),
-        );
+        points.extend((0..150).map(|_| {
+            Point3::new(
+                0.05 + 0.005 * rng.uniform(),
+                0.04 + 0.005 * rng.uniform(),
+                0.0,
+            )
+        }));
         points.push(points[17]); // a duplicate: a tie broken by index
                                  // The 32nd neighbour lies about 1 cm away: cells of 4 mm make the search widen.
         for cell in [0.004, 0.01, 0.05, 1.0] {

@@ -6,8 +6,8 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
 use super::shapes::{self, Mesh};
-use super::test_rng::Rng;
 use super::{triangle_overlaps_box, Aabb, InsideTest};
+use crate::random::Rng;
 
 /// Removes the triangles having all corners with `cut(p)` true (keeps the vertex array).
 fn remove_faces(mesh: &Mesh, cut: impl Fn(&Point3<f64>) -> bool) -> Mesh {
@@ -127,13 +127,18 @@ fn compare_lines(t: &InsideTest, lines: &[(f64, f64)], zs: &[f64], band: f64) ->
 fn random_lines(rng: &mut Rng, b: &Aabb, n: usize) -> Vec<(f64, f64)> {
     let b = b.expanded(0.1 * b.extents().max());
     (0..n)
-        .map(|_| (rng.range(b.min.x, b.max.x), rng.range(b.min.y, b.max.y)))
+        .map(|_| {
+            (
+                rng.uniform_in(b.min.x, b.max.x),
+                rng.uniform_in(b.min.y, b.max.y),
+            )
+        })
         .collect()
 }
 
 fn random_zs(rng: &mut Rng, b: &Aabb, n: usize) -> Vec<f64> {
     let b = b.expanded(0.1 * b.extents().max());
-    (0..n).map(|_| rng.range(b.min.z, b.max.z)).collect()
+    (0..n).map(|_| rng.uniform_in(b.min.z, b.max.z)).collect()
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -146,14 +151,14 @@ fn winding_number_of_closed_icosphere() {
     let (v, tris) = shapes::icosphere(4, r);
     let t = InsideTest::new(&v, &tris);
     assert!(t.is_closed());
-    let mut rng = Rng(7);
+    let mut rng = Rng::new(7);
     let mut max_err: f64 = 0.0;
     let mut n_far = 0;
     for _ in 0..3000 {
         let p = Point3::new(
-            rng.range(-2.0, 2.0),
-            rng.range(-2.0, 2.0),
-            rng.range(-2.0, 2.0),
+            rng.uniform_in(-2.0, 2.0),
+            rng.uniform_in(-2.0, 2.0),
+            rng.uniform_in(-2.0, 2.0),
         );
         let exact = t.winding_number_exact(&p);
         let fast = t.winding_number(&p);
@@ -177,9 +182,9 @@ fn winding_number_of_closed_icosphere() {
     // Points very close to the surface (0.2 % of R): fast and exact still agree on the decision.
     for k in 0..500 {
         let dir = Vector3::new(
-            rng.range(-1.0, 1.0),
-            rng.range(-1.0, 1.0),
-            rng.range(-1.0, 1.0),
+            rng.uniform_in(-1.0, 1.0),
+            rng.uniform_in(-1.0, 1.0),
+            rng.uniform_in(-1.0, 1.0),
         )
         .normalize();
         let s = if k % 2 == 0 { 0.995 } else { 1.005 };
@@ -205,12 +210,12 @@ fn winding_number_of_open_sphere() {
     assert!((exact - 0.75).abs() < 0.02, "exact {exact}");
     assert!((fast - exact).abs() < 0.02, "fast {fast} exact {exact}");
     // A sample of points: fast vs exact.
-    let mut rng = Rng(99);
+    let mut rng = Rng::new(99);
     for _ in 0..500 {
         let p = Point3::new(
-            rng.range(-1.5, 1.5),
-            rng.range(-1.5, 1.5),
-            rng.range(-1.5, 1.5),
+            rng.uniform_in(-1.5, 1.5),
+            rng.uniform_in(-1.5, 1.5),
+            rng.uniform_in(-1.5, 1.5),
         );
         if ((p.coords.norm()) - 1.0).abs() < 0.01 {
             continue;
@@ -227,7 +232,7 @@ fn winding_number_of_open_sphere() {
 fn check_random_lines(mesh: &Mesh, seed: u64, n_lines: usize, n_z: usize) -> Comparison {
     let t = InsideTest::new(&mesh.0, &mesh.1);
     let b = t.bounds();
-    let mut rng = Rng(seed);
+    let mut rng = Rng::new(seed);
     let lines = random_lines(&mut rng, &b, n_lines);
     let zs = random_zs(&mut rng, &b, n_z);
     let c = compare_lines(&t, &lines, &zs, 0.0);
@@ -389,7 +394,7 @@ fn classify_line_overlapping_and_unwelded_and_flipped() {
     t[17].swap(1, 2);
     let inside = InsideTest::new(&v, &t);
     assert!(!inside.is_closed());
-    let mut rng = Rng(8);
+    let mut rng = Rng::new(8);
     let lines = random_lines(&mut rng, &inside.bounds(), 1500);
     let zs = random_zs(&mut rng, &inside.bounds(), 12);
     let c = compare_lines(&inside, &lines, &zs, 0.02);
@@ -411,11 +416,11 @@ fn classify_line_many_crossings() {
     assert_eq!(crossings.len(), 48);
     assert!(crossings.windows(2).all(|w| w[0].0 <= w[1].0));
     assert_eq!(crossings.iter().map(|c| c.1).sum::<i32>(), 0);
-    let mut rng = Rng(31);
+    let mut rng = Rng::new(31);
     let lines: Vec<(f64, f64)> = (0..300)
-        .map(|_| (rng.range(-0.45, 0.45), rng.range(-0.45, 0.45)))
+        .map(|_| (rng.uniform_in(-0.45, 0.45), rng.uniform_in(-0.45, 0.45)))
         .collect();
-    let zs: Vec<f64> = (0..100).map(|_| rng.range(-0.5, 23.5)).collect();
+    let zs: Vec<f64> = (0..100).map(|_| rng.uniform_in(-0.5, 23.5)).collect();
     let c = compare_lines(&t, &lines, &zs, 0.0);
     assert_eq!(c.wrong, 0, "{c:?}");
     assert!(c.checked > 29_000);
@@ -431,7 +436,7 @@ fn classify_line_sphere_with_holes_matches_winding_decision() {
     for (seed, mesh) in [(11, open_top), (12, open_side)] {
         let t = InsideTest::new(&mesh.0, &mesh.1);
         assert!(!t.is_closed());
-        let mut rng = Rng(seed);
+        let mut rng = Rng::new(seed);
         let lines = random_lines(&mut rng, &t.bounds(), 1500);
         let zs = random_zs(&mut rng, &t.bounds(), 12);
         let c = compare_lines(&t, &lines, &zs, 0.02);
@@ -546,17 +551,17 @@ fn lattice_volume_of_sphere_and_torus() {
 fn triangles_overlapping_matches_brute_force() {
     let (v, tris) = shapes::icosphere(4, 1.0);
     let t = InsideTest::new(&v, &tris);
-    let mut rng = Rng(21);
+    let mut rng = Rng::new(21);
     let mut out = Vec::new();
     let mut filtered = Vec::new();
     let mut total = 0;
     for _ in 0..300 {
         let c = Point3::new(
-            rng.range(-1.2, 1.2),
-            rng.range(-1.2, 1.2),
-            rng.range(-1.2, 1.2),
+            rng.uniform_in(-1.2, 1.2),
+            rng.uniform_in(-1.2, 1.2),
+            rng.uniform_in(-1.2, 1.2),
         );
-        let h = Vector3::repeat(rng.range(0.01, 0.3));
+        let h = Vector3::repeat(rng.uniform_in(0.01, 0.3));
         let b = Aabb::new(c - h, c + h);
         t.triangles_overlapping(&b, &mut out);
         let want: Vec<usize> = (0..tris.len())

@@ -82,7 +82,7 @@ fn interval_separated(axis: &Vector3<f64>, tmin: f64, tmax: f64, b: &Aabb) -> bo
 mod tests {
     use super::*;
 
-    use crate::geometry::test_rng::Rng;
+    use crate::random::Rng;
 
     fn p(x: f64, y: f64, z: f64) -> Point3<f64> {
         Point3::new(x, y, z)
@@ -124,19 +124,20 @@ mod tests {
 
     #[test]
     fn random_cases_match_clipping_reference() {
-        let mut rng = Rng(0x1234_5678_9abc_def1);
+        let mut rng = Rng::new(0x1234_5678_9abc_def1);
         let mut decided = 0;
         let (mut hits, mut misses) = (0, 0);
         for _ in 0..20_000 {
-            let c = rng.point(-1.0, 1.0);
-            let h = nalgebra::Vector3::new(rng.range(0.05, 0.6), rng.range(0.05, 0.6), 0.3);
+            let c = rng.point_in_cube(-1.0, 1.0);
+            let h =
+                nalgebra::Vector3::new(rng.uniform_in(0.05, 0.6), rng.uniform_in(0.05, 0.6), 0.3);
             let b = Aabb::new(c - h, c + h);
-            let scale = rng.range(0.1, 2.0);
-            let base = c + rng.point(-1.0, 1.0).coords;
+            let scale = rng.uniform_in(0.1, 2.0);
+            let base = c + rng.point_in_cube(-1.0, 1.0).coords;
             let tri = [
                 base,
-                base + rng.point(-1.0, 1.0).coords * scale,
-                base + rng.point(-1.0, 1.0).coords * scale,
+                base + rng.point_in_cube(-1.0, 1.0).coords * scale,
+                base + rng.point_in_cube(-1.0, 1.0).coords * scale,
             ];
             let got = triangle_overlaps_box(&tri, &b);
             // Decide only cases that are robust to rounding: overlap with the shrunk box
@@ -153,7 +154,7 @@ mod tests {
             }
             // Dense samples on the triangle inside the box imply overlap.
             for _ in 0..8 {
-                let (mut u, mut v) = (rng.next(), rng.next());
+                let (mut u, mut v) = (rng.uniform(), rng.uniform());
                 if u + v > 1.0 {
                     (u, v) = (1.0 - u, 1.0 - v);
                 }

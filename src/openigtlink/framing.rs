@@ -386,34 +386,22 @@ mod tests {
         assert!(matches!(next.message.content, Content::Status(_)));
     }
 
-    /// A small xorshift generator (no dependency): deterministic pseudo-random bytes.
-    struct XorShift(u64);
-
-    impl XorShift {
-        fn next(&mut self) -> u64 {
-            self.0 ^= self.0 << 13;
-            self.0 ^= self.0 >> 7;
-            self.0 ^= self.0 << 17;
-            self.0
-        }
-    }
-
     #[tokio::test]
     async fn random_and_mutated_inputs_never_panic() {
-        let mut rng = XorShift(0x2545_F491_4F6C_DD1D);
+        let mut rng = crate::random::Rng::new(0x2545_F491_4F6C_DD1D);
         let valid = stream();
         let mut outcomes = [0usize; 2];
         for round in 0..4000 {
             let bytes: Vec<u8> = if round % 2 == 0 {
-                let length = (rng.next() % 400) as usize;
-                (0..length).map(|_| rng.next() as u8).collect()
+                let length = (rng.next_u64() % 400) as usize;
+                (0..length).map(|_| rng.next_u64() as u8).collect()
             } else {
                 // Mutate a valid stream: flip bytes, then re-sign the first body so that the
                 // mutation reaches the body decoders, not only the CRC check.
                 let mut bytes = valid.clone();
-                for _ in 0..(1 + rng.next() % 6) {
-                    let at = (rng.next() as usize) % bytes.len();
-                    bytes[at] = rng.next() as u8;
+                for _ in 0..(1 + rng.next_u64() % 6) {
+                    let at = (rng.next_u64() as usize) % bytes.len();
+                    bytes[at] = rng.next_u64() as u8;
                 }
                 let body_size = u64::from_be_bytes(bytes[42..50].try_into().unwrap());
                 if let Some(body) = usize::try_from(body_size)
@@ -423,7 +411,7 @@ mod tests {
                     let crc = crc64(body);
                     bytes[50..58].copy_from_slice(&crc.to_be_bytes());
                 }
-                let cut = (rng.next() as usize) % (bytes.len() + 1);
+                let cut = (rng.next_u64() as usize) % (bytes.len() + 1);
                 bytes.truncate(cut.max(bytes.len() / 2));
                 bytes
             };

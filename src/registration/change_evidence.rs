@@ -259,7 +259,7 @@ fn median(v: &mut [f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synthetic::Rng;
+    use crate::random::Rng;
 
     /// A 12 × 12 cm patch of a sphere of radius 8 cm (curved like a liver), 500 points, with
     /// normal noise `sigma`, and a Gaussian bump of `bump` metres (width 1.5 cm) at its

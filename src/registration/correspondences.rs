@@ -317,7 +317,7 @@ pub fn pair(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synthetic::Rng;
+    use crate::random::Rng;
 
     /// Every point's lists from the grid equal the tree's own queries (the independent
     /// reference): on a noisy curved patch, and on the same patch with far outliers, whose box
@@ -394,20 +394,9 @@ mod tests {
     /// estimates σ).
     #[test]
     fn robust_threshold_ignores_gross_outliers() {
-        // Inliers: half-normal distances, σ = 1 mm (Box–Muller on a fixed xorshift stream).
-        let mut state = 0x9E37_79B9_7F4A_7C15u64;
-        let mut uniform = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-        };
-        let inliers: Vec<f64> = (0..700)
-            .map(|_| {
-                let (u1, u2) = (uniform(), uniform());
-                1e-3 * ((-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()).abs()
-            })
-            .collect();
+        // Inliers: half-normal distances, σ = 1 mm.
+        let mut rng = crate::random::Rng::new(0x9E37_79B9_7F4A_7C15);
+        let inliers: Vec<f64> = (0..700).map(|_| 1e-3 * rng.gaussian().abs()).collect();
         let outliers: Vec<f64> = (0..300).map(|i| 5e-3 + 45e-3 * i as f64 / 299.0).collect();
         let all: Vec<f64> = inliers.iter().chain(&outliers).copied().collect();
         let robust = robust_threshold(&all, 2.0);

@@ -59,7 +59,7 @@ pub fn isolated_mask(cloud: &IndexedPoints, k: usize, sigma: f64, median_factor:
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synthetic::Rng;
+    use crate::random::Rng;
     use nalgebra::Point3;
 
     /// A 20 × 20 cm plate sampled every 5 mm (a surface at ~4 samples/cm²), with a gentle

@@ -91,9 +91,9 @@ mod tests {
         (0..n)
             .map(|_| {
                 Point3::new(
-                    rng.uniform(-0.1, 0.1),
-                    rng.uniform(-0.1, 0.1),
-                    rng.uniform(-0.1, 0.1),
+                    rng.uniform_in(-0.1, 0.1),
+                    rng.uniform_in(-0.1, 0.1),
+                    rng.uniform_in(-0.1, 0.1),
                 )
             })
             .collect()
@@ -168,7 +168,7 @@ mod tests {
         // Noisy planar data can make the unconstrained optimum a reflection; the fit stays proper.
         let mut rng = Rng::new(4);
         let src: Vec<_> = (0..20)
-            .map(|_| Point3::new(rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0), 0.0))
+            .map(|_| Point3::new(rng.uniform_in(-1.0, 1.0), rng.uniform_in(-1.0, 1.0), 0.0))
             .collect();
         let dst: Vec<_> = src
             .iter()

@@ -397,7 +397,7 @@ mod tests {
         // ≤ spacing / √3 for the step ≤ spacing; checked loosely).
         let mut rng = Rng::new(9);
         for _ in 0..2000 {
-            let t = rng.index(sphere.triangles.len());
+            let t = rng.below(sphere.triangles.len());
             let p = rng.point_on_triangle(&sphere.corners(t));
             let (_, d2) = target.nearest_sample(&p);
             assert!(d2.sqrt() <= spacing, "{}", d2.sqrt());
@@ -413,7 +413,7 @@ mod tests {
         let mut exact_hits = 0;
         for _ in 0..500 {
             let dir = rng.unit_vector();
-            let p = Point3::from(dir * rng.uniform(0.08, 0.12));
+            let p = Point3::from(dir * rng.uniform_in(0.08, 0.12));
             let brute = (0..sphere.triangles.len())
                 .map(|t| (p - closest_point_on_triangle(&p, &sphere.corners(t)).0).norm())
                 .fold(f64::INFINITY, f64::min);
@@ -431,7 +431,7 @@ mod tests {
         let target = ModelTarget::new(&sphere, 0.005).unwrap();
         let mut rng = Rng::new(13);
         for _ in 0..500 {
-            let p = Point3::from(rng.unit_vector() * rng.uniform(0.09, 0.11));
+            let p = Point3::from(rng.unit_vector() * rng.uniform_in(0.09, 0.11));
             let (q, d2, n) = target.closest_point_with_normal(&p);
             assert_eq!((q, d2), target.closest_point(&p));
             assert!((n.norm() - 1.0).abs() < 1e-12);

@@ -113,8 +113,8 @@ impl PoseCovariance {
 mod tests {
     use super::*;
     use crate::mesh::primitives::icosphere;
+    use crate::random::Rng;
     use crate::registration::{ModelTarget, RigidIcp};
-    use crate::synthetic::rng::Rng;
 
     #[test]
     fn the_predicted_spread_matches_the_spread_of_repeated_fits() {

@@ -1,4 +1,5 @@
-//! Test helpers: a seeded RNG with Box–Muller normals, a liver-ish test surface and clouds.
+//! Test helpers: random rigid motions, a liver-ish test surface and clouds drawn from the
+//! crate's seeded generator ([`crate::random::Rng`]).
 
 use nalgebra::{Point3, Rotation3, Unit, Vector3};
 
@@ -6,69 +7,16 @@ use crate::mesh::primitives::icosphere;
 use crate::mesh::TriSurface;
 use crate::registration::RigidTransform;
 
-/// SplitMix64: small, seeded, good enough for test data.
-pub(crate) struct Rng(u64);
+pub(crate) use crate::random::Rng;
 
-impl Rng {
-    pub(crate) fn new(seed: u64) -> Self {
-        Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xD1B5_4A32_D192_ED03)
-    }
-
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [0, 1).
-    pub(crate) fn unit(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    pub(crate) fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.unit()
-    }
-
-    pub(crate) fn index(&mut self, n: usize) -> usize {
-        ((self.unit() * n as f64) as usize).min(n - 1)
-    }
-
-    /// Standard normal by Box–Muller.
-    pub(crate) fn normal(&mut self) -> f64 {
-        let u1 = 1.0 - self.unit(); // (0, 1]
-        let u2 = self.unit();
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-    }
-
-    pub(crate) fn unit_vector(&mut self) -> Vector3<f64> {
-        loop {
-            let v = Vector3::new(self.normal(), self.normal(), self.normal());
-            let n = v.norm();
-            if n > 1e-6 {
-                return v / n;
-            }
-        }
-    }
-
-    pub(crate) fn point_on_triangle(&mut self, [a, b, c]: &[Point3<f64>; 3]) -> Point3<f64> {
-        let (mut u, mut v) = (self.unit(), self.unit());
-        if u + v > 1.0 {
-            (u, v) = (1.0 - u, 1.0 - v);
-        }
-        a + (b - a) * u + (c - a) * v
-    }
-
-    /// A rigid motion with rotation `angle` (radians) about a random axis and a translation of
-    /// length `shift` (metres) in a random direction.
-    pub(crate) fn motion(&mut self, angle: f64, shift: f64) -> RigidTransform {
-        let axis = Unit::new_normalize(self.unit_vector());
-        RigidTransform::new(
-            Rotation3::from_axis_angle(&axis, angle),
-            self.unit_vector() * shift,
-        )
-    }
+/// A rigid motion with rotation `angle` (radians) about a random axis and a translation of
+/// length `shift` (metres) in a random direction.
+pub(crate) fn random_motion(rng: &mut Rng, angle: f64, shift: f64) -> RigidTransform {
+    let axis = Unit::new_normalize(rng.unit_vector());
+    RigidTransform::new(
+        Rotation3::from_axis_angle(&axis, angle),
+        rng.unit_vector() * shift,
+    )
 }
 
 /// A liver-ish closed surface: an ellipsoid 20 × 15 × 10 cm (semi-axes 10, 7.5, 5 cm) centred at
@@ -113,7 +61,7 @@ pub(crate) fn sample_surface(
     while out.len() < n {
         attempts += 1;
         assert!(attempts < 1000 * n, "keep() rejects nearly everything");
-        let r = rng.unit() * total;
+        let r = rng.uniform() * total;
         let t = cum.partition_point(|&c| c < r).min(cum.len() - 1);
         let p = rng.point_on_triangle(&s.corners(t));
         if keep(&p) {
@@ -137,6 +85,6 @@ pub(crate) fn cutting_plane(rng: &mut Rng, s: &TriSurface, fraction: f64) -> (Ve
 /// Adds isotropic Gaussian noise of standard deviation `sigma` (metres) per coordinate.
 pub(crate) fn add_noise(rng: &mut Rng, points: &mut [Point3<f64>], sigma: f64) {
     for p in points {
-        p.coords += Vector3::new(rng.normal(), rng.normal(), rng.normal()) * sigma;
+        p.coords += Vector3::new(rng.gaussian(), rng.gaussian(), rng.gaussian()) * sigma;
     }
 }

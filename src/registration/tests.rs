@@ -3,7 +3,9 @@
 use nalgebra::{Point3, Vector3};
 
 use crate::mesh::TriSurface;
-use crate::registration::test_support::{add_noise, cutting_plane, liver, sample_surface, Rng};
+use crate::registration::test_support::{
+    add_noise, cutting_plane, liver, random_motion, sample_surface, Rng,
+};
 use crate::registration::{IcpError, IcpMetric, IcpResult, ModelTarget, RigidIcp, RigidTransform};
 
 /// Model sample spacing for the tests: 3 mm (≈ 9,000 samples on the 0.07 m² test liver).
@@ -51,9 +53,9 @@ fn box_outliers(
     (0..n)
         .map(|_| {
             let p = Point3::new(
-                rng.uniform(lo.x - 0.03, hi.x + 0.03),
-                rng.uniform(lo.y - 0.03, hi.y + 0.03),
-                rng.uniform(lo.z - 0.03, hi.z + 0.03),
+                rng.uniform_in(lo.x - 0.03, hi.x + 0.03),
+                rng.uniform_in(lo.y - 0.03, hi.y + 0.03),
+                rng.uniform_in(lo.z - 0.03, hi.z + 0.03),
             );
             truth.apply(&p)
         })
@@ -76,9 +78,9 @@ fn full_cloud_recovers_known_motions() {
         let (angle, shift) = if case < 2 {
             (30.0 * DEG, 0.05)
         } else {
-            (rng.uniform(0.0, 30.0) * DEG, rng.uniform(0.0, 0.05))
+            (rng.uniform_in(0.0, 30.0) * DEG, rng.uniform_in(0.0, 0.05))
         };
-        let truth = rng.motion(angle, shift);
+        let truth = random_motion(&mut rng, angle, shift);
         let pts = cloud(&mut rng, &model, &truth, 2000, |_| true);
         let r = icp.register(&target, &pts, None).unwrap();
         let (rot, trans, tre) = errors(&model, &r, &truth);
@@ -109,8 +111,8 @@ fn outlier_rule_beats_no_rejection() {
     };
     let mut rng = Rng::new(23);
     for case in 0..3 {
-        let (angle, shift) = (rng.uniform(10.0, 30.0) * DEG, rng.uniform(0.01, 0.05));
-        let truth = rng.motion(angle, shift);
+        let (angle, shift) = (rng.uniform_in(10.0, 30.0) * DEG, rng.uniform_in(0.01, 0.05));
+        let truth = random_motion(&mut rng, angle, shift);
         // 30 % of the cloud: uniform in the box around the (moved) model.
         let mut pts = cloud(&mut rng, &model, &truth, 1400, |_| true);
         pts.extend(box_outliers(&mut rng, &model, &truth, 600));
@@ -145,14 +147,14 @@ fn partial_overlap_recovers_known_motions() {
     };
     let mut rng = Rng::new(37);
     for case in 0..6 {
-        let fraction = rng.uniform(0.3, 0.4);
+        let fraction = rng.uniform_in(0.3, 0.4);
         let (n, offset) = cutting_plane(&mut rng, &model, fraction);
         let (angle, shift) = if case < 2 {
             (30.0 * DEG, 0.05)
         } else {
-            (rng.uniform(0.0, 30.0) * DEG, rng.uniform(0.0, 0.05))
+            (rng.uniform_in(0.0, 30.0) * DEG, rng.uniform_in(0.0, 0.05))
         };
-        let truth = rng.motion(angle, shift);
+        let truth = random_motion(&mut rng, angle, shift);
         let pts = cloud(&mut rng, &model, &truth, 2000, |p| {
             n.dot(&p.coords) > offset
         });
@@ -171,6 +173,10 @@ fn trimmed_icp_ignores_a_nearby_sheet() {
     // 20 % overlap: half the cloud on a fifth of the surface, half on a flat 8 × 8 cm sheet
     // 1.5 cm above that patch (e.g. an instrument or the abdominal wall). Trimming to the
     // closest 45 % keeps (mostly) the patch; plain ICP with the 2σ rule bends towards the sheet.
+    // The start is a tracking frame's motion, under the sheet's clearance (2–5°, 3–8 mm; at most
+    // about 12 mm at the lobe's tips): a start displaced by the clearance itself puts the sheet
+    // nearer the model than the patch, and no local method tells them apart (measured: a 5°,
+    // 13.8 mm start ended 39.5° off, trimmed or not).
     let model = liver();
     let target = ModelTarget::new(&model, SPACING).unwrap();
     let plain = RigidIcp::default();
@@ -179,10 +185,10 @@ fn trimmed_icp_ignores_a_nearby_sheet() {
         ..RigidIcp::default()
     };
     let mut rng = Rng::new(41);
-    for case in 0..4 {
+    for case in 0..6 {
         let (n, offset) = cutting_plane(&mut rng, &model, 0.2);
-        let (angle, shift) = (rng.uniform(3.0, 8.0) * DEG, rng.uniform(0.005, 0.015));
-        let truth = rng.motion(angle, shift);
+        let (angle, shift) = (rng.uniform_in(2.0, 5.0) * DEG, rng.uniform_in(0.003, 0.008));
+        let truth = random_motion(&mut rng, angle, shift);
         let patch = sample_surface(&mut rng, &model, 1000, |p| n.dot(&p.coords) > offset);
         let centre = patch.iter().map(|p| p.coords).sum::<Vector3<f64>>() / patch.len() as f64;
         let top = patch
@@ -194,7 +200,7 @@ fn trimmed_icp_ignores_a_nearby_sheet() {
         let base = centre + n * (top + 0.015 - n.dot(&centre));
         let mut pts = patch;
         pts.extend((0..1000).map(|_| {
-            Point3::from(base + u * rng.uniform(-0.04, 0.04) + v * rng.uniform(-0.04, 0.04))
+            Point3::from(base + u * rng.uniform_in(-0.04, 0.04) + v * rng.uniform_in(-0.04, 0.04))
         }));
         let mut pts = truth.apply_all(&pts);
         add_noise(&mut rng, &mut pts, 1e-3);
@@ -203,8 +209,8 @@ fn trimmed_icp_ignores_a_nearby_sheet() {
         let (rot_t, trans_t, tre_t) = errors(&model, &t, &truth);
         let (rot_p, trans_p, tre_p) = errors(&model, &p, &truth);
         eprintln!("trim case {case}: trimmed {rot_t:.3}° {trans_t:.3} mm tre {tre_t:.3} mm ({} it, inl {:.3}) | plain {rot_p:.3}° {trans_p:.3} mm tre {tre_p:.3} mm ({} it, inl {:.3})", t.iterations, t.inlier_fraction, p.iterations, p.inlier_fraction);
-        // Measured: trimmed 0.3–1.6° / ≤ 0.9 mm (TRE 0.7–2.8 mm; a fifth of the surface has a
-        // short lever arm, and trimming clips the noise tails); plain 50–59° (TRE ≥ 87 mm).
+        // Measured: trimmed 0.3–1.3° / ≤ 1.1 mm (TRE 0.6–3.3 mm; a fifth of the surface has a
+        // short lever arm, and trimming clips the noise tails); plain 22–65° (TRE ≥ 58 mm).
         assert!(
             rot_t <= 2.5 && trans_t <= 2.0,
             "case {case}: {rot_t}° {trans_t} mm"
@@ -231,7 +237,7 @@ fn point_to_point_metric_still_recovers_known_motions() {
     };
     let mut rng = Rng::new(11);
     for case in 0..2 {
-        let truth = rng.motion(30.0 * DEG, 0.05);
+        let truth = random_motion(&mut rng, 30.0 * DEG, 0.05);
         let pts = cloud(&mut rng, &model, &truth, 2000, |_| true);
         let r = icp.register(&target, &pts, None).unwrap();
         let (rot, trans, _) = errors(&model, &r, &truth);
@@ -249,7 +255,7 @@ fn warm_start_from_the_truth_stays_put() {
     let model = liver();
     let target = ModelTarget::new(&model, SPACING).unwrap();
     let mut rng = Rng::new(5);
-    let truth = rng.motion(0.4, 0.03);
+    let truth = random_motion(&mut rng, 0.4, 0.03);
     let pts = cloud(&mut rng, &model, &truth, 2000, |_| true);
     let r = RigidIcp::default()
         .register(&target, &pts, Some(truth.inverse()))

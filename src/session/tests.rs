@@ -216,7 +216,7 @@ fn isolated_outliers_case(data_term: DataTerm) {
     // 30 % of the final cloud uniform in a box 3 cm beyond the ellipsoid on every side
     // (a deterministic generator), as the stability matrix's outlier rows.
     let n_out = (clean.len() as f64 * 0.3 / 0.7).round() as usize;
-    let mut rng = crate::synthetic::Rng::new(11);
+    let mut rng = crate::random::Rng::new(11);
     let mut dirty = clean.clone();
     for _ in 0..n_out {
         dirty.push(Point3::new(
@@ -648,7 +648,7 @@ fn still_frames_average_the_noise_of_a_still_liver() {
     }
     let truth = truth.unwrap();
     // Fresh 1 mm noise per axis on every frame, the same clouds for both sessions.
-    let mut rng = crate::synthetic::Rng::new(28);
+    let mut rng = crate::random::Rng::new(28);
     let noisy: Vec<Vec<Point3<f64>>> = (0..10)
         .map(|_| clean.iter().map(|p| p + rng.gaussian_vector(1.0)).collect())
         .collect();
@@ -720,7 +720,7 @@ fn still_frames_average_the_noise_of_a_still_liver() {
 #[test]
 fn the_pose_uncertainty_is_its_fits_and_is_held_with_the_pose() {
     let (path, rest) = scene("uncertainty", "icp");
-    let mut rng = crate::synthetic::rng::Rng::new(11);
+    let mut rng = crate::random::Rng::new(11);
     let mut noisy = |pts: &[Point3<f64>]| -> Vec<Point3<f64>> {
         pts.iter().map(|p| p + rng.gaussian_vector(0.5)).collect()
     };

@@ -23,7 +23,6 @@
 pub mod error;
 pub mod indentation;
 pub mod point_cloud;
-pub mod rng;
 pub mod sequence;
 
 #[cfg(test)]
@@ -31,9 +30,9 @@ mod tests;
 
 /// The camera and the visibility test live in [`crate::geometry`] (registration uses them too).
 pub use crate::geometry::{Camera, VisibleSurface, DEFAULT_FOV_DEG};
+pub use crate::random::Rng;
 pub use error::SynthError;
 pub use point_cloud::{synthesize_cloud, CloudSpec, SyntheticCloud, MAX_SAMPLES, OUTLIER_MARGIN};
-pub use rng::Rng;
 pub use sequence::{
     frame_seed, generate_sequence, load_fraction, write_sequence, ScenarioKind, ScenarioLoad,
     SequenceError, SequenceSpec, SyntheticFrame, SyntheticSequence, TruthModel,

@@ -5,10 +5,10 @@
 use nalgebra::{Matrix3, Point3, Rotation3, Vector3};
 
 use super::error::SynthError;
-use super::rng::Rng;
 use crate::geometry::visibility::{check_surface, VisibleSurface};
 use crate::geometry::Camera;
 use crate::mesh::TriSurface;
+use crate::random::Rng;
 
 /// Square metres per square centimetre.
 const M2_PER_CM2: f64 = 1e-4;

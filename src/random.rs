@@ -1,10 +1,11 @@
 //! A small, seeded, portable pseudo-random number generator (xoshiro256++ seeded through
 //! SplitMix64) with uniform and Gaussian samples. The sequence depends only on the seed, so
-//! synthetic clouds are reproducible across platforms and thread counts.
+//! synthetic clouds and test data are reproducible across platforms and thread counts. It
+//! sits below every other module: the synthetic data and every module's tests draw from it.
 
-use nalgebra::Vector3;
+use nalgebra::{Point3, Vector3};
 
-/// Seeded xoshiro256++ generator. Not cryptographic; for synthetic data only.
+/// Seeded xoshiro256++ generator. Not cryptographic; for synthetic and test data only.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Rng {
     s: [u64; 4],
@@ -86,6 +87,36 @@ impl Rng {
         Vector3::new(self.gaussian(), self.gaussian(), self.gaussian()) * sigma
     }
 
+    /// A direction uniformly distributed on the unit sphere (a normalised Gaussian vector).
+    pub fn unit_vector(&mut self) -> Vector3<f64> {
+        loop {
+            let v = self.gaussian_vector(1.0);
+            let n = v.norm();
+            if n > 1e-6 {
+                return v / n;
+            }
+        }
+    }
+
+    /// A point uniformly distributed (by area) on the triangle `[a, b, c]`: two uniforms
+    /// reflected into the lower half of the unit square are its barycentric coordinates.
+    pub fn point_on_triangle(&mut self, [a, b, c]: &[Point3<f64>; 3]) -> Point3<f64> {
+        let (mut u, mut v) = (self.uniform(), self.uniform());
+        if u + v > 1.0 {
+            (u, v) = (1.0 - u, 1.0 - v);
+        }
+        a + (b - a) * u + (c - a) * v
+    }
+
+    /// A point uniformly distributed in the cube `[lo, hi)³`.
+    pub fn point_in_cube(&mut self, lo: f64, hi: f64) -> Point3<f64> {
+        Point3::new(
+            self.uniform_in(lo, hi),
+            self.uniform_in(lo, hi),
+            self.uniform_in(lo, hi),
+        )
+    }
+
     /// Shuffles `items` in place (Fisher–Yates).
     pub fn shuffle<T>(&mut self, items: &mut [T]) {
         for i in (1..items.len()).rev() {
@@ -136,6 +167,44 @@ mod tests {
         let gv = g.iter().map(|x| (x - gm).powi(2)).sum::<f64>() / n as f64;
         assert!(gm.abs() < 0.01, "{gm}");
         assert!((gv - 1.0).abs() < 0.02, "{gv}");
+    }
+
+    /// Directions have unit length and no preferred side (mean within 3 standard errors of 0:
+    /// each component of a uniform direction has variance 1/3); points on a triangle fall
+    /// inside it with the centroid as their mean; points in a cube stay in it.
+    #[test]
+    fn directions_triangle_and_cube_samples_are_uniform() {
+        let mut r = Rng::new(3);
+        let n = 100_000;
+        let mut sum = Vector3::zeros();
+        for _ in 0..n {
+            let d = r.unit_vector();
+            assert!((d.norm() - 1.0).abs() < 1e-12);
+            sum += d;
+        }
+        let bound = 3.0 * (1.0 / 3.0 / n as f64).sqrt();
+        assert!((sum / n as f64).amax() < bound, "{sum}");
+        let tri = [
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(3.0, 0.0, 0.0),
+            Point3::new(0.0, 3.0, 0.0),
+        ];
+        let mut mean = Vector3::zeros();
+        for _ in 0..n {
+            let p = r.point_on_triangle(&tri);
+            assert!(p.x >= 0.0 && p.y >= 0.0 && p.x + p.y <= 3.0 + 1e-12 && p.z == 0.0);
+            mean += p.coords / n as f64;
+        }
+        // Each coordinate of a uniform point on this triangle has variance 1/2.
+        let bound = 3.0 * (0.5 / n as f64).sqrt();
+        assert!(
+            (mean - Vector3::new(1.0, 1.0, 0.0)).amax() < bound,
+            "{mean}"
+        );
+        for _ in 0..1000 {
+            let p = r.point_in_cube(-2.0, 1.0);
+            assert!(p.iter().all(|&c| (-2.0..1.0).contains(&c)));
+        }
     }
 
     #[test]
