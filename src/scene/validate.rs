@@ -3,7 +3,10 @@
 use std::path::Path;
 
 use super::error::Problem;
-use super::types::{BoxRegion, PointSource, Scene, Vec3};
+use super::types::{
+    BoundarySpec, BoxRegion, Camera, GridSpec, LoadSpec, MaterialSpec, ModelSpec, PointSource,
+    RegistrationSpec, Scene, SolverSpec, Vec3,
+};
 
 /// Extensions accepted for surfaces (`model.surface`, `model.structures[].mesh`), lower case:
 /// those [`crate::mesh::read_surface`] reads.
@@ -136,9 +139,27 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
     let mut c = Checker {
         problems: Vec::new(),
     };
+    check_model(&mut c, &scene.model);
+    check_structures(&mut c, &scene.model);
+    check_grid(&mut c, &scene.grid);
+    check_material(&mut c, &scene.material);
+    check_boundary(&mut c, &scene.boundary);
+    check_load(&mut c, &scene.load);
+    check_solver(&mut c, &scene.solver);
+    for (i, p) in scene.probe.iter().enumerate() {
+        c.points(&format!("probe[{i}].points"), &p.points);
+    }
+    if let Some(r) = &scene.registration {
+        check_registration(&mut c, r);
+        if let Some(cam) = &r.camera {
+            check_camera(&mut c, cam);
+        }
+    }
+    c.problems
+}
 
-    // model
-    let m = &scene.model;
+/// `[model]`: exactly one of a surface or a labelled segmentation, with the keys each needs.
+fn check_model(c: &mut Checker, m: &ModelSpec) {
     match (&m.segmentation, m.surface.as_os_str().is_empty()) {
         (None, true) => c.fail(
             "model.surface",
@@ -182,8 +203,13 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
             c.fail(key.0, "only meaningful with `model.segmentation`");
         }
     }
+}
+
+/// `[[model.structures]]`: unique names, exactly one source each, label sources only with a
+/// segmentation.
+fn check_structures(c: &mut Checker, m: &ModelSpec) {
     let mut seen: Vec<&str> = Vec::new();
-    for (i, s) in scene.model.structures.iter().enumerate() {
+    for (i, s) in m.structures.iter().enumerate() {
         let k = format!("model.structures[{i}]");
         let name = s.name.trim();
         if name.is_empty() {
@@ -241,9 +267,10 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
             ),
         }
     }
+}
 
-    // grid
-    let g = &scene.grid;
+/// `[grid]`: cell size, subdivision depth, cut-cell floor and origin offset in range.
+fn check_grid(c: &mut Checker, g: &GridSpec) {
     // Omitted: derived from the surface at load time.
     if !g.cell_size_omitted() {
         c.positive("grid.cell_size", g.cell_size, " (scene units)");
@@ -276,9 +303,10 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
             ),
         );
     }
+}
 
-    // material
-    let m = &scene.material;
+/// `[material]`: a positive Young's modulus, ν in (−1, 0.5), a density ≥ 0.
+fn check_material(c: &mut Checker, m: &MaterialSpec) {
     c.positive("material.young_modulus", m.young_modulus, " Pa");
     let nu = m.poisson_ratio;
     if c.finite("material.poisson_ratio", nu) {
@@ -299,9 +327,11 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
             format!("must be >= 0 kg/m³, got {}", m.density),
         );
     }
+}
 
-    // boundary
-    for (i, f) in scene.boundary.fixed.iter().enumerate() {
+/// `[[boundary.fixed]]` (a box or points, positive stiffness) and `[[boundary.support]]`.
+fn check_boundary(c: &mut Checker, b: &BoundarySpec) {
+    for (i, f) in b.fixed.iter().enumerate() {
         let k = format!("boundary.fixed[{i}]");
         match (&f.bbox, &f.points) {
             (Some(_), Some(_)) => c.fail(
@@ -322,22 +352,25 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
         }
     }
 
-    for (i, f) in scene.boundary.support.iter().enumerate() {
+    for (i, f) in b.support.iter().enumerate() {
         let k = format!("boundary.support[{i}]");
         c.bbox(&format!("{k}.box"), &f.bbox);
         c.positive(&format!("{k}.stiffness"), f.stiffness, " N/m³");
     }
+}
 
-    // load
-    c.vec3("load.gravity", &scene.load.gravity);
-    for (i, t) in scene.load.traction.iter().enumerate() {
+/// `[load]`: finite gravity and tractions on valid boxes.
+fn check_load(c: &mut Checker, l: &LoadSpec) {
+    c.vec3("load.gravity", &l.gravity);
+    for (i, t) in l.traction.iter().enumerate() {
         let k = format!("load.traction[{i}]");
         c.bbox(&format!("{k}.box"), &t.bbox);
         c.vec3(&format!("{k}.value"), &t.value);
     }
+}
 
-    // solver
-    let s = &scene.solver;
+/// `[solver]`: load steps, iteration caps, tolerances and stabilisation in range.
+fn check_solver(c: &mut Checker, s: &SolverSpec) {
     if !(1..=MAX_LOAD_STEPS).contains(&s.load_steps) {
         c.fail(
             "solver.load_steps",
@@ -367,116 +400,108 @@ pub fn validate_scene(scene: &Scene) -> Vec<Problem> {
             ),
         );
     }
+}
 
-    // probes
-    for (i, p) in scene.probe.iter().enumerate() {
-        c.points(&format!("probe[{i}].points"), &p.points);
+/// `[registration]` (the camera apart): weights, penalty ramp, iteration caps and lengths in
+/// range.
+fn check_registration(c: &mut Checker, r: &RegistrationSpec) {
+    if c.finite("registration.alpha", r.alpha) && !(0.0..=1.0).contains(&r.alpha) {
+        c.fail(
+            "registration.alpha",
+            format!("must be in [0, 1], got {}", r.alpha),
+        );
     }
+    if let Some(k0) = r.penalty_start {
+        c.positive("registration.penalty_start", k0, " N/m");
+    }
+    if let Some(k1) = r.penalty_end {
+        c.positive("registration.penalty_end", k1, " N/m");
+    }
+    c.positive("registration.penalty_scale", r.penalty_scale, "");
+    if let (Some(k0), Some(k1)) = (r.penalty_start, r.penalty_end) {
+        if k0.is_finite() && k1.is_finite() && k0 > k1 {
+            c.fail(
+                "registration.penalty_end",
+                format!("must be >= penalty_start ({k0}), got {k1} (the ramp raises the penalty)"),
+            );
+        }
+    }
+    c.at_least_one("registration.penalty_steps", r.penalty_steps);
+    c.at_least_one("registration.max_icp_iterations", r.max_icp_iterations);
+    c.at_least_one("registration.still_frames", r.still_frames);
+    if r.still_frames > MAX_STILL_FRAMES {
+        c.fail(
+            "registration.still_frames",
+            format!("must be at most {MAX_STILL_FRAMES}, got {}", r.still_frames),
+        );
+    }
+    if let Some(d) = r.max_pair_distance {
+        c.positive("registration.max_pair_distance", d, " scene units");
+    }
+    if let Some(d) = r.max_pose_uncertainty {
+        c.positive("registration.max_pose_uncertainty", d, " scene units");
+    }
+    if let Some(b) = r.time_budget_ms {
+        c.positive("registration.time_budget_ms", b, " ms");
+    }
+    if let Some(d) = r.normal_radius {
+        if !(d.is_finite() && d >= 0.0) {
+            c.fail(
+                "registration.normal_radius",
+                format!("must be a length >= 0 scene units (0: vertex normals), got {d}"),
+            );
+        }
+    }
+    if let Some(f) = r.coarse_to_fine {
+        if !(f.is_finite() && f > 1.0 && f <= 4.0) {
+            c.fail(
+                "registration.coarse_to_fine",
+                format!("must be a cell-size factor in (1, 4], got {f}"),
+            );
+        }
+    }
+    if let Some(n) = r.max_cloud_points {
+        if n < 3 {
+            c.fail(
+                "registration.max_cloud_points",
+                format!("must be >= 3, got {n}"),
+            );
+        }
+    }
+}
 
-    // registration
-    if let Some(r) = &scene.registration {
-        if c.finite("registration.alpha", r.alpha) && !(0.0..=1.0).contains(&r.alpha) {
-            c.fail(
-                "registration.alpha",
-                format!("must be in [0, 1], got {}", r.alpha),
-            );
-        }
-        if let Some(k0) = r.penalty_start {
-            c.positive("registration.penalty_start", k0, " N/m");
-        }
-        if let Some(k1) = r.penalty_end {
-            c.positive("registration.penalty_end", k1, " N/m");
-        }
-        c.positive("registration.penalty_scale", r.penalty_scale, "");
-        if let (Some(k0), Some(k1)) = (r.penalty_start, r.penalty_end) {
-            if k0.is_finite() && k1.is_finite() && k0 > k1 {
-                c.fail(
-                    "registration.penalty_end",
-                    format!(
-                        "must be >= penalty_start ({k0}), got {k1} (the ramp raises the penalty)"
-                    ),
-                );
-            }
-        }
-        c.at_least_one("registration.penalty_steps", r.penalty_steps);
-        c.at_least_one("registration.max_icp_iterations", r.max_icp_iterations);
-        c.at_least_one("registration.still_frames", r.still_frames);
-        if r.still_frames > MAX_STILL_FRAMES {
-            c.fail(
-                "registration.still_frames",
-                format!("must be at most {MAX_STILL_FRAMES}, got {}", r.still_frames),
-            );
-        }
-        if let Some(d) = r.max_pair_distance {
-            c.positive("registration.max_pair_distance", d, " scene units");
-        }
-        if let Some(d) = r.max_pose_uncertainty {
-            c.positive("registration.max_pose_uncertainty", d, " scene units");
-        }
-        if let Some(b) = r.time_budget_ms {
-            c.positive("registration.time_budget_ms", b, " ms");
-        }
-        if let Some(d) = r.normal_radius {
-            if !(d.is_finite() && d >= 0.0) {
-                c.fail(
-                    "registration.normal_radius",
-                    format!("must be a length >= 0 scene units (0: vertex normals), got {d}"),
-                );
-            }
-        }
-        if let Some(f) = r.coarse_to_fine {
-            if !(f.is_finite() && f > 1.0 && f <= 4.0) {
-                c.fail(
-                    "registration.coarse_to_fine",
-                    format!("must be a cell-size factor in (1, 4], got {f}"),
-                );
-            }
-        }
-        if let Some(n) = r.max_cloud_points {
-            if n < 3 {
-                c.fail(
-                    "registration.max_cloud_points",
-                    format!("must be >= 3, got {n}"),
-                );
-            }
-        }
-        if let Some(cam) = &r.camera {
-            let ok = c.vec3("registration.camera.position", &cam.position)
-                & c.vec3("registration.camera.look_at", &cam.look_at);
-            let view = [
-                cam.look_at[0] - cam.position[0],
-                cam.look_at[1] - cam.position[1],
-                cam.look_at[2] - cam.position[2],
+/// `[registration.camera]`: finite, a look-at point apart from the position, an up vector
+/// not along the view.
+fn check_camera(c: &mut Checker, cam: &Camera) {
+    let ok = c.vec3("registration.camera.position", &cam.position)
+        & c.vec3("registration.camera.look_at", &cam.look_at);
+    let view = [
+        cam.look_at[0] - cam.position[0],
+        cam.look_at[1] - cam.position[1],
+        cam.look_at[2] - cam.position[2],
+    ];
+    let norm = |v: &Vec3| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    if ok && norm(&view) == 0.0 {
+        c.fail(
+            "registration.camera.look_at",
+            format!("must differ from position, both are {:?}", cam.position),
+        );
+    }
+    if let Some(up) = &cam.up {
+        if c.vec3("registration.camera.up", up) {
+            let cross = [
+                view[1] * up[2] - view[2] * up[1],
+                view[2] * up[0] - view[0] * up[2],
+                view[0] * up[1] - view[1] * up[0],
             ];
-            let norm = |v: &Vec3| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            if ok && norm(&view) == 0.0 {
+            if norm(up) == 0.0 {
+                c.fail("registration.camera.up", "must not be the zero vector");
+            } else if ok && norm(&view) > 0.0 && norm(&cross) <= 1e-9 * norm(up) * norm(&view) {
                 c.fail(
-                    "registration.camera.look_at",
-                    format!("must differ from position, both are {:?}", cam.position),
+                    "registration.camera.up",
+                    format!("{up:?} is parallel to the viewing direction {view:?}"),
                 );
-            }
-            if let Some(up) = &cam.up {
-                if c.vec3("registration.camera.up", up) {
-                    let cross = [
-                        view[1] * up[2] - view[2] * up[1],
-                        view[2] * up[0] - view[0] * up[2],
-                        view[0] * up[1] - view[1] * up[0],
-                    ];
-                    if norm(up) == 0.0 {
-                        c.fail("registration.camera.up", "must not be the zero vector");
-                    } else if ok
-                        && norm(&view) > 0.0
-                        && norm(&cross) <= 1e-9 * norm(up) * norm(&view)
-                    {
-                        c.fail(
-                            "registration.camera.up",
-                            format!("{up:?} is parallel to the viewing direction {view:?}"),
-                        );
-                    }
-                }
             }
         }
     }
-
-    c.problems
 }
