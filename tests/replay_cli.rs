@@ -80,6 +80,45 @@ fn replay_is_identical_and_a_changed_parameter_is_a_difference() {
         ),
     ]);
     assert_eq!(code, 0, "{stderr}");
+    // A recording made under a time budget: the replay names the frames the budget cut
+    // short (their results depend on the recording machine's speed).
+    std::fs::rename(d.join("body.obj.moved"), d.join("body.obj")).unwrap();
+    let budget_rec = d.join("budget.mcap");
+    let (code, _, stderr) = livereg(&[
+        "register",
+        s(&d.join("scene.toml")),
+        "--frames",
+        s(&d.join("frames")),
+        "--out",
+        s(&d.join("budget-out")),
+        "--record",
+        s(&budget_rec),
+        "--budget-ms",
+        "0.001",
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    let cut = std::fs::read_to_string(d.join("budget-out/results.jsonl"))
+        .unwrap()
+        .lines()
+        .filter(|l| {
+            let v: Value = serde_json::from_str(l).unwrap();
+            v["diagnostics"]["flags"]
+                .as_array()
+                .is_some_and(|f| f.iter().any(|f| f == "time_budget"))
+        })
+        .count();
+    assert!(cut > 0, "a 1 µs budget cuts the non-rigid frames short");
+    let (_, stdout, stderr) = livereg(&["replay", s(&budget_rec), "--json"]);
+    assert!(stderr.contains("time budget"), "{stderr}");
+    let r: Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert_eq!(r["time_budget_frames"], cut, "{r}");
+    let marked = r["per_frame"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|f| f["recorded_time_budget"] == true)
+        .count();
+    assert_eq!(marked, cut, "{r}");
     // A bad key is named.
     let (code, _, stderr) = livereg(&["replay", s(&rec), "--set", "material.youngs=1"]);
     assert_ne!(code, 0);

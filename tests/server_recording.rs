@@ -35,6 +35,8 @@ async fn a_served_session_is_recorded_and_replays_identically() {
     const N: usize = 3;
     let case = temp_dir("rec-phantom");
     let frames = phantom_case(&case, N);
+    // The test configuration's time budget is one no frame reaches (a cut frame's result
+    // depends on the machine's speed); the loop below checks that none did.
     let cfg = test_config("rec-phantom");
     let recordings = cfg.data_dir.join("recordings");
     let server = start(cfg).await;
@@ -79,6 +81,16 @@ async fn a_served_session_is_recorded_and_replays_identically() {
         Some("room-a")
     );
     for (k, v) in got.iter().enumerate() {
+        assert!(
+            !rec.results[k]
+                .record
+                .diagnostics
+                .flags
+                .iter()
+                .any(|f| f == "time_budget"),
+            "frame {k} was cut by the time budget: {:?}",
+            rec.results[k].record.diagnostics
+        );
         assert_recorded(&rec, k, v);
         assert_eq!(rec.frames[k].points.len(), 3 * frames[k].len());
         assert_eq!(
@@ -101,6 +113,7 @@ async fn a_served_session_is_recorded_and_replays_identically() {
     assert!(o.status.success(), "replay: {stderr}");
     let report: Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(report["frames"], N, "{report}");
+    assert_eq!(report["time_budget_frames"], 0, "{report}");
     assert_eq!(report["identical"], true, "{report}");
     let _ = std::fs::remove_dir_all(&case);
 }

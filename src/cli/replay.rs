@@ -78,6 +78,10 @@ pub struct FrameDiff {
     pub structures_mm: Option<f64>,
     /// Whether the frame failed in one run and not in the other.
     pub status_changed: bool,
+    /// Whether the recorded result was cut short by the recording's time budget (flag
+    /// `time_budget`): where the budget stopped it depends on the recording machine's speed,
+    /// so a difference on this frame is timing, not a change of the method.
+    pub recorded_time_budget: bool,
     /// Recorded wall time, ms.
     pub recorded_ms: f64,
     /// Replayed wall time, ms.
@@ -113,6 +117,9 @@ pub struct ReplayReport {
     pub max_structures_mm: Option<f64>,
     /// Frames whose failed/succeeded status changed.
     pub status_changes: usize,
+    /// Recorded frames cut short by the recording's time budget (their results depend on
+    /// timing; see [`FrameDiff::recorded_time_budget`]).
+    pub time_budget_frames: usize,
     /// The tolerance, mm.
     pub tolerance_mm: f64,
     /// Whether every frame is within the tolerance.
@@ -227,6 +234,7 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayReport, String> {
     let max_surface_mm = fold(|d| d.surface_mm);
     let max_structures_mm = fold(|d| d.structures_mm);
     let status_changes = per_frame.iter().filter(|d| d.status_changed).count();
+    let time_budget_frames = per_frame.iter().filter(|d| d.recorded_time_budget).count();
     let worst = per_frame.iter().map(FrameDiff::max_mm).fold(0.0, f64::max);
     let report = ReplayReport {
         file: args.file.clone(),
@@ -235,6 +243,7 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayReport, String> {
         max_surface_mm,
         max_structures_mm,
         status_changes,
+        time_budget_frames,
         tolerance_mm: args.tolerance,
         within_tolerance: worst <= args.tolerance,
         identical: worst == 0.0,
@@ -256,14 +265,19 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayReport, String> {
         print!("{}", table(&report));
     }
     if !report.within_tolerance {
-        let at = report
+        let worst_frame = report
             .per_frame
             .iter()
-            .max_by(|a, b| a.max_mm().total_cmp(&b.max_mm()))
-            .map(|d| d.frame)
-            .unwrap_or_default();
+            .max_by(|a, b| a.max_mm().total_cmp(&b.max_mm()));
+        let at = worst_frame.map(|d| d.frame).unwrap_or_default();
+        let why = match (worst_frame, budget) {
+            (Some(d), Some(b)) if d.recorded_time_budget => format!(
+                "; the recorded frame {at} was cut short by the recording's {b:.0} ms time budget, so its result depends on the recording machine's speed"
+            ),
+            _ => String::new(),
+        };
         return Err(format!(
-            "the replay differs from the recording beyond the tolerance: largest difference {} (frame {at}), tolerance {:e} mm",
+            "the replay differs from the recording beyond the tolerance: largest difference {} (frame {at}), tolerance {:e} mm{why}",
             fmt_mm(Some(worst).filter(|w| w.is_finite())),
             args.tolerance
         ));
@@ -324,6 +338,12 @@ pub fn compare(r: &FrameResult, recorded: &ResultMessage, mm: f64) -> FrameDiff 
         surface_mm: surface.map(|d| d * mm),
         structures_mm: structures.map(|d| d * mm),
         status_changed: r.error.is_some() != recorded.record.diagnostics.error.is_some(),
+        recorded_time_budget: recorded
+            .record
+            .diagnostics
+            .flags
+            .iter()
+            .any(|f| f == "time_budget"),
         recorded_ms: recorded.record.wall_ms,
         replay_ms: r.wall_ms,
     }
@@ -350,17 +370,24 @@ pub fn table(r: &ReplayReport) -> String {
             d.source,
             fmt_mm(d.surface_mm),
             fmt_mm(d.structures_mm),
-            if d.status_changed { "CHANGED" } else { "same" },
+            if d.status_changed {
+                "CHANGED"
+            } else if d.recorded_time_budget {
+                "budget"
+            } else {
+                "same"
+            },
             d.recorded_ms,
             d.replay_ms
         ));
     }
     s.push_str(&format!(
-        "overall: {} frames, largest surface Δ {}, structures Δ {}, {} status changes; tolerance {:e} mm: {}\n",
+        "overall: {} frames, largest surface Δ {}, structures Δ {}, {} status changes, {} cut by the recorded time budget; tolerance {:e} mm: {}\n",
         r.frames,
         fmt_mm(r.max_surface_mm),
         fmt_mm(r.max_structures_mm),
         r.status_changes,
+        r.time_budget_frames,
         r.tolerance_mm,
         if r.identical {
             "identical"

@@ -161,6 +161,12 @@ pub fn test_config(tag: &str) -> ServerConfig {
         shutdown_grace_s: 20,
         limits: LimitsConfig {
             max_frames_per_second: 1000.0,
+            // A served frame stops at the time budget, and where it stops depends on the
+            // machine's speed; the tests compare served results with unbounded `livereg
+            // register` runs and with replays. With the default 1 s, a cold phantom frame on
+            // a loaded CI machine was once cut short and replayed 7 mm apart: a budget no
+            // test frame reaches (the watchdog retires a session at 5× this).
+            max_frame_ms: 120_000.0,
             ..Default::default()
         },
         ..Default::default()
