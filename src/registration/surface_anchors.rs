@@ -32,6 +32,20 @@ impl SurfaceAnchor {
         )
     }
 
+    /// The unit normal there: the corners' `vertex_normals` interpolated with the weights and
+    /// normalised; `None` where they cancel.
+    pub fn normal(
+        &self,
+        vertex_normals: &[Vector3<f64>],
+        triangles: &[[usize; 3]],
+    ) -> Option<Vector3<f64>> {
+        let t = triangles[self.triangle];
+        let n = vertex_normals[t[0]] * self.weights[0]
+            + vertex_normals[t[1]] * self.weights[1]
+            + vertex_normals[t[2]] * self.weights[2];
+        n.try_normalize(1e-12)
+    }
+
     /// The corner with the largest weight.
     pub fn dominant_vertex(&self, triangles: &[[usize; 3]]) -> usize {
         let t = triangles[self.triangle];
@@ -58,6 +72,48 @@ pub fn incident_triangles(vertices: usize, triangles: &[[usize; 3]]) -> Vec<Vec<
 /// Vertices examined per cloud point: the closest surface point lies on a triangle around one
 /// of the nearest few vertices on any mesh whose triangles are not much longer than wide.
 pub const SEARCH_VERTICES: usize = 4;
+
+/// The closest point to `q` on the triangles around the vertices `near` of a surface whose
+/// vertices are at `x` (`incident`: [`incident_triangles`]), and its squared distance (m²).
+/// Each triangle is projected onto once (`seen`: scratch space, cleared here). `None` when
+/// no such triangle gives a finite point. With `near` the [`SEARCH_VERTICES`] nearest
+/// vertices, it is the closest point of the whole surface on any mesh whose triangles are not
+/// much longer than wide.
+pub fn closest_anchor(
+    q: &Point3<f64>,
+    x: &[Point3<f64>],
+    triangles: &[[usize; 3]],
+    incident: &[Vec<usize>],
+    near: impl IntoIterator<Item = usize>,
+    seen: &mut Vec<usize>,
+) -> Option<(SurfaceAnchor, f64)> {
+    let mut best: Option<(SurfaceAnchor, f64)> = None;
+    seen.clear();
+    for v in near {
+        for &t in &incident[v] {
+            // Neighbouring vertices share triangles.
+            if seen.contains(&t) {
+                continue;
+            }
+            seen.push(t);
+            let tri = triangles[t];
+            let corners = [x[tri[0]], x[tri[1]], x[tri[2]]];
+            let (w, _) = closest_barycentric(q, &corners);
+            if !w.iter().all(|v| v.is_finite()) {
+                continue;
+            }
+            let a = SurfaceAnchor {
+                triangle: t,
+                weights: w,
+            };
+            let d2 = (q - a.position(x, triangles)).norm_squared();
+            if best.is_none_or(|(_, b)| d2 < b) {
+                best = Some((a, d2));
+            }
+        }
+    }
+    best
+}
 
 /// The pairs of one ICP iteration, cloud → surface.
 #[derive(Debug, Clone, PartialEq)]
@@ -105,32 +161,12 @@ pub fn pair_cloud_to_surface(
         .map_init(
             || Vec::with_capacity(4 * SEARCH_VERTICES * 8),
             |seen: &mut Vec<usize>, (j, q)| {
-                let mut best: Option<(SurfaceAnchor, f64)> = None;
-                // Neighbouring vertices share triangles: each is projected onto once.
-                seen.clear();
-                for (k, _) in index.nearest_k(q, SEARCH_VERTICES) {
-                    for &t in &incident[searchable[k]] {
-                        if seen.contains(&t) {
-                            continue;
-                        }
-                        seen.push(t);
-                        let tri = triangles[t];
-                        let corners = [x[tri[0]], x[tri[1]], x[tri[2]]];
-                        let (w, _) = closest_barycentric(q, &corners);
-                        if !w.iter().all(|v| v.is_finite()) {
-                            continue;
-                        }
-                        let a = SurfaceAnchor {
-                            triangle: t,
-                            weights: w,
-                        };
-                        let d2 = (q - a.position(x, triangles)).norm_squared();
-                        if best.is_none_or(|(_, b)| d2 < b) {
-                            best = Some((a, d2));
-                        }
-                    }
-                }
-                best.map(|(a, d2)| (j, a, d2.sqrt()))
+                let near = index
+                    .nearest_k(q, SEARCH_VERTICES)
+                    .into_iter()
+                    .map(|(k, _)| searchable[k]);
+                closest_anchor(q, x, triangles, incident, near, seen)
+                    .map(|(a, d2)| (j, a, d2.sqrt()))
             },
         )
         .flatten()
@@ -150,11 +186,7 @@ pub fn pair_cloud_to_surface(
         if d > limit {
             continue;
         }
-        let tri = triangles[a.triangle];
-        let n = vertex_normals[tri[0]] * a.weights[0]
-            + vertex_normals[tri[1]] * a.weights[1]
-            + vertex_normals[tri[2]] * a.weights[2];
-        let Some(n) = n.try_normalize(1e-12) else {
+        let Some(n) = a.normal(vertex_normals, triangles) else {
             continue;
         };
         out.offsets

@@ -76,7 +76,7 @@ pub enum FrameError {
          exceeds {limit_mm:.1} mm"
     )]
     NoFit {
-        /// RMS distance (point to tangent plane, after mean + 2σ) of the cloud to the
+        /// RMS distance (to the surface's closest point, after mean + 2σ) of the cloud to the
         /// registered surface, mm.
         rms_mm: f64,
         /// The limit, mm.

@@ -3,18 +3,17 @@
 use std::time::{Duration, Instant};
 
 use nalgebra::Point3;
-use rayon::prelude::*;
 
 use super::frame::{Frame, FrameError, FrameResult, StageTimes};
 use super::memory_estimate::ModelSize;
 use super::settings::SessionSettings;
 use super::still_window::StillWindow;
+use super::surface_index::SurfaceIndex;
 use crate::geometry::Camera;
 use crate::linalg::SolverKind;
 use crate::mechanics::{NewtonSettings, PenaltySprings};
 use crate::mesh::TriSurface;
 use crate::registration::change_evidence::{cloud_noise_sigma_near, ChangeTest};
-use crate::registration::correspondences::rejection_threshold;
 use crate::registration::isolated_points::{
     isolated_mask, ISOLATION_MEDIAN_FACTOR, ISOLATION_NEIGHBOURS, ISOLATION_SIGMA,
 };
@@ -93,54 +92,6 @@ pub struct Session {
     /// The uncertainty (m) of a pose fitted by this frame's rigid stage; `None` when the
     /// stage held the pose or fitted none.
     fitted_pose_uncertainty: Option<f64>,
-}
-
-/// A deformed surface's vertices in a k-d tree with their normals: signed distances of
-/// points to it along the normal at their nearest vertex.
-struct SurfaceIndex {
-    vertices: IndexedPoints,
-    normals: Vec<nalgebra::Vector3<f64>>,
-}
-
-impl SurfaceIndex {
-    /// The surface of `model` deformed by `u` (m); `None` for an empty surface.
-    fn new(model: &SceneModel, u: &[f64]) -> Option<Self> {
-        let x = model.surface_embedding.positions(u);
-        let normals = TriSurface::vertex_normals_at(&x, &model.surface.triangles);
-        Some(Self {
-            vertices: IndexedPoints::new(x)?,
-            normals,
-        })
-    }
-
-    /// RMS distance (metres) from `cloud` (metres, model frame) to this surface, measured to
-    /// the tangent plane at the nearest vertex, after the mean + 2σ outlier rule; infinite
-    /// when no point is kept.
-    fn fit_rms(&self, cloud: &[Point3<f64>]) -> f64 {
-        let d: Vec<f64> = self
-            .signed_distances(cloud)
-            .into_iter()
-            .map(f64::abs)
-            .collect();
-        let limit = rejection_threshold(&d, 2.0);
-        let kept: Vec<f64> = d.into_iter().filter(|&v| v <= limit).collect();
-        if kept.is_empty() {
-            return f64::INFINITY;
-        }
-        (kept.iter().map(|v| v * v).sum::<f64>() / kept.len() as f64).sqrt()
-    }
-
-    /// Signed distance (m) of each point of `cloud` (m, model frame): along the normal at its
-    /// nearest vertex, positive outside.
-    fn signed_distances(&self, cloud: &[Point3<f64>]) -> Vec<f64> {
-        cloud
-            .par_iter()
-            .map(|q| {
-                let (i, _) = self.vertices.nearest(q);
-                self.normals[i].dot(&(*q - self.vertices.points[i]))
-            })
-            .collect()
-    }
 }
 
 /// The coarse model of a coarse-to-fine start and its prolongation to the fine grid.
@@ -1070,8 +1021,8 @@ impl Session {
     }
 
     /// RMS distance (metres) from the points of `cloud` (metres, cloud frame), taken to the
-    /// model frame by the held pose, to the current deformed surface — measured to the
-    /// tangent plane at the nearest vertex, so the vertex spacing does not count — after the
+    /// model frame by the held pose, to the current deformed surface — measured to its
+    /// closest point on the triangles, so the vertex spacing does not count — after the
     /// mean + 2σ outlier rule: how well the held pose still fits.
     fn held_pose_rms(&self, cloud: &[Point3<f64>]) -> f64 {
         self.pose_rms(cloud, &self.good.model_to_cloud)
