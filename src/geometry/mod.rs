@@ -38,6 +38,7 @@ pub mod aabb;
 pub mod bucket_grid;
 pub mod bvh;
 pub mod camera;
+pub mod closest_point;
 pub mod holes;
 pub mod inside;
 pub mod line_crossings;

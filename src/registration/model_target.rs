@@ -4,6 +4,7 @@
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Point3, Vector3};
 
+use crate::geometry::closest_point::closest_point_on_triangle;
 use crate::mesh::TriSurface;
 use crate::registration::IcpError;
 
@@ -322,63 +323,6 @@ fn edge_neighbours(triangles: &[[usize; 3]]) -> Vec<[u32; 3]> {
         start = end;
     }
     out
-}
-
-/// The closest point of triangle `[a, b, c]` to `p` (Ericson, *Real-Time Collision Detection*
-/// 5.1.5, by Voronoi regions), and whether it is interior (not on an edge or corner). Degenerate
-/// triangles may give non-finite results; the caller checks.
-fn closest_point_on_triangle(p: &Point3<f64>, tri: &[Point3<f64>; 3]) -> (Point3<f64>, bool) {
-    let (w, inside) = closest_barycentric(p, tri);
-    let [a, b, c] = tri;
-    (
-        Point3::from(a.coords * w[0] + b.coords * w[1] + c.coords * w[2]),
-        inside,
-    )
-}
-
-/// Barycentric weights (summing to 1, each in `[0, 1]`) of the closest point of triangle
-/// `[a, b, c]` to `p` (Ericson, *Real-Time Collision Detection* 5.1.5, by Voronoi regions), and
-/// whether it is interior (not on an edge or corner). Degenerate triangles may give
-/// non-finite weights; the caller checks.
-pub fn closest_barycentric(p: &Point3<f64>, [a, b, c]: &[Point3<f64>; 3]) -> ([f64; 3], bool) {
-    let ab: Vector3<f64> = b - a;
-    let ac = c - a;
-    let ap = p - a;
-    let d1 = ab.dot(&ap);
-    let d2 = ac.dot(&ap);
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return ([1.0, 0.0, 0.0], false);
-    }
-    let bp = p - b;
-    let d3 = ab.dot(&bp);
-    let d4 = ac.dot(&bp);
-    if d3 >= 0.0 && d4 <= d3 {
-        return ([0.0, 1.0, 0.0], false);
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        let t = d1 / (d1 - d3);
-        return ([1.0 - t, t, 0.0], false);
-    }
-    let cp = p - c;
-    let d5 = ab.dot(&cp);
-    let d6 = ac.dot(&cp);
-    if d6 >= 0.0 && d5 <= d6 {
-        return ([0.0, 0.0, 1.0], false);
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        let t = d2 / (d2 - d6);
-        return ([1.0 - t, 0.0, t], false);
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        let t = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-        return ([0.0, 1.0 - t, t], false);
-    }
-    let denom = 1.0 / (va + vb + vc);
-    let (v, w) = (vb * denom, vc * denom);
-    ([1.0 - v - w, v, w], true)
 }
 
 #[cfg(test)]

@@ -10,7 +10,7 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
 use super::correspondences::{IndexedPoints, PairingRule};
-use super::model_target::closest_barycentric;
+use crate::geometry::closest_point::closest_barycentric;
 
 /// A point of the model surface: a triangle and barycentric weights of its corners.
 #[derive(Debug, Clone, Copy, PartialEq)]
