@@ -3,20 +3,27 @@
 //! the noise estimate's quadric fits over each point's 16 nearest
 //! (`cloud_noise_sigma_near`) and the test itself over given signed distances
 //! (`ChangeTest::evaluate_near`). The cloud: a camera's patch of 680 points (the phantom's
-//! warm clouds) on a curved 12 × 9 cm surface with 1.5 mm noise.
+//! warm clouds) on a curved 12 × 9 cm surface with 1.5 mm noise. And the signed distances
+//! the test is given (`SurfaceDistances`: the k-d tree and normals of a 2,562-vertex surface,
+//! then each point's closest point on the triangles around its nearest vertex), for 680
+//! points off a 10 cm sphere.
 //!
 //! Run: `cargo bench --bench change_test -- --warm-up-time 1 --measurement-time 3`
 
 use std::hint::black_box;
+use std::sync::Arc;
 
 #[path = "support/camera_patch.rs"]
 mod camera_patch;
 use camera_patch::camera_patch;
 
 use criterion::{criterion_group, criterion_main, Criterion};
+use livereg::mesh::primitives::icosphere;
 use livereg::random::Rng;
 use livereg::registration::change_evidence::{cloud_noise_sigma_near, ChangeTest};
 use livereg::registration::correspondences::IndexedPoints;
+use livereg::registration::{SurfaceDistances, SurfaceTopology};
+use nalgebra::Point3;
 
 fn bench_change_test(c: &mut Criterion) {
     let mut rng = Rng::new(11);
@@ -38,6 +45,26 @@ fn bench_change_test(c: &mut Criterion) {
     });
     group.bench_function("test", |b| {
         b.iter(|| black_box(test.evaluate_near(&near, &signed, 0.0015)))
+    });
+    let sphere = icosphere(Point3::origin(), 0.1, 4);
+    let off: Vec<Point3<f64>> = (0..680)
+        .map(|_| Point3::from(rng.unit_vector() * (0.1 + 0.0015 * rng.gaussian())))
+        .collect();
+    let topology = Arc::new(SurfaceTopology::new(
+        sphere.vertices.len(),
+        &sphere.triangles,
+    ));
+    group.bench_function("surface index", |b| {
+        b.iter(|| {
+            black_box(SurfaceDistances::new(
+                sphere.vertices.clone(),
+                topology.clone(),
+            ))
+        })
+    });
+    let surface = SurfaceDistances::new(sphere.vertices.clone(), topology.clone()).unwrap();
+    group.bench_function("signed distances", |b| {
+        b.iter(|| black_box(surface.signed_distances(&off)))
     });
     group.finish();
 }

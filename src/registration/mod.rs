@@ -40,6 +40,7 @@ pub mod pose_search;
 pub mod rigid_icp;
 pub mod rigid_transform;
 pub mod surface_anchors;
+pub mod surface_distances;
 pub mod surface_normals;
 
 #[cfg(test)]
@@ -60,3 +61,4 @@ pub use pose_covariance::PoseCovariance;
 pub use pose_search::{PoseSearch, PoseSearchResult};
 pub use rigid_icp::{IcpError, IcpMetric, IcpResult, RigidIcp};
 pub use rigid_transform::RigidTransform;
+pub use surface_distances::{SurfaceDistances, SurfaceTopology};

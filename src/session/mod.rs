@@ -12,7 +12,6 @@ pub mod observer;
 pub mod registration_session;
 pub mod settings;
 pub mod still_window;
-mod surface_index;
 
 #[cfg(test)]
 mod tests;

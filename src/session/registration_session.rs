@@ -8,7 +8,6 @@ use super::frame::{Frame, FrameError, FrameResult, StageTimes};
 use super::memory_estimate::ModelSize;
 use super::settings::SessionSettings;
 use super::still_window::StillWindow;
-use super::surface_index::SurfaceIndex;
 use crate::geometry::Camera;
 use crate::linalg::SolverKind;
 use crate::mechanics::{NewtonSettings, PenaltySprings};
@@ -23,7 +22,7 @@ use crate::registration::surface_normals::NormalsAtScale;
 use crate::registration::{ContactForce, RestCompliance};
 use crate::registration::{
     IcpResult, IndexedPoints, ModelTarget, NonRigidIcp, NonRigidSettings, Prolongation, RigidIcp,
-    RigidTransform,
+    RigidTransform, SurfaceDistances, SurfaceTopology,
 };
 use crate::scene::{LoadedScene, PoseUpdate, RigidMode};
 use crate::simulation::{ModelError, SceneModel};
@@ -81,17 +80,30 @@ pub struct Session {
     /// The rest surface's vertices and normals, built on the first frame that asks whether
     /// the rest shape explains it ([`Session::rest_shape_if_unchanged`]): the same every
     /// frame.
-    rest_surface: std::sync::OnceLock<Option<SurfaceIndex>>,
+    rest_surface: std::sync::OnceLock<Option<SurfaceDistances>>,
+    /// The model surface's triangles and the triangles around each vertex, which every
+    /// deformed surface of the session's signed distances shares.
+    surface_topology: std::sync::Arc<SurfaceTopology>,
     /// The last good state's deformed surface index, which the next frame's held-pose check,
     /// still-frame test and re-acquisition read: the one the frame's own fit built, kept with
     /// the state it measured, or built on first use.
-    good_surface: std::sync::OnceLock<Option<SurfaceIndex>>,
+    good_surface: std::sync::OnceLock<Option<SurfaceDistances>>,
     /// The model's rest compliance for the contact force, factorised on the first frame that
     /// estimates one (an error, kept, when it cannot be: no estimate then).
     rest_compliance: Option<Result<RestCompliance, String>>,
     /// The uncertainty (m) of a pose fitted by this frame's rigid stage; `None` when the
     /// stage held the pose or fitted none.
     fitted_pose_uncertainty: Option<f64>,
+}
+
+/// The surface of `model` (of `topology`) deformed by `u` (m), for signed distances; `None`
+/// for an empty surface.
+fn deformed_surface(
+    model: &SceneModel,
+    topology: &std::sync::Arc<SurfaceTopology>,
+    u: &[f64],
+) -> Option<SurfaceDistances> {
+    SurfaceDistances::new(model.surface_embedding.positions(u), topology.clone())
 }
 
 /// The coarse model of a coarse-to-fine start and its prolongation to the fine grid.
@@ -205,6 +217,10 @@ impl Session {
             .normal_scale
             .build(&model.surface.vertices, &model.surface.triangles)
             .map(std::sync::Arc::new);
+        let surface_topology = std::sync::Arc::new(SurfaceTopology::new(
+            model.surface.vertices.len(),
+            &model.surface.triangles,
+        ));
         Self {
             non_rigid_cold: NonRigidIcp::new(settings.cold, model.newton)
                 .with_normals(normals.clone()),
@@ -228,6 +244,7 @@ impl Session {
             rigid_target: None,
             still: StillWindow::default(),
             rest_surface: std::sync::OnceLock::new(),
+            surface_topology,
             good_surface: std::sync::OnceLock::new(),
             rest_compliance: None,
             fitted_pose_uncertainty: None,
@@ -517,7 +534,7 @@ impl Session {
         }
         // The gate on what the frame is: does the cloud lie on the registered surface?
         let t = Instant::now();
-        let surface = SurfaceIndex::new(&self.model, &u);
+        let surface = deformed_surface(&self.model, &self.surface_topology, &u);
         let fit = surface
             .as_ref()
             .map_or(f64::INFINITY, |s| s.fit_rms(&aligned));
@@ -1038,9 +1055,9 @@ impl Session {
 
     /// The last good state's deformed surface index ([`Session::good_surface`]'s cache);
     /// `None` for an empty surface.
-    fn good_surface(&self) -> Option<&SurfaceIndex> {
+    fn good_surface(&self) -> Option<&SurfaceDistances> {
         self.good_surface
-            .get_or_init(|| SurfaceIndex::new(&self.model, &self.good.u))
+            .get_or_init(|| deformed_surface(&self.model, &self.surface_topology, &self.good.u))
             .as_ref()
     }
 
@@ -1060,7 +1077,7 @@ impl Session {
         let rest = vec![0.0; self.good.u.len()];
         let d = self
             .rest_surface
-            .get_or_init(|| SurfaceIndex::new(&self.model, &rest))
+            .get_or_init(|| deformed_surface(&self.model, &self.surface_topology, &rest))
             .as_ref()?
             .signed_distances(aligned);
         if test.evaluate_near(&noise.near, &d, noise.sigma).significant {
@@ -1189,7 +1206,7 @@ struct Done {
     still: StillWindow,
     /// The surface index of `u` the frame's fit built (`None` when it built none): the next
     /// frame's [`Session::good_surface`].
-    surface: Option<SurfaceIndex>,
+    surface: Option<SurfaceDistances>,
 }
 
 impl Done {

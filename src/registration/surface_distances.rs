@@ -1,56 +1,69 @@
-//! A deformed surface prepared for signed distances: the measure behind the session's tests of
-//! what a frame is (at rest, still since the last frame, a pose that still fits; issue 18).
+//! A triangle surface (typically the model's, deformed) prepared for signed distances of
+//! points to it: the measure behind the session's tests of what a frame is (at rest, still
+//! since the last frame, a pose that still fits; issue 18) and its gate.
 //!
 //! A cloud point's signed distance is to its closest point ON the surface's triangles (found
-//! around its nearest vertices, [`closest_anchor`]), positive outside by the interpolated
-//! vertex normal there. Until session 36 it was the distance to the tangent plane at the
+//! on the triangles around its nearest vertex, [`closest_anchor`]), positive outside by the
+//! interpolated vertex normal there. Until session 36 it was the distance to the tangent plane at the
 //! nearest vertex, which on a curved surface puts a point lying on it `≈ κ r² / 2` inside
 //! (`κ` the curvature, `r` the distance to that vertex): on the indentation fixture's liver
 //! (7 mm edges) the clouds of a liver at rest sat 0.17–0.19 mm inside on average, which at
 //! 0.5 mm camera noise was enough for the rest test to see a change where there was none.
 //! Lengths in metres.
 
+use std::sync::Arc;
+
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
+use super::correspondences::{rejection_threshold, IndexedPoints};
+use super::surface_anchors::{closest_anchor, incident_triangles};
 use crate::mesh::TriSurface;
-use crate::registration::correspondences::rejection_threshold;
-use crate::registration::surface_anchors::{closest_anchor, incident_triangles, SEARCH_VERTICES};
-use crate::registration::IndexedPoints;
-use crate::simulation::SceneModel;
 
-/// A surface's vertices in a k-d tree with their triangles and unit outward vertex normals.
-pub(super) struct SurfaceIndex {
-    vertices: IndexedPoints,
-    normals: Vec<Vector3<f64>>,
+/// What [`SurfaceDistances`] needs of a surface that does not change as it deforms: its
+/// triangles and the triangles around each vertex. Built once per model.
+#[derive(Debug, Clone)]
+pub struct SurfaceTopology {
     triangles: Vec<[usize; 3]>,
     incident: Vec<Vec<usize>>,
 }
 
-impl SurfaceIndex {
-    /// The surface of `model` deformed by `u` (m); `None` for an empty surface.
-    pub(super) fn new(model: &SceneModel, u: &[f64]) -> Option<Self> {
-        Self::of(
-            model.surface_embedding.positions(u),
-            &model.surface.triangles,
-        )
+impl SurfaceTopology {
+    /// The topology of a surface of `vertices` vertices and outward-oriented `triangles`.
+    pub fn new(vertices: usize, triangles: &[[usize; 3]]) -> Self {
+        Self {
+            triangles: triangles.to_vec(),
+            incident: incident_triangles(vertices, triangles),
+        }
     }
+}
 
-    /// The surface with vertices `x` (m) and `triangles`; `None` without vertices.
-    fn of(x: Vec<Point3<f64>>, triangles: &[[usize; 3]]) -> Option<Self> {
-        let normals = TriSurface::vertex_normals_at(&x, triangles);
-        let incident = incident_triangles(x.len(), triangles);
+/// A surface's vertices in a k-d tree with their unit outward vertex normals and its
+/// [`SurfaceTopology`].
+pub struct SurfaceDistances {
+    vertices: IndexedPoints,
+    normals: Vec<Vector3<f64>>,
+    topology: Arc<SurfaceTopology>,
+}
+
+impl SurfaceDistances {
+    /// The surface with vertices `x` (m) and `topology`; `None` without vertices or when
+    /// `topology` is of another vertex count.
+    pub fn new(x: Vec<Point3<f64>>, topology: Arc<SurfaceTopology>) -> Option<Self> {
+        if topology.incident.len() != x.len() {
+            return None;
+        }
+        let normals = TriSurface::vertex_normals_at(&x, &topology.triangles);
         Some(Self {
             vertices: IndexedPoints::new(x)?,
             normals,
-            triangles: triangles.to_vec(),
-            incident,
+            topology,
         })
     }
 
     /// RMS distance (m) from `cloud` (m, model frame) to this surface after the mean + 2σ
     /// outlier rule; infinite when no point is kept.
-    pub(super) fn fit_rms(&self, cloud: &[Point3<f64>]) -> f64 {
+    pub fn fit_rms(&self, cloud: &[Point3<f64>]) -> f64 {
         let d: Vec<f64> = self
             .signed_distances(cloud)
             .into_iter()
@@ -65,32 +78,29 @@ impl SurfaceIndex {
     }
 
     /// Signed distance (m) of each point of `cloud` (m, model frame) to the surface: to its
-    /// closest point on the triangles around its nearest vertices, positive outside (module
-    /// doc). A point whose triangles are all degenerate falls back to the tangent plane at its
-    /// nearest vertex.
-    pub(super) fn signed_distances(&self, cloud: &[Point3<f64>]) -> Vec<f64> {
+    /// closest point on the triangles around its nearest vertex, positive outside (module
+    /// doc). That is the closest point of the whole surface wherever the point's nearest
+    /// vertex is a corner of the triangle under it, which holds on meshes without obtuse
+    /// triangles; elsewhere the point next to it on a shared edge (a second-order difference
+    /// near the surface). A point whose triangles are all degenerate falls back to the tangent
+    /// plane at its nearest vertex.
+    pub fn signed_distances(&self, cloud: &[Point3<f64>]) -> Vec<f64> {
         let x = &self.vertices.points;
+        let SurfaceTopology {
+            triangles,
+            incident,
+        } = &*self.topology;
         cloud
             .par_iter()
             .map_init(Vec::new, |seen, q| {
-                let near = self.vertices.nearest_k(q, SEARCH_VERTICES);
-                let closest = closest_anchor(
-                    q,
-                    x,
-                    &self.triangles,
-                    &self.incident,
-                    near.iter().map(|(v, _)| *v),
-                    seen,
-                );
-                let on_surface = closest.and_then(|(a, d2)| {
-                    let n = a.normal(&self.normals, &self.triangles)?;
-                    let gap = q - a.position(x, &self.triangles);
-                    Some(d2.sqrt().copysign(n.dot(&gap)))
-                });
-                on_surface.unwrap_or_else(|| {
-                    let i = near.first().map_or(0, |(v, _)| *v);
-                    self.normals[i].dot(&(q - x[i]))
-                })
+                let (v, _) = self.vertices.nearest(q);
+                let on_surface =
+                    closest_anchor(q, x, triangles, incident, [v], seen).and_then(|(a, d2)| {
+                        let n = a.normal(&self.normals, triangles)?;
+                        let gap = q - a.position(x, triangles);
+                        Some(d2.sqrt().copysign(n.dot(&gap)))
+                    });
+                on_surface.unwrap_or_else(|| self.normals[v].dot(&(q - x[v])))
             })
             .collect()
     }
@@ -104,9 +114,10 @@ mod tests {
 
     /// A coarse sphere (80 triangles, 10 cm): its facets sag well below the tangent planes
     /// at their corners, so a distance measured to those planes would show it.
-    fn coarse_sphere() -> (TriSurface, SurfaceIndex) {
+    fn coarse_sphere() -> (TriSurface, SurfaceDistances) {
         let s = icosphere(Point3::origin(), 0.1, 1);
-        let index = SurfaceIndex::of(s.vertices.clone(), &s.triangles).unwrap();
+        let topology = SurfaceTopology::new(s.vertices.len(), &s.triangles);
+        let index = SurfaceDistances::new(s.vertices.clone(), Arc::new(topology)).unwrap();
         (s, index)
     }
 
