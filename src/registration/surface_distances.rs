@@ -6,10 +6,10 @@
 //! on the triangles around its nearest vertex, [`closest_anchor`]), positive outside by the
 //! interpolated vertex normal there. Until session 36 it was the distance to the tangent
 //! plane at the nearest vertex, which on a curved surface puts a point lying on it
-//! `≈ κ r² / 2` inside
-//! (`κ` the curvature, `r` the distance to that vertex): on the indentation fixture's liver
-//! (7 mm edges) the clouds of a liver at rest sat 0.17–0.19 mm inside on average, which at
-//! 0.5 mm camera noise was enough for the rest test to see a change where there was none.
+//! `≈ κ r² / 2` inside (`κ` the curvature, `r` the distance to that vertex): on the
+//! indentation fixture's liver (7 mm edges) the clouds of a liver at rest sat 0.17–0.19 mm
+//! inside on average, which at 0.5 mm camera noise was enough for the rest test to see a
+//! change where there was none.
 //! Lengths in metres.
 
 use std::sync::Arc;
