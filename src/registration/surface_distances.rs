@@ -37,6 +37,18 @@ impl SurfaceTopology {
             incident: incident_triangles(vertices, triangles),
         }
     }
+
+    /// The heap it holds, bytes (for a session's memory estimate).
+    pub fn heap_bytes(&self) -> usize {
+        let lists: usize = self
+            .incident
+            .iter()
+            .map(|l| l.capacity() * std::mem::size_of::<usize>())
+            .sum();
+        self.triangles.capacity() * std::mem::size_of::<[usize; 3]>()
+            + self.incident.capacity() * std::mem::size_of::<Vec<usize>>()
+            + lists
+    }
 }
 
 /// A surface's vertices in a k-d tree with their unit outward vertex normals and its

@@ -13,6 +13,7 @@
 //! | embedded point (surface vertex, structure point, probe) | 420 | embedding, k-d trees, correspondences |
 //! | triangle (surface, structure meshes) | 600 | adjacency, surface samples of the rigid and data terms |
 //! | the normals' averaging | its own count | samples and vertex–cluster entries (`NormalsAtScale::heap_bytes`, counted, not fitted) |
+//! | the surface's topology for signed distances | its own count | triangles and the triangles around each vertex (`SurfaceTopology::heap_bytes`, counted, not fitted; session 36) |
 //! | the rest compliance of the contact force | 8 per factor value, 16 per tangent entry | its own f64 factor and copy of the rest tangent (`RestCompliance`, counted, not fitted; non-rigid sessions) |
 //!
 //! The factor's size comes from the same symbolic analysis the solver makes (fill-reducing
@@ -47,6 +48,10 @@ pub struct ModelSize {
     /// Heap bytes of the normals' averaging (`NormalsAtScale::heap_bytes`; set by the
     /// session, which shares one between its stages).
     pub normal_bytes: usize,
+    /// Bytes of the session's surface topology for signed distances
+    /// ([`SurfaceTopology::heap_bytes`](crate::registration::SurfaceTopology::heap_bytes);
+    /// counted by the session, 0 from [`ModelSize::of`]).
+    pub topology_bytes: usize,
 }
 
 /// Bytes per value of the direct factor `L`.
@@ -68,7 +73,8 @@ impl ModelSize {
     pub fn estimated_bytes(&self) -> u64 {
         let surface = BYTES_PER_EMBEDDED_POINT * self.embedded_points as f64
             + BYTES_PER_TRIANGLE * self.triangles as f64
-            + self.normal_bytes as f64;
+            + self.normal_bytes as f64
+            + self.topology_bytes as f64;
         self.estimated_grid_bytes() + surface.ceil() as u64
     }
 
@@ -118,6 +124,7 @@ impl ModelSize {
                 + model.probes.points.len(),
             triangles: model.surface.triangles.len() + structure_triangles,
             normal_bytes: 0,
+            topology_bytes: 0,
         })
     }
 }

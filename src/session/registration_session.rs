@@ -173,6 +173,7 @@ impl Session {
     pub fn model_sizes(&self) -> Result<Vec<ModelSize>, String> {
         let mut sizes = vec![ModelSize::of(&self.model, self.model.newton.linear_solver)?];
         sizes[0].normal_bytes = self.normals.as_ref().map_or(0, |n| n.heap_bytes());
+        sizes[0].topology_bytes = self.surface_topology.heap_bytes();
         if let Some(c) = &self.coarse {
             sizes.push(ModelSize::of(&c.model, c.model.newton.linear_solver)?);
         }
