@@ -14,21 +14,30 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// `livereg register` on the case `d`'s frames into `d/out`, recording to `rec`, with the
+/// `extra` arguments; it must succeed.
+fn register_recorded(d: &Path, out: &str, rec: &Path, extra: &[&str]) {
+    let (scene, frames, out) = (d.join("scene.toml"), d.join("frames"), d.join(out));
+    let mut args = vec![
+        "register",
+        s(&scene),
+        "--frames",
+        s(&frames),
+        "--out",
+        s(&out),
+        "--record",
+        s(rec),
+    ];
+    args.extend_from_slice(extra);
+    let (code, _, stderr) = livereg(&args);
+    assert_eq!(code, 0, "{stderr}");
+}
+
 #[test]
 fn replay_is_identical_and_a_changed_parameter_is_a_difference() {
     let d = recording_case::case("replay", 4);
     let rec = d.join("rec.mcap");
-    let (code, _, stderr) = livereg(&[
-        "register",
-        s(&d.join("scene.toml")),
-        "--frames",
-        s(&d.join("frames")),
-        "--out",
-        s(&d.join("out")),
-        "--record",
-        s(&rec),
-    ]);
-    assert_eq!(code, 0, "{stderr}");
+    register_recorded(&d, "out", &rec, &[]);
     // Move the original files away: the recording must be self-contained.
     std::fs::rename(d.join("body.obj"), d.join("body.obj.moved")).unwrap();
 
@@ -84,19 +93,7 @@ fn replay_is_identical_and_a_changed_parameter_is_a_difference() {
     // short (their results depend on the recording machine's speed).
     std::fs::rename(d.join("body.obj.moved"), d.join("body.obj")).unwrap();
     let budget_rec = d.join("budget.mcap");
-    let (code, _, stderr) = livereg(&[
-        "register",
-        s(&d.join("scene.toml")),
-        "--frames",
-        s(&d.join("frames")),
-        "--out",
-        s(&d.join("budget-out")),
-        "--record",
-        s(&budget_rec),
-        "--budget-ms",
-        "0.001",
-    ]);
-    assert_eq!(code, 0, "{stderr}");
+    register_recorded(&d, "budget-out", &budget_rec, &["--budget-ms", "0.001"]);
     let cut = std::fs::read_to_string(d.join("budget-out/results.jsonl"))
         .unwrap()
         .lines()
