@@ -6,7 +6,10 @@
 //! warm clouds) on a curved 12 × 9 cm surface with 1.5 mm noise. And the signed distances
 //! the test is given (`SurfaceDistances`: the k-d tree and normals of a 2,562-vertex surface,
 //! then each point's closest point on the triangles around its nearest vertex), for 680
-//! points off a 10 cm sphere.
+//! points off a 10 cm sphere. And the still window's test against its first cloud (session
+//! 37): each point's 32 nearest points of a second cloud of the same patch
+//! (`ChangeTest::neighbours_in`) and the comparison of the two clouds' local medians
+//! (`ChangeTest::evaluate_against`).
 //!
 //! Run: `cargo bench --bench change_test -- --warm-up-time 1 --measurement-time 3`
 
@@ -45,6 +48,27 @@ fn bench_change_test(c: &mut Criterion) {
     });
     group.bench_function("test", |b| {
         b.iter(|| black_box(test.evaluate_near(&near, &signed, 0.0015)))
+    });
+    let reference_points = camera_patch(&mut rng);
+    let reference = IndexedPoints::new(reference_points.clone()).unwrap();
+    let reference_signed: Vec<f64> = reference_points
+        .iter()
+        .map(|_| 0.0015 * rng.gaussian())
+        .collect();
+    group.bench_function("neighbours in the first cloud", |b| {
+        b.iter(|| black_box(test.neighbours_in(&points, &reference)))
+    });
+    let reference_near = test.neighbours_in(&points, &reference);
+    group.bench_function("test against the first cloud", |b| {
+        b.iter(|| {
+            black_box(test.evaluate_against(
+                &near,
+                &signed,
+                &reference_near,
+                &reference_signed,
+                0.0015,
+            ))
+        })
     });
     let sphere = icosphere(Point3::origin(), 0.1, 4);
     let off: Vec<Point3<f64>> = (0..680)

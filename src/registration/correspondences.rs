@@ -24,6 +24,14 @@ pub struct IndexedPoints {
     tree: ImmutableKdTree<f64, 3>,
 }
 
+impl std::fmt::Debug for IndexedPoints {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("IndexedPoints")
+            .field("points", &self.points.len())
+            .finish_non_exhaustive()
+    }
+}
+
 impl IndexedPoints {
     /// Indexes `points` (all finite; `None` when empty or when the tree cannot be built).
     pub fn new(points: Vec<Point3<f64>>) -> Option<Self> {

@@ -15,6 +15,7 @@
 //! | the normals' averaging | its own count | samples and vertex–cluster entries (`NormalsAtScale::heap_bytes`, counted, not fitted) |
 //! | the surface's topology for signed distances | its own count | triangles and the triangles around each vertex (`SurfaceTopology::heap_bytes`, counted, not fitted; session 36) |
 //! | the rest compliance of the contact force | 8 per factor value, 16 per tangent entry | its own f64 factor and copy of the rest tangent (`RestCompliance`, counted, not fitted; non-rigid sessions) |
+//! | the still window's registered points | 800 per point, at the `max_cloud_points` cap | the data term, trees and neighbour lists of a union of clouds (non-rigid sessions with `still_frames` > 1; session 37, measured: below) |
 //!
 //! The factor's size comes from the same symbolic analysis the solver makes (fill-reducing
 //! ordering included), without allocating the factor: it grows faster than the grid (about
@@ -23,6 +24,13 @@
 //! (the phantom, the lobe, the tool-indentation liver; 11 grids from 435 to 7,794 unknowns)
 //! and predicted a fourth surface (the cylinder, 768 to 4,968 unknowns) within 5 %;
 //! `tests/session_memory.rs` checks all four against the allocator.
+//!
+//! The fit's sessions registered one cloud of a third of the surface's vertices per frame.
+//! A still window registers the union of its clouds, up to `max_cloud_points` points: when
+//! that test's frames began to gather (session 37), the peaks grew by 0.6–0.7 MiB for 854
+//! more points on the phantom and 0.2–0.5 MiB for 1,251 on the tool-indentation liver, and
+//! the coarse phantom's estimate fell to 0.79 of its peak. The window is counted at its cap,
+//! [`BYTES_PER_WINDOW_POINT`] each (the phantom's, the larger).
 
 use crate::linalg::{predicted_factor_len, SolverKind};
 use crate::simulation::SceneModel;
@@ -66,6 +74,19 @@ pub const BYTES_PER_TRIANGLE: f64 = 600.0;
 pub const BYTES_PER_REST_FACTOR_VALUE: f64 = 8.0;
 /// Bytes per entry of the rest compliance's tangent (an f64 value and a row index).
 pub const BYTES_PER_REST_TANGENT_ENTRY: f64 = 16.0;
+
+/// Bytes per point of a still window's union of clouds, beyond what the fitted weights hold
+/// (module doc).
+pub const BYTES_PER_WINDOW_POINT: f64 = 800.0;
+
+/// What a still window of up to `max_cloud_points` points adds to a session's peak, bytes
+/// (module doc); 0 when frames are registered alone (`still_frames` ≤ 1).
+pub fn still_window_bytes(still_frames: usize, max_cloud_points: usize) -> u64 {
+    if still_frames <= 1 {
+        return 0;
+    }
+    (BYTES_PER_WINDOW_POINT * max_cloud_points as f64).ceil() as u64
+}
 
 impl ModelSize {
     /// Estimated peak live heap of a session's registration with this model, bytes (see the

@@ -1,11 +1,12 @@
 //! [`Session`]: one patient's model registered to a stream of frames.
 
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use nalgebra::Point3;
 
 use super::frame::{Frame, FrameError, FrameResult, StageTimes};
-use super::memory_estimate::ModelSize;
+use super::memory_estimate::{still_window_bytes, ModelSize};
 use super::settings::SessionSettings;
 use super::still_window::StillWindow;
 use crate::geometry::Camera;
@@ -185,18 +186,20 @@ impl Session {
     /// [`ModelSize::estimated_grid_bytes`] (see [`Session::model_sizes`]). Made before the
     /// first frame, so that a server can refuse a session its memory budget cannot hold.
     /// A non-rigid session adds its rest compliance for the contact force
-    /// ([`ModelSize::rest_compliance_bytes`]). A rigid-only session (`settings.non_rigid`
+    /// ([`ModelSize::rest_compliance_bytes`]) and its still window at its point cap
+    /// ([`still_window_bytes`]). A rigid-only session (`settings.non_rigid`
     /// false) never factorises: its factors are not counted.
     pub fn memory_estimate_bytes(&self) -> Result<u64, String> {
         let mut sizes = self.model_sizes()?;
-        let rest_compliance = if self.settings.non_rigid {
+        let per_frame = if self.settings.non_rigid {
             sizes[0].rest_compliance_bytes()
+                + still_window_bytes(self.settings.still_frames, self.settings.max_cloud_points)
         } else {
             sizes.iter_mut().for_each(|s| s.factor_values = 0);
             0
         };
         Ok(sizes[0].estimated_bytes()
-            + rest_compliance
+            + per_frame
             + sizes[1..]
                 .iter()
                 .map(ModelSize::estimated_grid_bytes)
@@ -1097,8 +1100,9 @@ impl Session {
     }
 
     /// The data of the non-rigid stage: the frame's cloud `aligned` (model frame, m) seen by
-    /// `camera` joins the still window ([`StillWindow`]) when the last registered shape
-    /// explains it within its `noise` (a warm frame; [`SessionSettings::still_frames`] > 1),
+    /// `camera` joins the still window ([`StillWindow`]) when it shows the surface where the
+    /// window's first cloud showed it, within its `noise` ([`Session::same_as_window`]; a warm
+    /// frame, the same camera, [`SessionSettings::still_frames`] > 1),
     /// and the stage registers the window's union, each spring at `1/n` of its stiffness
     /// (flag `still:<n>` for `n` > 1). Otherwise the window starts again with this cloud.
     /// Returns the new window (the session keeps it only if the frame succeeds: a failed
@@ -1111,12 +1115,22 @@ impl Session {
         flags: &mut Vec<String>,
     ) -> (StillWindow, StillData) {
         let max_frames = self.settings.still_frames.max(1);
+        let Some(noise) = noise else {
+            // No noise measured (an empty cloud): alone, the window cleared.
+            let data = StillData {
+                points: aligned.to_vec(),
+                weight: 1.0,
+                noise: None,
+            };
+            return (StillWindow::default(), data);
+        };
         let unchanged = max_frames > 1
             && self.good.registered
-            && noise.is_some_and(|n| self.explains_good(aligned, n));
+            && camera == self.still.camera()
+            && self.same_as_window(noise);
         let mut still = self.still.clone();
         let n = still.admit(
-            aligned.to_vec(),
+            noise.points.clone(),
             camera,
             unchanged,
             max_frames,
@@ -1128,22 +1142,29 @@ impl Session {
         let data = StillData {
             points: still.union(),
             weight: 1.0 / n as f64,
-            noise: noise.map(|n| n.sigma).filter(|s| *s > 0.0),
+            noise: Some(noise.sigma).filter(|s| *s > 0.0),
         };
         (still, data)
     }
 
-    /// Whether the last good state's surface explains the cloud `aligned` (model frame, m)
-    /// within its `noise` ([`SessionSettings::rest_test`]'s test; false without it).
-    fn explains_good(&self, aligned: &[Point3<f64>], noise: &CloudNoise) -> bool {
-        let Some(test) = &self.settings.rest_test else {
+    /// Whether the frame's cloud (`noise`: the cloud, model frame, m, its neighbour lists and
+    /// noise) shows the surface where the still window's first cloud showed it: both measured
+    /// to the last good surface, their local medians compared
+    /// ([`ChangeTest::evaluate_against`]). False without the test, a window or a surface.
+    fn same_as_window(&self, noise: &CloudNoise) -> bool {
+        let (Some(test), Some(first)) = (&self.settings.rest_test, self.still.first()) else {
             return false;
         };
         let Some(surface) = self.good_surface() else {
             return false;
         };
-        let d = surface.signed_distances(aligned);
-        !test.evaluate_near(&noise.near, &d, noise.sigma).significant
+        let cloud = &noise.points.points;
+        let first_near = test.neighbours_in(cloud, first);
+        let d = surface.signed_distances(cloud);
+        let d_first = surface.signed_distances(&first.points);
+        !test
+            .evaluate_against(&noise.near, &d, &first_near, &d_first, noise.sigma)
+            .significant
     }
 }
 
@@ -1159,6 +1180,8 @@ const SAME_VIEW_FIT_SLACK: f64 = 0.5e-3;
 /// ([`Session::rest_shape_if_unchanged`], [`Session::still_frames`]) and the data term's
 /// weight ([`NonRigidSettings::cloud_noise`]).
 struct CloudNoise {
+    /// The cloud, indexed (the still window keeps it).
+    points: Arc<IndexedPoints>,
     /// [`ChangeTest::neighbours`] of each cloud point (empty without a test).
     near: Vec<Vec<usize>>,
     /// [`cloud_noise_sigma`](crate::registration::change_evidence::cloud_noise_sigma), m.
@@ -1169,11 +1192,15 @@ impl CloudNoise {
     /// The noise of `aligned` (m) and its neighbours for `test` (none without a test);
     /// `None` for an empty cloud.
     fn measure(aligned: &[Point3<f64>], test: Option<&ChangeTest>) -> Option<Self> {
-        let cloud = IndexedPoints::new(aligned.to_vec())?;
-        let near = test.map_or_else(Vec::new, |t| t.neighbours(&cloud));
+        let points = IndexedPoints::new(aligned.to_vec())?;
+        let near = test.map_or_else(Vec::new, |t| t.neighbours(&points));
         // The test's neighbour lists (32 nearest) hold the estimator's 16: one search.
-        let sigma = cloud_noise_sigma_near(&cloud, &near);
-        Some(Self { near, sigma })
+        let sigma = cloud_noise_sigma_near(&points, &near);
+        Some(Self {
+            points: Arc::new(points),
+            near,
+            sigma,
+        })
     }
 }
 

@@ -4,24 +4,33 @@
 //! seen again through new noise. Registered alone, every frame refits its own noise and the
 //! overlay trembles: on the tool-indentation class, ten frames of press-slide (neo-Hookean)
 //! with the tool held still scored 0.35–0.76 mm each against an unchanged truth. The window
-//! keeps the clouds (model frame, metres) of the frames whose cloud the last registered shape
-//! explained within its own noise ([`ChangeTest`](crate::registration::change_evidence::ChangeTest), the test
-//! of frames at rest, against the deformed surface) and that the same camera saw; the session
+//! keeps the clouds (model frame, metres) of the frames whose cloud showed no change against
+//! the window's first cloud (below) and that the same camera saw; the session
 //! registers their union with each spring at `1/n` of its stiffness
 //! ([`NonRigidSettings::data_weight`](crate::registration::NonRigidSettings::data_weight)), so
 //! the data term weighs as one frame's against the body while its noise averages over `n`
 //! frames. A frame that shows a change, a new camera, a reset or a frame kept at rest starts
 //! the window again. Measured in docs/registration.md, "Still frames".
+//!
+//! "No change" is judged against the window's first cloud, not against the last registered
+//! shape (session 37): both clouds are measured to that shape and their local medians
+//! compared ([`ChangeTest::evaluate_against`](crate::registration::change_evidence::ChangeTest::evaluate_against)),
+//! so that what the model cannot follow (a dent narrower than a cell) cancels instead of
+//! reading as motion; and every cloud of the window is then within the noise of its first.
+
+use std::sync::Arc;
 
 use nalgebra::Point3;
 
 use crate::geometry::Camera;
+use crate::registration::IndexedPoints;
 
 /// The clouds of the newest frames that showed no change (see the module).
 #[derive(Debug, Clone, Default)]
 pub struct StillWindow {
-    /// Oldest first; model frame, metres.
-    clouds: Vec<Vec<Point3<f64>>>,
+    /// Oldest first (model frame, metres), indexed for the test against the first; shared, a
+    /// window is cloned per frame.
+    clouds: Vec<Arc<IndexedPoints>>,
     /// The camera of the newest cloud (`None`: none given).
     camera: Option<Camera>,
 }
@@ -34,7 +43,7 @@ impl StillWindow {
     /// again with it. Returns the number of clouds the window now holds.
     pub fn admit(
         &mut self,
-        cloud: Vec<Point3<f64>>,
+        cloud: Arc<IndexedPoints>,
         camera: Option<Camera>,
         unchanged: bool,
         max_frames: usize,
@@ -48,7 +57,7 @@ impl StillWindow {
         let mut points = 0;
         let mut keep = 0;
         for c in self.clouds.iter().rev() {
-            if keep == max_frames.max(1) || (keep > 0 && points + c.len() > max_points) {
+            if keep == max_frames.max(1) || (keep > 0 && points + c.points.len() > max_points) {
                 break;
             }
             points += c.len();
@@ -56,6 +65,16 @@ impl StillWindow {
         }
         self.clouds.drain(..self.clouds.len() - keep);
         self.clouds.len()
+    }
+
+    /// The window's first (oldest) cloud: what a new frame must not differ from to join.
+    pub fn first(&self) -> Option<&IndexedPoints> {
+        self.clouds.first().map(Arc::as_ref)
+    }
+
+    /// The camera of the newest cloud (`None`: none given).
+    pub fn camera(&self) -> Option<Camera> {
+        self.camera
     }
 
     /// Forgets every cloud: the next frame starts a new window.
@@ -76,7 +95,10 @@ impl StillWindow {
 
     /// Every point of the clouds held, oldest cloud first (model frame, m).
     pub fn union(&self) -> Vec<Point3<f64>> {
-        self.clouds.iter().flatten().copied().collect()
+        self.clouds
+            .iter()
+            .flat_map(|c| c.points.iter().copied())
+            .collect()
     }
 }
 
@@ -84,8 +106,9 @@ impl StillWindow {
 mod tests {
     use super::*;
 
-    fn cloud(tag: f64, n: usize) -> Vec<Point3<f64>> {
-        (0..n).map(|i| Point3::new(tag, i as f64, 0.0)).collect()
+    fn cloud(tag: f64, n: usize) -> Arc<IndexedPoints> {
+        let points = (0..n).map(|i| Point3::new(tag, i as f64, 0.0)).collect();
+        Arc::new(IndexedPoints::new(points).unwrap())
     }
 
     #[test]
@@ -99,6 +122,8 @@ mod tests {
         let u = w.union();
         assert_eq!(u.len(), 30);
         assert_eq!((u[0].x, u[29].x), (1.0, 3.0));
+        // The first cloud, what a new frame is compared with, is the oldest kept.
+        assert_eq!(w.first().unwrap().points[0].x, 1.0);
         // The point cap: 25 points hold two clouds of 10, the newest first.
         assert_eq!(w.admit(cloud(4.0, 10), None, true, 8, 25), 2);
         assert_eq!(w.union()[0].x, 3.0);
