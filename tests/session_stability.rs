@@ -161,8 +161,16 @@ fn fifty_frames_hold_still_after_the_load_stops() {
     // jitter; frames `still_frames` apart share none, and their step is. So: frame 25 → 49
     // within 2× the median such step, under the noise σ, and small against the ramp's
     // motion; the means of the first and last 10 still frames (jitter partly averaged out)
-    // closer than one median step and σ; no consecutive still step beyond 2σ; and the held
-    // pose does not move.
+    // closer than σ, and either closer than one median step or moved toward the truth (below);
+    // no consecutive still step beyond 2σ; and the held pose does not move.
+    //
+    // Why "or toward the truth": a warm frame makes one ICP iteration from the last state, and
+    // a still window that gathers every frame (`still:3` from frame 17 on) keeps refining the
+    // same data, so the registration converges further over the still frames. Measured: the
+    // means moved 0.363 mm against a median step of 0.331 mm, 0.325 mm of it toward the truth
+    // on the target that moved most (its error 0.53 → 0.26 mm); the mean target error fell
+    // 0.311 → 0.263 mm and no target's error grew by more than 0.004 mm. Drift is motion away
+    // from the truth: no target's error may grow by more than 0.1σ between the two means.
     let apart = session.settings.still_frames.max(1);
     let mut apart_steps: Vec<f64> = (still..FRAMES - apart)
         .map(|k| max_move(&results[k], &results[k + apart]))
@@ -200,12 +208,28 @@ fn fifty_frames_hold_still_after_the_load_stops() {
             average(&results[still + 1..still + 11]),
             average(&results[FRAMES - 10..]),
         );
-        first
+        let truth: Vec<Point3<f64>> = seq.frames[still]
+            .truth_structures
+            .iter()
+            .flat_map(|(_, p)| p.iter().map(|q| q / scale))
+            .collect();
+        let errors = |m: &[Point3<f64>]| -> Vec<f64> {
+            m.iter().zip(&truth).map(|(a, t)| (a - t).norm()).collect()
+        };
+        let (first_err, last_err) = (errors(&first), errors(&last));
+        let growth = first_err
+            .iter()
+            .zip(&last_err)
+            .map(|(a, b)| b - a)
+            .fold(f64::MIN, f64::max);
+        let moved = first
             .iter()
             .zip(&last)
             .map(|(a, b)| (a - b).norm())
-            .fold(0.0, f64::max)
+            .fold(0.0, f64::max);
+        (moved, mean(&first_err), mean(&last_err), growth)
     };
+    let (mean_drift, first_mean_err, last_mean_err, error_growth) = mean_drift;
     let (p25, p49) = (results[25].model_to_cloud, results[49].model_to_cloud);
     let pose_shift_mm = p25.translation_distance_to(&p49) / scale;
     let pose_turn_deg = p25.rotation_angle_to(&p49).to_degrees();
@@ -229,9 +253,22 @@ fn fifty_frames_hold_still_after_the_load_stops() {
         "targets moved {drift:.3} mm between frames 25 and 49 (median still step \
          {apart} frames apart {median_step:.3} mm, noise σ {sigma_mm} mm, ramp motion {ramp_motion:.2} mm)"
     );
+    println!(
+        "mean targets' error against the truth: frames {}–{} {first_mean_err:.3} mm, last 10 \
+         {last_mean_err:.3} mm; largest growth of one target's error {error_growth:.3} mm",
+        still + 1,
+        still + 10
+    );
+    let converged_further = last_mean_err <= first_mean_err && error_growth < 0.1 * sigma_mm;
     assert!(
-        mean_drift < median_step && mean_drift < sigma_mm,
-        "the mean registered targets moved {mean_drift:.3} mm while the liver was still"
+        mean_drift < sigma_mm && (mean_drift < median_step || converged_further),
+        "the mean registered targets moved {mean_drift:.3} mm while the liver was still \
+         (median step {median_step:.3} mm; mean error {first_mean_err:.3} → {last_mean_err:.3} \
+         mm, largest growth of one target's error {error_growth:.3} mm)"
+    );
+    assert!(
+        error_growth < 0.1 * sigma_mm,
+        "a target's error grew by {error_growth:.3} mm while the liver was still"
     );
     assert!(
         max_step < 2.0 * sigma_mm,
