@@ -83,7 +83,8 @@ impl RestCompliance {
     /// of `problem`: its cells and its own springs (the fixed regions), those listed in
     /// `lumped_holds` (indices into `problem.springs`: the holds given as points,
     /// [`SceneModel::point_holds`](crate::simulation::SceneModel::point_holds)) lumped per
-    /// cell (module doc). Fails when the tangent
+    /// cell (module doc), given to [`StaticProblem::evaluate_with_springs`] for this one
+    /// assembly: the problem's own springs are left as they are. Fails when the tangent
     /// cannot be assembled or factorised, or is not positive definite (a body held nowhere).
     pub fn new(
         problem: &mut StaticProblem,
@@ -93,7 +94,7 @@ impl RestCompliance {
         let n = problem.dofs();
         let mut stiffness = problem.new_tangent();
         let mut residual = vec![0.0; n];
-        let lumped = problem
+        let holds: Vec<PenaltySprings> = problem
             .springs
             .iter()
             .enumerate()
@@ -105,16 +106,16 @@ impl RestCompliance {
                 }
             })
             .collect();
-        let held = std::mem::replace(&mut problem.springs, lumped);
-        let evaluated = problem.evaluate(
-            &vec![0.0; n],
-            0.0,
-            Need::Tangent,
-            Some(&mut residual),
-            Some(&mut stiffness),
-        );
-        problem.springs = held;
-        evaluated.map_err(|e| format!("rest tangent: cell {}: {}", e.cell, e.error))?;
+        problem
+            .evaluate_with_springs(
+                &vec![0.0; n],
+                0.0,
+                &holds,
+                Need::Tangent,
+                Some(&mut residual),
+                Some(&mut stiffness),
+            )
+            .map_err(|e| format!("rest tangent: cell {}: {}", e.cell, e.error))?;
         let mut solver =
             SparseSolver::new(kind).with_node_coordinates(problem.grid.node_coords.clone());
         solver
