@@ -189,7 +189,7 @@ fn fifty_frames_hold_still_after_the_load_stops() {
     let mut still_steps = steps[still..].to_vec();
     still_steps.sort_by(f64::total_cmp);
     let max_step = still_steps[still_steps.len() - 1];
-    let mean_drift = {
+    let (mean_drift, first_mean_err, last_mean_err, error_growth) = {
         let average = |rs: &[FrameResult]| -> Vec<Point3<f64>> {
             let n = rs.len() as f64;
             let mut acc: Vec<Point3<f64>> = rs[0]
@@ -229,7 +229,6 @@ fn fifty_frames_hold_still_after_the_load_stops() {
             .fold(0.0, f64::max);
         (moved, mean(&first_err), mean(&last_err), growth)
     };
-    let (mean_drift, first_mean_err, last_mean_err, error_growth) = mean_drift;
     let (p25, p49) = (results[25].model_to_cloud, results[49].model_to_cloud);
     let pose_shift_mm = p25.translation_distance_to(&p49) / scale;
     let pose_turn_deg = p25.rotation_angle_to(&p49).to_degrees();

@@ -352,7 +352,7 @@ mod tests {
             .copied()
             .collect();
         let embedding = Embedding::new(&p.grid, &end).unwrap();
-        let own = PenaltySprings::fixed(embedding.clone(), vec![1e4; end.len()]);
+        let own = PenaltySprings::fixed(embedding, vec![1e4; end.len()]);
         p.springs = vec![own.clone()];
         let replaced = vec![own.lumped_per_cell()];
         let u = field(&p, 1.0);

@@ -1124,6 +1124,8 @@ impl Session {
             };
             return (StillWindow::default(), data);
         };
+        // A new camera restarts the window in `admit` whatever the test says: the test (about
+        // 1.5 ms) is made only for the window's own camera.
         let unchanged = max_frames > 1
             && self.good.registered
             && camera == self.still.camera()

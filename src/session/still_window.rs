@@ -37,7 +37,8 @@ pub struct StillWindow {
 
 impl StillWindow {
     /// Adds the cloud of a new frame (`cloud`, model frame, m) seen by `camera`. With
-    /// `unchanged` (the last registered shape explains it) and the same camera as the
+    /// `unchanged` (it shows no change against the window's first cloud, [`StillWindow::first`])
+    /// and the same camera as the
     /// window's, it joins the window, which then keeps the newest clouds up to `max_frames`
     /// and `max_points` points in all (always the new cloud); otherwise the window starts
     /// again with it. Returns the number of clouds the window now holds.
@@ -57,7 +58,7 @@ impl StillWindow {
         let mut points = 0;
         let mut keep = 0;
         for c in self.clouds.iter().rev() {
-            if keep == max_frames.max(1) || (keep > 0 && points + c.points.len() > max_points) {
+            if keep == max_frames.max(1) || (keep > 0 && points + c.len() > max_points) {
                 break;
             }
             points += c.len();
