@@ -10,7 +10,7 @@ use super::background_factorization::{BackgroundFactorizer, Factored};
 use super::cell_kernel::Need;
 use super::penalty::PenaltySprings;
 use super::static_problem::StaticProblem;
-use crate::linalg::{LinalgError, SolverKind, SparseSolver, SymmetricCsc};
+use crate::linalg::{LinalgError, SolveStats, SolverKind, SparseSolver, SymmetricCsc};
 
 /// Settings of the static solver.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -153,6 +153,50 @@ pub struct IterationRecord {
     pub linear_method: &'static str,
     /// Diagonal shift τ applied to an indefinite tangent (0 when none was needed).
     pub regularization: f64,
+}
+
+/// What one call of `NewtonSolver::iterate` runs at: the load factor, the caps and the
+/// step stabilisation of its factorised tangents.
+struct IterationRun {
+    /// Load factor (1: full load).
+    load: f64,
+    /// Newton iterations allowed.
+    max_iterations: usize,
+    /// Steps one factorisation may serve (1: plain Newton).
+    max_uses: usize,
+    /// γ of the cut-cell step stabilisation added to factorised tangents (0 with one use).
+    stabilization: f64,
+}
+
+/// The vectors one call of `NewtonSolver::iterate` works in (all of the problem's length,
+/// N or m) and its residual scales (N).
+struct IterationWork {
+    /// The residual at the current state.
+    r: Vec<f64>,
+    /// The Newton direction.
+    du: Vec<f64>,
+    /// The line search's trial state.
+    trial: Vec<f64>,
+    /// The norm of the external load at this load factor.
+    external_norm: f64,
+    /// The residual norm relative residuals are measured against (set at the first
+    /// iteration).
+    reference: f64,
+    /// The residual norm at which a state is exact to round-off (set at each assembly).
+    round_off: f64,
+}
+
+impl IterationWork {
+    fn new(n: usize, external_norm: f64) -> Self {
+        Self {
+            r: vec![0.0; n],
+            du: vec![0.0; n],
+            trial: vec![0.0; n],
+            external_norm,
+            reference: 0.0,
+            round_off: 0.0,
+        }
+    }
 }
 
 /// Why one increment failed.
@@ -526,6 +570,11 @@ impl NewtonSolver {
     /// A factorisation serves at most `max_uses` steps (1: plain Newton); with more than one
     /// the factorised tangents get the cut-cell step stabilisation (a fresh factorisation
     /// used once is exact and needs none).
+    ///
+    /// Each iteration goes through named stages: [`NewtonSolver::residual_for_step`] (the
+    /// residual, and the tangent unless a kept factorisation serves), the convergence tests,
+    /// [`NewtonSolver::factorize_for_step`], [`NewtonSolver::newton_direction`],
+    /// [`NewtonSolver::step_length`] (the line search) and [`NewtonSolver::take_step`].
     #[allow(clippy::too_many_arguments)]
     fn iterate(
         &mut self,
@@ -538,159 +587,247 @@ impl NewtonSolver {
         history: &mut Vec<IterationRecord>,
         max_uses: usize,
     ) -> Result<f64, StepFailure> {
-        let s = self.settings;
-        let stabilization = if max_uses > 1 {
-            s.step_stabilization
-        } else {
-            0.0
-        };
-        let n = problem.dofs();
         let mut k = self.tangent.take().unwrap_or_else(|| problem.new_tangent());
-        let mut r = vec![0.0; n];
-        let mut du = vec![0.0; n];
-        let mut trial = vec![0.0; n];
-        let ext_norm = load * norm(&problem.external);
-        let result = (|| {
-            let mut reference = 0.0;
-            // Residual norm (N) at which the state is exact to round-off: the tangent's
-            // largest diagonal entry (N/m) times [`ROUND_OFF_DISPLACEMENT`].
-            let mut round_off = 0.0;
-            for it in 0..max_iterations {
-                if max_uses > 1 {
-                    self.swap_in_background_factor(&mut k);
-                }
-                let mut reuse = self.factor_age.is_some_and(|a| a < max_uses);
-                if !reuse
-                    && max_uses > 1
-                    && self.has_factor
-                    && self.request_background(problem, extra, u, load)
-                {
-                    // The old factorisation serves until the new one is due.
-                    reuse = true;
-                }
-                // A kept factorisation keeps `k` as the matrix it factorised (the direct solver
-                // refines against it), so only the residual is evaluated.
-                let e = if reuse {
-                    problem.evaluate_with(u, load, extra, Need::Force, Some(&mut r), None)?
-                } else {
-                    let need = if s.projected_tangent {
-                        Need::ProjectedTangent
-                    } else {
-                        Need::Tangent
-                    };
-                    let e =
-                        problem.evaluate_with(u, load, extra, need, Some(&mut r), Some(&mut k))?;
-                    problem.add_cut_cell_stabilization(stabilization, &mut k);
-                    round_off = ROUND_OFF_DISPLACEMENT
-                        * k.diagonal().iter().fold(0.0f64, |m, d| m.max(d.abs()));
-                    e
-                };
-                let rn = norm(&r);
-                if !rn.is_finite() || !e.potential.is_finite() {
-                    return Err(StepFailure {
-                        outcome: Outcome::Diverged,
-                        message: "non-finite residual".into(),
-                    });
-                }
-                if it == 0 {
-                    reference = rn.max(ext_norm).max(f64::MIN_POSITIVE);
-                }
-                let rel = rn / reference;
-                // A state already exact to round-off (e.g. a noise-free cloud of the rest
-                // shape: every data spring's gap is 1e-17 m) is converged, whatever its
-                // relative residual: no step can lower a residual made of round-off, and the
-                // line search would call that divergence.
-                if rel <= s.residual_tolerance || rn <= round_off {
-                    return Ok(rel);
-                }
-                if rel > 1e8 {
-                    return Err(StepFailure {
-                        outcome: Outcome::Diverged,
-                        message: format!("residual grew to {rel:.3e} times its initial value"),
-                    });
-                }
-                *iterations += 1;
-                let regularization = if reuse {
-                    0.0
-                } else {
-                    self.factor_age = None;
-                    let tau = self.factorize_descent(&mut k)?;
-                    self.factor_age = Some(0);
-                    self.has_factor = true;
-                    self.factored_with.clear();
-                    self.factored_with.extend_from_slice(extra);
-                    tau
-                };
-                for v in r.iter_mut() {
-                    *v = -*v;
-                }
-                let stats = self.linear.solve(&k, &r, &mut du)?;
-                for v in r.iter_mut() {
-                    *v = -*v;
-                }
-                let alpha = if s.line_search {
-                    // Modified Newton evaluates the residual at the accepted state next: assemble
-                    // the force already in the line search, so the problem's body cache serves it.
-                    let with_force = max_uses > 1;
-                    match self.line_search(
-                        problem,
-                        extra,
-                        u,
-                        &du,
-                        &r,
-                        e.potential,
-                        rn,
-                        load,
-                        with_force,
-                        &mut trial,
-                    ) {
-                        Ok(a) => a,
-                        // A kept factorisation may simply be too stale: retry with a fresh one.
-                        Err(_) if reuse => {
-                            self.factor_age = None;
-                            self.has_factor = false;
-                            if let Some(bg) = self.background.as_mut() {
-                                bg.cancel();
-                            }
-                            continue;
-                        }
-                        Err(f) => return Err(f),
-                    }
-                } else {
-                    1.0
-                };
-                self.factor_age = match self.factor_age {
-                    Some(a) if alpha >= 0.5 => Some(a + 1),
-                    _ => None,
-                };
-                if max_uses > 1 {
-                    self.improve_steps += 1;
-                }
-                history.push(IterationRecord {
-                    load,
-                    relative_residual: rel,
-                    step: alpha,
-                    linear_method: stats.method,
-                    regularization,
-                });
-                // The same sums as the line search's trial, so the body cache matches bit for bit.
-                for (ui, di) in u.iter_mut().zip(&du) {
-                    *ui += alpha * di;
-                }
-                let dn = alpha * norm(&du);
-                if alpha == 1.0 && dn <= s.displacement_tolerance * norm(u) {
-                    // Converged in displacement; report the residual of the new state.
-                    problem.evaluate_with(u, load, extra, Need::Force, Some(&mut r), None)?;
-                    return Ok(norm(&r) / reference);
-                }
-            }
-            Err(StepFailure {
-                outcome: Outcome::IterationCap,
-                message: format!("no convergence in {max_iterations} Newton iterations"),
-            })
-        })();
+        let mut work = IterationWork::new(problem.dofs(), load * norm(&problem.external));
+        let run = IterationRun {
+            load,
+            max_iterations,
+            max_uses,
+            stabilization: if max_uses > 1 {
+                self.settings.step_stabilization
+            } else {
+                0.0
+            },
+        };
+        let result = self.iterate_in(
+            problem, extra, u, &run, &mut k, &mut work, iterations, history,
+        );
+        // The tangent's buffers (or the kept factorisation's matrix) serve the next call.
         self.tangent = Some(k);
         result
+    }
+
+    /// The loop of [`NewtonSolver::iterate`] with its buffers: `k` the tangent (or, while a
+    /// kept factorisation serves, the matrix it factorised).
+    #[allow(clippy::too_many_arguments)]
+    fn iterate_in(
+        &mut self,
+        problem: &mut StaticProblem,
+        extra: &[PenaltySprings],
+        u: &mut [f64],
+        run: &IterationRun,
+        k: &mut SymmetricCsc,
+        work: &mut IterationWork,
+        iterations: &mut usize,
+        history: &mut Vec<IterationRecord>,
+    ) -> Result<f64, StepFailure> {
+        let s = self.settings;
+        for it in 0..run.max_iterations {
+            let (potential, reuse) = self.residual_for_step(problem, extra, u, run, k, work)?;
+            let rn = norm(&work.r);
+            if !rn.is_finite() || !potential.is_finite() {
+                return Err(StepFailure {
+                    outcome: Outcome::Diverged,
+                    message: "non-finite residual".into(),
+                });
+            }
+            if it == 0 {
+                work.reference = rn.max(work.external_norm).max(f64::MIN_POSITIVE);
+            }
+            let rel = rn / work.reference;
+            // A state already exact to round-off (e.g. a noise-free cloud of the rest
+            // shape: every data spring's gap is 1e-17 m) is converged, whatever its
+            // relative residual: no step can lower a residual made of round-off, and the
+            // line search would call that divergence.
+            if rel <= s.residual_tolerance || rn <= work.round_off {
+                return Ok(rel);
+            }
+            if rel > 1e8 {
+                return Err(StepFailure {
+                    outcome: Outcome::Diverged,
+                    message: format!("residual grew to {rel:.3e} times its initial value"),
+                });
+            }
+            *iterations += 1;
+            let regularization = if reuse {
+                0.0
+            } else {
+                self.factorize_for_step(k, extra)?
+            };
+            let stats = self.newton_direction(k, work)?;
+            let Some(alpha) =
+                self.step_length(problem, extra, u, run, reuse, potential, rn, work)?
+            else {
+                // The kept factorisation was too stale for any step: retry with a fresh one.
+                continue;
+            };
+            history.push(IterationRecord {
+                load: run.load,
+                relative_residual: rel,
+                step: alpha,
+                linear_method: stats.method,
+                regularization,
+            });
+            if self.take_step(u, alpha, run, work) {
+                // Converged in displacement; report the residual of the new state.
+                problem.evaluate_with(u, run.load, extra, Need::Force, Some(&mut work.r), None)?;
+                return Ok(norm(&work.r) / work.reference);
+            }
+        }
+        Err(StepFailure {
+            outcome: Outcome::IterationCap,
+            message: format!("no convergence in {} Newton iterations", run.max_iterations),
+        })
+    }
+
+    /// The residual at `u` into `work.r` and the potential energy (J), and whether the step
+    /// reuses the kept factorisation (`k` stays the matrix it factorised, which the direct
+    /// solver refines against, so only the residual is evaluated). Otherwise the tangent is
+    /// assembled into `k` with the cut-cell stabilisation of `run`, and the round-off
+    /// residual is updated: the tangent's largest diagonal entry (N/m) times
+    /// [`ROUND_OFF_DISPLACEMENT`], the residual (N) at which the state is exact to round-off.
+    /// With several uses per factorisation, the helper thread's factorisation is swapped in
+    /// when due, or asked for when the kept one has served its steps.
+    fn residual_for_step(
+        &mut self,
+        problem: &mut StaticProblem,
+        extra: &[PenaltySprings],
+        u: &[f64],
+        run: &IterationRun,
+        k: &mut SymmetricCsc,
+        work: &mut IterationWork,
+    ) -> Result<(f64, bool), StepFailure> {
+        if run.max_uses > 1 {
+            self.swap_in_background_factor(k);
+        }
+        let mut reuse = self.factor_age.is_some_and(|a| a < run.max_uses);
+        if !reuse
+            && run.max_uses > 1
+            && self.has_factor
+            && self.request_background(problem, extra, u, run.load)
+        {
+            // The old factorisation serves until the new one is due.
+            reuse = true;
+        }
+        if reuse {
+            let e =
+                problem.evaluate_with(u, run.load, extra, Need::Force, Some(&mut work.r), None)?;
+            return Ok((e.potential, true));
+        }
+        let need = if self.settings.projected_tangent {
+            Need::ProjectedTangent
+        } else {
+            Need::Tangent
+        };
+        let e = problem.evaluate_with(u, run.load, extra, need, Some(&mut work.r), Some(k))?;
+        problem.add_cut_cell_stabilization(run.stabilization, k);
+        work.round_off =
+            ROUND_OFF_DISPLACEMENT * k.diagonal().iter().fold(0.0f64, |m, d| m.max(d.abs()));
+        Ok((e.potential, false))
+    }
+
+    /// Factorises the freshly assembled tangent `k` (with the `extra` springs it includes)
+    /// and makes it the kept factorisation; returns the diagonal shift τ it needed
+    /// ([`NewtonSolver::factorize_descent`]).
+    fn factorize_for_step(
+        &mut self,
+        k: &mut SymmetricCsc,
+        extra: &[PenaltySprings],
+    ) -> Result<f64, StepFailure> {
+        self.factor_age = None;
+        let tau = self.factorize_descent(k)?;
+        self.factor_age = Some(0);
+        self.has_factor = true;
+        self.factored_with.clear();
+        self.factored_with.extend_from_slice(extra);
+        Ok(tau)
+    }
+
+    /// The Newton direction `work.du = −K⁻¹ R` (m) through the factorisation of `k`.
+    fn newton_direction(
+        &mut self,
+        k: &SymmetricCsc,
+        work: &mut IterationWork,
+    ) -> Result<SolveStats, StepFailure> {
+        for v in work.r.iter_mut() {
+            *v = -*v;
+        }
+        let stats = self.linear.solve(k, &work.r, &mut work.du)?;
+        for v in work.r.iter_mut() {
+            *v = -*v;
+        }
+        Ok(stats)
+    }
+
+    /// The step length along `work.du` ([`NewtonSolver::line_search`], or 1 without one).
+    /// `None` when a kept factorisation's direction admits no step: the factorisation is
+    /// dropped (and a pending helper request cancelled) so that the next try refactorises.
+    #[allow(clippy::too_many_arguments)]
+    fn step_length(
+        &mut self,
+        problem: &mut StaticProblem,
+        extra: &[PenaltySprings],
+        u: &[f64],
+        run: &IterationRun,
+        reuse: bool,
+        potential: f64,
+        residual_norm: f64,
+        work: &mut IterationWork,
+    ) -> Result<Option<f64>, StepFailure> {
+        if !self.settings.line_search {
+            return Ok(Some(1.0));
+        }
+        // Modified Newton evaluates the residual at the accepted state next: assemble the
+        // force already in the line search, so the problem's body cache serves it.
+        let with_force = run.max_uses > 1;
+        match self.line_search(
+            problem,
+            extra,
+            u,
+            &work.du,
+            &work.r,
+            potential,
+            residual_norm,
+            run.load,
+            with_force,
+            &mut work.trial,
+        ) {
+            Ok(a) => Ok(Some(a)),
+            Err(_) if reuse => {
+                self.factor_age = None;
+                self.has_factor = false;
+                if let Some(bg) = self.background.as_mut() {
+                    bg.cancel();
+                }
+                Ok(None)
+            }
+            Err(f) => Err(f),
+        }
+    }
+
+    /// Moves `u` by `alpha` times the direction `work.du` and ages the kept factorisation (a
+    /// step shortened below ½ drops it). `true` when a full step was smaller than the
+    /// displacement tolerance: converged in displacement.
+    fn take_step(
+        &mut self,
+        u: &mut [f64],
+        alpha: f64,
+        run: &IterationRun,
+        work: &IterationWork,
+    ) -> bool {
+        self.factor_age = match self.factor_age {
+            Some(a) if alpha >= 0.5 => Some(a + 1),
+            _ => None,
+        };
+        if run.max_uses > 1 {
+            self.improve_steps += 1;
+        }
+        // The same sums as the line search's trial, so the body cache matches bit for bit.
+        for (ui, di) in u.iter_mut().zip(&work.du) {
+            *ui += alpha * di;
+        }
+        let dn = alpha * norm(&work.du);
+        alpha == 1.0 && dn <= self.settings.displacement_tolerance * norm(u)
     }
 
     /// Swaps in the helper's factorisation when it is due at this step (`k` becomes the matrix
