@@ -174,7 +174,7 @@ pub fn sample_of(
         .iter()
         .flat_map(|(_, p)| p)
         .chain(&r.surface)
-        .all(|p| p.coords.iter().all(|c| c.is_finite()))
+        .all(crate::mesh::is_finite_point)
         && r.surface_rms.is_finite();
     if !finite {
         causes.push(Cause::NonFinite);

@@ -106,7 +106,7 @@ impl InsideTest {
                 });
             }
             let c = t.map(|i| vertices[i]);
-            if c.iter().all(|p| p.coords.iter().all(|x| x.is_finite())) {
+            if c.iter().all(crate::mesh::is_finite_point) {
                 tris.push(c);
                 tri_ids.push(k);
             }

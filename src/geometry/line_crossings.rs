@@ -47,7 +47,7 @@ impl ZLineIndex {
     {
         let mut out = Vec::new();
         for (t, mult) in tris {
-            if mult == 0 || !t.iter().all(|p| p.coords.iter().all(|c| c.is_finite())) {
+            if mult == 0 || !t.iter().all(crate::mesh::is_finite_point) {
                 continue;
             }
             let mut xy = [[t[0].x, t[0].y], [t[1].x, t[1].y], [t[2].x, t[2].y]];

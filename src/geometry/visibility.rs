@@ -49,11 +49,7 @@ pub(crate) fn check_surface(surface: &TriSurface) -> Result<(), ViewError> {
             triangles: surface.triangles.len(),
         });
     }
-    if let Some(i) = surface
-        .vertices
-        .iter()
-        .position(|v| !v.iter().all(|c| c.is_finite()))
-    {
+    if let Some(i) = crate::mesh::first_non_finite_point(&surface.vertices) {
         return Err(ViewError::InvalidSurface(format!(
             "vertex {i} has a non-finite coordinate {:?}",
             surface.vertices[i].coords.as_slice()

@@ -152,7 +152,7 @@ fn embed_point(
     p: &Point3<f64>,
     index: usize,
 ) -> Result<EmbeddedPoint, EmbeddingError> {
-    if !p.coords.iter().all(|c| c.is_finite()) {
+    if !crate::mesh::is_finite_point(p) {
         return Err(EmbeddingError::NonFinite { index });
     }
     let g = &grid.grid;

@@ -137,11 +137,7 @@ impl WeightedCellGrid {
         if surface.triangles.is_empty() {
             return Err(GridError::EmptySurface);
         }
-        if let Some(i) = surface
-            .vertices
-            .iter()
-            .position(|v| !v.coords.iter().all(|c| c.is_finite()))
-        {
+        if let Some(i) = crate::mesh::first_non_finite_point(&surface.vertices) {
             return Err(GridError::NonFiniteVertex(i));
         }
         let (lo, hi) = surface.bounding_box().ok_or(GridError::EmptySurface)?;

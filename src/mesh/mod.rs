@@ -3,6 +3,7 @@
 //! file's units; unit conversion is done by the caller with [`TriSurface::scale`].
 
 pub mod error;
+pub mod finite_points;
 pub mod msh;
 pub mod obj;
 pub mod off;
@@ -22,6 +23,7 @@ mod text;
 use std::path::Path;
 
 pub use error::MeshError;
+pub use finite_points::{first_non_finite_point, is_finite_point};
 pub use msh::read_msh;
 pub use obj::{read_obj, write_obj};
 pub use off::read_off;

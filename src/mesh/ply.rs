@@ -6,8 +6,9 @@ use std::path::Path;
 
 use nalgebra::Point3;
 
-use super::assemble::{bounded_capacity, fan, finish, is_finite};
+use super::assemble::{bounded_capacity, fan, finish};
 use super::error::MeshError;
+use super::finite_points::is_finite_point;
 use super::surface::TriSurface;
 use super::text::{decode, quote, read_bytes, Line, Lines, Tokens};
 use crate::stored_scalar::{ByteOrder, StoredScalar};
@@ -416,7 +417,7 @@ fn read_vertices(
     for i in 0..element.count {
         body.instance(element, i, None, &mut scalars, &mut list)?;
         let p = Point3::new(scalars[x], scalars[y], scalars[z]);
-        if !is_finite(&p) {
+        if !is_finite_point(&p) {
             return Err(body.err(format!(
                 "vertex {i} has a non-finite coordinate ({}, {}, {})",
                 p.x, p.y, p.z

@@ -5,8 +5,9 @@ use std::path::Path;
 
 use nalgebra::Point3;
 
-use super::assemble::{finish, is_finite};
+use super::assemble::finish;
 use super::error::MeshError;
+use super::finite_points::is_finite_point;
 use super::surface::TriSurface;
 use super::text::{decode, quote, read_bytes, Lines, BOM};
 
@@ -86,7 +87,7 @@ fn parse_binary(path: &Path, data: &[u8]) -> Result<TriSurface, MeshError> {
                 f64::from(f32::from_le_bytes(b.try_into().unwrap()))
             };
             let p = Point3::new(c(0), c(1), c(2));
-            if !is_finite(&p) {
+            if !is_finite_point(&p) {
                 return Err(MeshError::malformed(
                     path,
                     format!(

@@ -66,11 +66,7 @@ impl ModelTarget {
                 "the model surface has no triangles".into(),
             ));
         }
-        if let Some(i) = surface
-            .vertices
-            .iter()
-            .position(|v| !v.iter().all(|x| x.is_finite()))
-        {
+        if let Some(i) = crate::mesh::first_non_finite_point(&surface.vertices) {
             return Err(IcpError::InvalidModel(format!(
                 "model vertex {i} has a non-finite coordinate: {:?}",
                 surface.vertices[i].coords.as_slice()

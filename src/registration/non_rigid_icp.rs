@@ -354,10 +354,7 @@ impl Target {
         if cloud.is_empty() {
             return Err(NonRigidError::EmptyCloud);
         }
-        if let Some(i) = cloud
-            .iter()
-            .position(|p| !p.coords.iter().all(|c| c.is_finite()))
-        {
+        if let Some(i) = crate::mesh::first_non_finite_point(cloud) {
             return Err(NonRigidError::NonFinite(i));
         }
         let cloud = IndexedPoints::new(cloud.to_vec()).ok_or(NonRigidError::EmptyCloud)?;

@@ -251,7 +251,7 @@ impl RigidIcp {
         if cloud.is_empty() {
             return Err(IcpError::EmptyCloud);
         }
-        if let Some(index) = cloud.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
+        if let Some(index) = crate::mesh::first_non_finite_point(cloud) {
             let p = cloud[index];
             return Err(IcpError::NonFiniteCloudPoint {
                 index,

@@ -75,7 +75,7 @@ pub fn check_frame(frame: &Frame, limits: &LimitsConfig) -> Result<(), ApiError>
         .points
         .iter()
         .enumerate()
-        .find(|(_, p)| !p.coords.iter().all(|c| c.is_finite()))
+        .find(|(_, p)| !crate::mesh::is_finite_point(p))
     {
         return Err(ApiError::invalid_frame(format!(
             "point {i} has a non-finite coordinate ({}, {}, {})",

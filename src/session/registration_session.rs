@@ -603,11 +603,7 @@ impl Session {
         if frame.points.is_empty() {
             return Err(FrameError::Empty);
         }
-        if let Some(index) = frame
-            .points
-            .iter()
-            .position(|p| !p.coords.iter().all(|c| c.is_finite()))
-        {
+        if let Some(index) = crate::mesh::first_non_finite_point(&frame.points) {
             let p = frame.points[index];
             return Err(FrameError::NonFinite {
                 index,

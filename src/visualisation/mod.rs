@@ -245,8 +245,11 @@ impl Visualiser {
 
     /// Correspondences and imposed targets recomputed at the final state (module doc).
     fn log_pairs(&self, cloud: &[Point3<f64>], surface: &[Point3<f64>]) {
-        let finite = |p: &&Point3<f64>| p.coords.iter().all(|c| c.is_finite());
-        let cloud: Vec<Point3<f64>> = cloud.iter().filter(finite).copied().collect();
+        let cloud: Vec<Point3<f64>> = cloud
+            .iter()
+            .filter(|p| crate::mesh::is_finite_point(p))
+            .copied()
+            .collect();
         if cloud.len() < 3 || surface.len() < 3 {
             return;
         }

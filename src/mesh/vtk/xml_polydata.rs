@@ -16,8 +16,8 @@ use nalgebra::Point3;
 use quick_xml::events::{BytesStart, Event};
 use quick_xml::Reader;
 
-use super::super::assemble::is_finite;
 use super::super::error::MeshError;
+use super::super::finite_points::is_finite_point;
 use crate::stored_scalar::{ByteOrder, StoredScalar};
 
 /// The surface cells of one piece: polygons and triangle strips as point-index lists.
@@ -615,7 +615,7 @@ pub(super) fn finite_points(path: &Path, values: &[f64]) -> Result<Vec<Point3<f6
         .enumerate()
         .map(|(i, c)| {
             let p = Point3::new(c[0], c[1], c[2]);
-            if is_finite(&p) {
+            if is_finite_point(&p) {
                 Ok(p)
             } else {
                 Err(MeshError::malformed(
