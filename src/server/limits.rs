@@ -71,12 +71,8 @@ pub fn check_frame(frame: &Frame, limits: &LimitsConfig) -> Result<(), ApiError>
             ),
         ));
     }
-    if let Some((i, p)) = frame
-        .points
-        .iter()
-        .enumerate()
-        .find(|(_, p)| !crate::mesh::is_finite_point(p))
-    {
+    if let Some(i) = crate::mesh::first_non_finite_point(&frame.points) {
+        let p = frame.points[i];
         return Err(ApiError::invalid_frame(format!(
             "point {i} has a non-finite coordinate ({}, {}, {})",
             p.x, p.y, p.z
