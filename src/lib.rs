@@ -22,21 +22,21 @@
 //! - [`server`]: the registration server (HTTP, WebSocket, gRPC) for AR displays;
 //! - [`cli`]: the command line.
 //!
-//! Lower layers never import higher ones. Inside the mechanics everything is SI (m, N, Pa, J).
+//! `stored_scalar`, `mesh`, `geometry`, `grid`, `linalg`, `mechanics` and `random` are the
+//! `livereg-fem` crate's (crates/fem), re-exported under the same names. Lower layers never
+//! import higher ones. Inside the mechanics everything is SI (m, N, Pa, J).
 #![warn(missing_docs)]
+
+// The numerics below the registration live in the `livereg-fem` crate (crates/fem); their
+// modules keep their paths here.
+pub use livereg_fem::{geometry, grid, linalg, mechanics, mesh, random, stored_scalar};
 
 pub mod benchmark;
 pub mod charts;
 pub mod cli;
 pub mod evaluation;
-pub mod geometry;
-pub mod grid;
-pub mod linalg;
-pub mod mechanics;
-pub mod mesh;
 pub mod openigtlink;
 pub mod phantom;
-pub mod random;
 pub mod recording;
 pub mod registration;
 pub mod scenarios;
@@ -45,7 +45,6 @@ pub mod segmentation;
 pub mod server;
 pub mod session;
 pub mod simulation;
-pub mod stored_scalar;
 pub mod synthetic;
 #[cfg(feature = "rerun")]
 pub mod visualisation;

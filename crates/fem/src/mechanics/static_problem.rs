@@ -157,7 +157,7 @@ impl StaticProblem {
     /// [`StaticProblem::evaluate`] with the spring sets `springs` (N/m) in place of the
     /// body's own ([`StaticProblem::springs`]) for this one evaluation, and no others: a
     /// variant of the body's conditions (the contact-force fit's holds lumped per cell,
-    /// [`RestCompliance`](crate::registration::contact_force::RestCompliance)) without
+    /// `livereg::registration::contact_force::RestCompliance`) without
     /// changing the problem. The cells are evaluated (and cached) as by
     /// [`StaticProblem::evaluate_with`].
     pub fn evaluate_with_springs(

@@ -18,7 +18,7 @@
 //!   on a 20k-triangle surface); it is `Sync`, so lines can be spread over rayon threads.
 //!
 //! ```
-//! use livereg::geometry::{shapes, Aabb, InsideTest};
+//! use livereg_fem::geometry::{shapes, Aabb, InsideTest};
 //! use nalgebra::Point3;
 //!
 //! let (vertices, triangles) = shapes::icosphere(3, 1.0);

@@ -11,8 +11,8 @@ pub mod material;
 pub mod newton;
 pub mod penalty;
 pub mod static_problem;
-#[cfg(test)]
-pub(crate) mod test_fixtures;
+#[cfg(any(test, feature = "test-fixtures"))]
+pub mod test_fixtures;
 
 pub use assembly::Assembler;
 pub use cell_kernel::{Need, VolumetricIntegration};

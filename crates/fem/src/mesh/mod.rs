@@ -65,7 +65,7 @@ pub fn read_surface(path: &Path) -> Result<TriSurface, MeshError> {
 }
 
 /// The lower-cased extension of `path`, if any.
-pub(crate) fn extension(path: &Path) -> Option<String> {
+pub fn extension(path: &Path) -> Option<String> {
     path.extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
 }

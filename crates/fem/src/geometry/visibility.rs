@@ -42,7 +42,7 @@ impl std::fmt::Debug for VisibleSurface {
 }
 
 /// Checks that `surface` is non-empty, finite and has in-range indices.
-pub(crate) fn check_surface(surface: &TriSurface) -> Result<(), ViewError> {
+pub fn check_surface(surface: &TriSurface) -> Result<(), ViewError> {
     if surface.triangles.is_empty() || surface.vertices.is_empty() {
         return Err(ViewError::EmptySurface {
             vertices: surface.vertices.len(),

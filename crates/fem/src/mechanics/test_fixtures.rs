@@ -1,4 +1,5 @@
-//! Problems shared by the mechanics unit tests.
+//! Problems shared by the mechanics unit tests, and by the tests of crates built on this one
+//! (feature `test-fixtures`).
 
 use nalgebra::Point3;
 
