@@ -12,6 +12,7 @@ use faer::sparse::linalg::cholesky::{
 };
 use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
+use faer::traits::ComplexField;
 use faer::{Conj, MatMut, Par, Side, Spec};
 use serde::{Deserialize, Serialize};
 
@@ -470,18 +471,7 @@ impl SparseSolver {
         }
         let a = faer_view(k);
         if want_llt {
-            let ok = d
-                .symbolic
-                .factorize_numeric_llt::<f64>(
-                    &mut d.l_values,
-                    a,
-                    Side::Lower,
-                    Default::default(),
-                    par,
-                    MemStack::new(&mut d.mem),
-                    Default::default(),
-                )
-                .is_ok();
+            let ok = llt_numeric(&d.symbolic, &mut d.l_values, a, &mut d.mem, par);
             if ok && d.l_values.iter().all(|v| v.is_finite()) {
                 d.factor = Some(DirectFactor::Llt);
                 return Ok(());
@@ -771,18 +761,13 @@ impl Direct {
         self.l_values_f32.resize(self.symbolic.len_val(), 0.0);
         let sym = SymbolicSparseColMatRef::new_checked(n, n, &k.col_ptr, None, &k.row_idx);
         let a = SparseColMatRef::new(sym, &self.scaled_f32);
-        let ok = self
-            .symbolic
-            .factorize_numeric_llt::<f32>(
-                &mut self.l_values_f32,
-                a,
-                Side::Lower,
-                Default::default(),
-                par,
-                MemStack::new(&mut self.mem),
-                Default::default(),
-            )
-            .is_ok();
+        let ok = llt_numeric(
+            &self.symbolic,
+            &mut self.l_values_f32,
+            a,
+            &mut self.mem,
+            par,
+        );
         Ok(ok && self.l_values_f32.iter().all(|v| v.is_finite()))
     }
 
@@ -811,12 +796,13 @@ impl Direct {
                     .zip(self.scale.iter().cycle())
                     .map(|(r, d)| (r * d) as f32),
             );
-            let y = MatMut::from_column_major_slice_mut(&mut self.rhs_f32, n, columns);
-            LltRef::new(&self.symbolic, &self.l_values_f32).solve_in_place_with_conj(
-                Conj::No,
-                y,
+            llt_solve_in_place(
+                &self.symbolic,
+                &self.l_values_f32,
+                &mut self.rhs_f32,
+                columns,
+                &mut self.mem,
                 par,
-                MemStack::new(&mut self.mem),
             );
             for ((r, y), d) in rhs
                 .iter_mut()
@@ -827,20 +813,70 @@ impl Direct {
             }
             return Ok(());
         }
-        let rhs = MatMut::from_column_major_slice_mut(rhs, n, columns);
-        let stack = MemStack::new(&mut self.mem);
         match self.factor {
-            Some(DirectFactor::Llt) => LltRef::new(&self.symbolic, &self.l_values)
-                .solve_in_place_with_conj(Conj::No, rhs, par, stack),
+            Some(DirectFactor::Llt) => llt_solve_in_place(
+                &self.symbolic,
+                &self.l_values,
+                rhs,
+                columns,
+                &mut self.mem,
+                par,
+            ),
             Some(DirectFactor::Lblt) => {
                 let perm = PermRef::new_checked(&self.perm_fwd, &self.perm_inv, n);
+                let rhs = MatMut::from_column_major_slice_mut(rhs, n, columns);
                 IntranodeLbltRef::new(&self.symbolic, &self.l_values, &self.subdiag, perm)
-                    .solve_in_place_with_conj(Conj::No, rhs, par, stack)
+                    .solve_in_place_with_conj(Conj::No, rhs, par, MemStack::new(&mut self.mem))
             }
             Some(DirectFactor::LltF32) | None => {}
         }
         Ok(())
     }
+}
+
+/// Numeric supernodal Cholesky `LLᵀ` of `a` (its lower triangle; the pattern `symbolic` was
+/// analysed from) in the precision `T` of its values, into `l_values` (sized to
+/// `symbolic.len_val()`); `mem` holds the scratch. `false` when faer finds a non-positive pivot;
+/// the caller checks the values' finiteness. The one factorisation of both precisions.
+fn llt_numeric<T: ComplexField>(
+    symbolic: &SymbolicCholesky<usize>,
+    l_values: &mut [T],
+    a: SparseColMatRef<'_, usize, T>,
+    mem: &mut MemBuffer,
+    par: Par,
+) -> bool {
+    symbolic
+        .factorize_numeric_llt::<T>(
+            l_values,
+            a,
+            Side::Lower,
+            Default::default(),
+            par,
+            MemStack::new(mem),
+            Default::default(),
+        )
+        .is_ok()
+}
+
+/// Overwrites the `columns` right-hand sides stored column after column in `rhs` with
+/// `(L Lᵀ)⁻¹` of them, `L` the factor values `l_values` of `symbolic`, in precision `T`; `mem`
+/// must hold the solve's scratch. The one triangular solve of both precisions.
+fn llt_solve_in_place<T: ComplexField>(
+    symbolic: &SymbolicCholesky<usize>,
+    l_values: &[T],
+    rhs: &mut [T],
+    columns: usize,
+    mem: &mut MemBuffer,
+    par: Par,
+) {
+    let n = rhs.len() / columns.max(1);
+    let rhs = MatMut::from_column_major_slice_mut(rhs, n, columns);
+    LltRef::new(symbolic, l_values).solve_in_place_with_conj(
+        Conj::No,
+        rhs,
+        par,
+        MemStack::new(mem),
+    );
 }
 
 /// Makes `mem` at least as large as `req` (kept across factorisations; only grows).
