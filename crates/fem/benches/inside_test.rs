@@ -1,9 +1,9 @@
-//! Benchmarks of `livereg::geometry::InsideTest` on a 20 480-triangle sphere of radius 10 cm.
+//! Benchmarks of `livereg_fem::geometry::InsideTest` on a 20 480-triangle sphere of radius 10 cm.
 
 use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use livereg::geometry::{shapes, Aabb, InsideTest};
+use livereg_fem::geometry::{shapes, Aabb, InsideTest};
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 

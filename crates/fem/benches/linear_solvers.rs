@@ -19,11 +19,11 @@
 //! Run: `cargo bench --bench linear_solvers -- --warm-up-time 1 --measurement-time 3`
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use livereg::linalg::testing::{
+use livereg_fem::linalg::testing::{
     ball, elasticity_grid_matrix, grid_node_coordinates, node_set_elasticity_matrix, random_vector,
 };
-use livereg::linalg::{SolverKind, SparseSolver, SymmetricCsc};
-use livereg::mechanics::newton::MIXED_PRECISION_TOLERANCE;
+use livereg_fem::linalg::{SolverKind, SparseSolver, SymmetricCsc};
+use livereg_fem::mechanics::newton::MIXED_PRECISION_TOLERANCE;
 use std::hint::black_box;
 
 /// Solver variants: (benchmark name, kind, use node coordinates).

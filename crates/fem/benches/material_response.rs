@@ -8,9 +8,9 @@
 use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use livereg::mechanics::material::Mat3;
-use livereg::mechanics::{LawKind, Material, Part};
-use livereg::random::Rng;
+use livereg_fem::mechanics::material::Mat3;
+use livereg_fem::mechanics::{LawKind, Material, Part};
+use livereg_fem::random::Rng;
 use nalgebra::{Rotation3, Vector3};
 
 /// A rotation about a random axis by a random angle in [0, π).

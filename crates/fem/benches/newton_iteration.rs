@@ -3,14 +3,14 @@
 //! finite-cell integration at 0 and 4 subdivision levels.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use livereg::geometry::Aabb;
-use livereg::grid::{GridOptions, IntegrationMode, WeightedCellGrid};
-use livereg::linalg::{SolverKind, SparseSolver};
-use livereg::mechanics::{
+use livereg_fem::geometry::Aabb;
+use livereg_fem::grid::{GridOptions, IntegrationMode, WeightedCellGrid};
+use livereg_fem::linalg::{SolverKind, SparseSolver};
+use livereg_fem::mechanics::{
     LawKind, Material, Need, PenaltySprings, StaticProblem, VolumetricIntegration,
 };
-use livereg::mesh::primitives::icosphere;
-use livereg::mesh::TriSurface;
+use livereg_fem::mesh::primitives::icosphere;
+use livereg_fem::mesh::TriSurface;
 use nalgebra::Point3;
 
 /// A liver-sized ellipsoid, 20 × 15 × 10 cm.
