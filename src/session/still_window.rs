@@ -40,7 +40,8 @@ impl StillWindow {
     /// `unchanged` (it shows no change against the window's first cloud,
     /// [`StillWindow::first`]) and the same camera as the window's, it joins the window, which
     /// then keeps the newest clouds up to `max_frames` and `max_points` points in all (always
-    /// the new cloud); otherwise the window starts again with it. Returns the number of clouds the window now holds.
+    /// the new cloud); otherwise the window starts again with it. Returns the number of clouds
+    /// the window now holds.
     pub fn admit(
         &mut self,
         cloud: Arc<IndexedPoints>,

@@ -215,8 +215,13 @@ fn ms_since(t: Instant) -> f64 {
 }
 
 fn faer_view(k: &SymmetricCsc) -> SparseColMatRef<'_, usize, f64> {
+    faer_view_with(k, &k.values)
+}
+
+/// faer's view of `k`'s pattern holding `values` (one per stored entry of `k`, in its order).
+fn faer_view_with<'a, T>(k: &'a SymmetricCsc, values: &'a [T]) -> SparseColMatRef<'a, usize, T> {
     let sym = SymbolicSparseColMatRef::new_checked(k.n, k.n, &k.col_ptr, None, &k.row_idx);
-    SparseColMatRef::new(sym, &k.values)
+    SparseColMatRef::new(sym, values)
 }
 
 impl SparseSolver {
@@ -759,8 +764,7 @@ impl Direct {
             .or(self.symbolic.solve_in_place_scratch::<f32>(1, par));
         grow_scratch(&mut self.mem, req)?;
         self.l_values_f32.resize(self.symbolic.len_val(), 0.0);
-        let sym = SymbolicSparseColMatRef::new_checked(n, n, &k.col_ptr, None, &k.row_idx);
-        let a = SparseColMatRef::new(sym, &self.scaled_f32);
+        let a = faer_view_with(k, &self.scaled_f32);
         let ok = llt_numeric(
             &self.symbolic,
             &mut self.l_values_f32,
@@ -788,32 +792,31 @@ impl Direct {
             };
             grow_scratch(&mut self.mem, req)?;
         }
-        if self.factor == Some(DirectFactor::LltF32) {
-            // K⁻¹ = D (D K D)⁻¹ D.
-            self.rhs_f32.clear();
-            self.rhs_f32.extend(
-                rhs.iter()
-                    .zip(self.scale.iter().cycle())
-                    .map(|(r, d)| (r * d) as f32),
-            );
-            llt_solve_in_place(
-                &self.symbolic,
-                &self.l_values_f32,
-                &mut self.rhs_f32,
-                columns,
-                &mut self.mem,
-                par,
-            );
-            for ((r, y), d) in rhs
-                .iter_mut()
-                .zip(&self.rhs_f32)
-                .zip(self.scale.iter().cycle())
-            {
-                *r = f64::from(*y) * d;
-            }
-            return Ok(());
-        }
         match self.factor {
+            Some(DirectFactor::LltF32) => {
+                // K⁻¹ = D (D K D)⁻¹ D.
+                self.rhs_f32.clear();
+                self.rhs_f32.extend(
+                    rhs.iter()
+                        .zip(self.scale.iter().cycle())
+                        .map(|(r, d)| (r * d) as f32),
+                );
+                llt_solve_in_place(
+                    &self.symbolic,
+                    &self.l_values_f32,
+                    &mut self.rhs_f32,
+                    columns,
+                    &mut self.mem,
+                    par,
+                );
+                for ((r, y), d) in rhs
+                    .iter_mut()
+                    .zip(&self.rhs_f32)
+                    .zip(self.scale.iter().cycle())
+                {
+                    *r = f64::from(*y) * d;
+                }
+            }
             Some(DirectFactor::Llt) => llt_solve_in_place(
                 &self.symbolic,
                 &self.l_values,
@@ -828,7 +831,7 @@ impl Direct {
                 IntranodeLbltRef::new(&self.symbolic, &self.l_values, &self.subdiag, perm)
                     .solve_in_place_with_conj(Conj::No, rhs, par, MemStack::new(&mut self.mem))
             }
-            Some(DirectFactor::LltF32) | None => {}
+            None => {}
         }
         Ok(())
     }
@@ -879,7 +882,6 @@ fn llt_solve_in_place<T: ComplexField>(
     );
 }
 
-/// Makes `mem` at least as large as `req` (kept across factorisations; only grows).
 /// Symbolic supernodal Cholesky analysis of `k`'s pattern, ordered by geometric nested
 /// dissection when `node_coords` matches the matrix (3 dofs per node), else by AMD; also
 /// whether nested dissection was used.
@@ -932,6 +934,7 @@ pub fn predicted_factor_len(
     Ok(symbolic_cholesky(k, node_coords)?.0.len_val())
 }
 
+/// Makes `mem` at least as large as `req` (kept across factorisations; only grows).
 fn grow_scratch(mem: &mut MemBuffer, req: StackReq) -> Result<(), LinalgError> {
     if req.unaligned_bytes_required() > mem.len() {
         *mem = MemBuffer::try_new(req)
