@@ -158,6 +158,13 @@ pub struct PairingRule {
     /// of them: pairs the model already fits. Dropped, they stop pulling and drift away, and
     /// the next frame drops them again.
     pub min_outlier_distance: f64,
+    /// With a visibility mask (cloud → surface pairing from a camera): a cloud point that
+    /// lies within this distance (m) of the model surface where the mask says it is hidden,
+    /// and farther than that from every visible triangle by more than this again, pairs with
+    /// the hidden surface point instead of a distant visible one. The camera saw more than the
+    /// model predicted; the point shows where the surface is (an offset of a noise's size),
+    /// not a motion towards the visible part. `None`: only visible triangles pair.
+    pub hidden_match: Option<f64>,
 }
 
 impl PairingRule {
@@ -366,6 +373,7 @@ mod tests {
             robust: false,
             max_pair_distance: None,
             min_outlier_distance: 0.0,
+            hidden_match: None,
         }
     }
 

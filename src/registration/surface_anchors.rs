@@ -137,7 +137,8 @@ pub struct AnchoredPairs {
 /// Pairs every point of `cloud` with its closest point on the surface (`x`: current vertex
 /// positions, `triangles`, `incident`: [`incident_triangles`], `vertex_normals`: unit outward
 /// normals at `x`), looking only at triangles with a corner flagged in `allowed` when given
-/// (the vertices the camera sees). Pairs farther than the rule's threshold (mean + kσ, or
+/// (the vertices the camera sees), except that with [`PairingRule::hidden_match`] a point
+/// lying on a hidden part of the surface pairs there. Pairs farther than the rule's threshold (mean + kσ, or
 /// median + k·1.4826 MAD, of the pair distances, and `max_pair_distance`) are dropped. `None`
 /// when fewer than 3 pairs remain.
 pub fn pair_cloud_to_surface(
@@ -153,6 +154,14 @@ pub fn pair_cloud_to_surface(
         .filter(|&v| allowed.is_none_or(|a| a[v]) && !incident[v].is_empty())
         .collect();
     let index = IndexedPoints::new(searchable.iter().map(|&v| x[v]).collect())?;
+    // The whole surface, for cloud points the visible part does not explain.
+    let hidden = match (allowed, rule.hidden_match) {
+        (Some(_), Some(tolerance)) => {
+            let all: Vec<usize> = (0..x.len()).filter(|&v| !incident[v].is_empty()).collect();
+            IndexedPoints::new(all.iter().map(|&v| x[v]).collect()).map(|i| (i, all, tolerance))
+        }
+        _ => None,
+    };
     // Each cloud point is paired on its own: in parallel, in the cloud's order.
     let found: Vec<(usize, SurfaceAnchor, f64)> = cloud
         .points
@@ -165,8 +174,24 @@ pub fn pair_cloud_to_surface(
                     .nearest_k(q, SEARCH_VERTICES)
                     .into_iter()
                     .map(|(k, _)| searchable[k]);
-                closest_anchor(q, x, triangles, incident, near, seen)
-                    .map(|(a, d2)| (j, a, d2.sqrt()))
+                let visible = closest_anchor(q, x, triangles, incident, near, seen)
+                    .map(|(a, d2)| (j, a, d2.sqrt()));
+                let Some((index_all, all, tolerance)) = &hidden else {
+                    return visible;
+                };
+                let near = index_all
+                    .nearest_k(q, SEARCH_VERTICES)
+                    .into_iter()
+                    .map(|(k, _)| all[k]);
+                match closest_anchor(q, x, triangles, incident, near, seen) {
+                    Some((a, d2))
+                        if d2.sqrt() <= *tolerance
+                            && visible.as_ref().is_none_or(|v| v.2 > d2.sqrt() + tolerance) =>
+                    {
+                        Some((j, a, d2.sqrt()))
+                    }
+                    _ => visible,
+                }
             },
         )
         .flatten()
@@ -217,6 +242,7 @@ mod tests {
             robust: false,
             max_pair_distance: None,
             min_outlier_distance: 0.0,
+            hidden_match: None,
         }
     }
 
@@ -315,5 +341,62 @@ mod tests {
             &capped
         )
         .is_none());
+    }
+
+    /// A cloud point lying on a part of the surface the mask calls hidden pairs there (zero
+    /// offset) with `hidden_match`, not with the far visible part; a point off the hidden part
+    /// by more than the tolerance still pairs with the visible part only.
+    #[test]
+    fn a_point_on_the_hidden_surface_pairs_where_it_lies() {
+        let s: TriSurface = icosphere(Point3::origin(), 0.1, 2);
+        let normals = s.vertex_normals();
+        let incident = incident_triangles(s.vertices.len(), &s.triangles);
+        // Triangle centroids of the +z cap: on the surface itself.
+        let on_cap: Vec<Point3<f64>> = s
+            .triangles
+            .iter()
+            .map(|t| {
+                Point3::from(
+                    (s.vertices[t[0]].coords + s.vertices[t[1]].coords + s.vertices[t[2]].coords)
+                        / 3.0,
+                )
+            })
+            .filter(|c| c.z > 0.07)
+            .collect();
+        let off_cap: Vec<Point3<f64>> = on_cap
+            .iter()
+            .map(|c| Point3::from(c.coords * 1.05))
+            .collect();
+        let allowed: Vec<bool> = s.vertices.iter().map(|v| v.z < 0.0).collect();
+        let rule = PairingRule {
+            hidden_match: Some(1e-3),
+            ..loose()
+        };
+        let pair = |points: &[Point3<f64>]| {
+            pair_cloud_to_surface(
+                &s.vertices,
+                &s.triangles,
+                &incident,
+                &normals,
+                Some(&allowed),
+                &IndexedPoints::new(points.to_vec()).unwrap(),
+                &rule,
+            )
+            .unwrap()
+        };
+        let on = pair(&on_cap);
+        assert_eq!(on.anchors.len(), on_cap.len());
+        for (a, o) in on.anchors.iter().zip(&on.offsets) {
+            assert!(
+                s.triangles[a.triangle].iter().all(|&v| !allowed[v]),
+                "hidden anchor"
+            );
+            assert!(o.abs() < 1e-12, "offset {o}");
+        }
+        assert!(on.rms < 1e-12);
+        let off = pair(&off_cap);
+        for a in &off.anchors {
+            assert!(s.triangles[a.triangle].iter().any(|&v| allowed[v]));
+        }
     }
 }
