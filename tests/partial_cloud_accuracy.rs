@@ -108,6 +108,7 @@ fn rest_at_true_pose(seq: &SyntheticSequence, scale: f64) -> Vec<ResultRecord> {
             rigid: livereg::evaluation::RigidRecord::from_transform(&seq.model_to_camera, scale),
             diagnostics: Default::default(),
             contact_force: None,
+            expected_error: None,
             structures: seq
                 .rest_structures
                 .iter()

@@ -147,6 +147,7 @@ pub fn run_with(
                 rigid: RigidRecord::from_transform(&RigidTransform::identity(), scale),
                 diagnostics: DiagnosticsRecord::default(),
                 contact_force: None,
+                expected_error: None,
                 structures: seq
                     .rest_structures
                     .iter()

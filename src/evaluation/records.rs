@@ -102,6 +102,11 @@ pub struct ResultRecord {
     /// needed), omitted when none was estimated (rigid-only registration, no frame yet).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contact_force: Option<ContactForceRecord>,
+    /// The registration's estimate of the mean error of this frame's structures, scene units
+    /// (contracts.md; `null` before any frame succeeded): a bound on the true mean error in
+    /// most frames (docs/registration.md, "Expected error").
+    #[serde(default)]
+    pub expected_error: Option<f64>,
 }
 
 /// The contact force a frame's registration implies: the concentrated load at the dent that
@@ -178,6 +183,7 @@ impl ResultRecord {
                 .contact_force
                 .as_ref()
                 .map(ContactForceRecord::from_estimate),
+            expected_error: r.expected_error.map(|e| e.expected),
         }
     }
 }

@@ -65,6 +65,7 @@ fn result(
         },
         structures: structures(list),
         contact_force: None,
+        expected_error: None,
     }
 }
 

@@ -147,6 +147,10 @@ pub fn result() -> Value {
                 "required": ["resultant_n", "magnitude_n", "centre"],
                 "properties": {"resultant_n": vec3(), "magnitude_n": {"type": "number"}, "centre": vec3()}
             },
+            "expected_error": {
+                "type": ["number", "null"],
+                "description": "the registration's estimate of the mean error of the structures, scene units (null before any frame succeeded)"
+            },
             "timestamp_ns": {"type": "integer"},
             "warm": {"type": "boolean"},
             "factorizations": {"type": "integer"},

@@ -48,6 +48,7 @@ fn frame(k: usize) -> Frame {
 }
 
 fn result(k: usize) -> FrameResult {
+        expected_error: None,
     FrameResult {
         frame: k,
         source: format!("f{k}"),

@@ -31,6 +31,7 @@ pub mod change_evidence;
 pub mod coarse_to_fine;
 pub mod contact_force;
 pub mod correspondences;
+pub mod error_estimate;
 pub mod isolated_points;
 pub mod kabsch;
 pub mod model_target;
@@ -50,6 +51,7 @@ mod tests;
 
 pub use coarse_to_fine::Prolongation;
 pub use contact_force::{ContactForce, RestCompliance};
+pub use error_estimate::{expected_error, ErrorEstimate, ErrorEvidence};
 pub use correspondences::{Correspondences, IndexedPoints, PairingRule};
 pub use kabsch::kabsch;
 pub use model_target::ModelTarget;

@@ -10,9 +10,10 @@
 //!    cloud's centroid by each of [`PoseSearch::angles_deg`] about each of the 13 symmetry axes
 //!    of a cube, both ways (26 starts per angle), run in parallel;
 //! 3. the [`PoseSearch::refine_count`] best distinct coarse poses are refined by full ICP;
-//! 4. every fit is scored by the truncated mean square distance of the *whole* cloud
-//!    ([`truncated_score`]): unlike ICP's own inlier RMS, a pose cannot score well by declaring
-//!    the points it does not fit outliers. A searched pose replaces the plain fit only when it
+//! 4. every refined fit is scored by the truncated mean square distance of the best-fitting
+//!    [`PoseSearch::score_share`] of the cloud ([`trimmed_score`]): unlike ICP's own inlier
+//!    RMS, a pose cannot score well by declaring most of the points it does not fit outliers,
+//!    and unlike the whole cloud's score, a deformed part of the organ does not decide. A searched pose replaces the plain fit only when it
 //!    is a different pose and scores below [`PoseSearch::replace_ratio`] × the plain fit's
 //!    score; when the best and the next distinct pose score within
 //!    [`PoseSearch::ambiguity_ratio`] of each other, the result says the pose is ambiguous.
@@ -51,6 +52,14 @@ pub struct PoseSearch {
     pub distinct_angle_deg: f64,
     /// See `distinct_angle_deg`, metres (default 5 mm).
     pub distinct_shift: f64,
+    /// The share of the cloud the refined fits are scored on: the points that fit best
+    /// ([`trimmed_score`], default 0.75). A cloud of a deformed organ (a dent, a lifted lobe)
+    /// puts its deformed part off the rest surface at the right pose; charged in full, those
+    /// points let a pose turned onto another, smooth part of the surface score better than
+    /// the right one (a dented liver's first frame ended 110° off). Scored on the best three
+    /// quarters, the right pose fits its undeformed part to the noise while a wrong pose fits
+    /// no large share of the cloud that well.
+    pub score_share: f64,
 }
 
 impl Default for PoseSearch {
@@ -65,6 +74,7 @@ impl Default for PoseSearch {
             ambiguity_ratio: 1.25,
             distinct_angle_deg: 5.0,
             distinct_shift: 0.005,
+            score_share: 0.75,
         }
     }
 }
@@ -74,7 +84,7 @@ impl Default for PoseSearch {
 pub struct PoseSearchResult {
     /// The chosen fit.
     pub best: IcpResult,
-    /// Its [`truncated_score`], m².
+    /// Its [`trimmed_score`], m².
     pub score: f64,
     /// The plain fit's score (from the start itself), m²; infinite when that fit failed.
     pub plain_score: f64,
@@ -124,6 +134,12 @@ impl PoseSearch {
             return bad(format!(
                 "replace_ratio must be in (0, 1], got {}",
                 self.replace_ratio
+            ));
+        }
+        if !(self.score_share > 0.0 && self.score_share <= 1.0) {
+            return bad(format!(
+                "score_share must be in (0, 1], got {}",
+                self.score_share
             ));
         }
         if !(self.ambiguity_ratio.is_finite() && self.ambiguity_ratio >= 1.0) {
@@ -274,7 +290,13 @@ impl PoseSearch {
     }
 
     fn score(&self, target: &ModelTarget, cloud: &[Point3<f64>], r: &IcpResult) -> f64 {
-        truncated_score(target, cloud, &r.cloud_to_model, self.truncation)
+        trimmed_score(
+            target,
+            cloud,
+            &r.cloud_to_model,
+            self.truncation,
+            self.score_share,
+        )
     }
 }
 
@@ -297,6 +319,33 @@ pub fn truncated_score(
         .map(|p| target.closest_point(&cloud_to_model.apply(p)).1.min(cap))
         .sum();
     sum / cloud.len() as f64
+}
+
+/// Mean over the `share` (in (0, 1]) of the points of `cloud` (moved by `cloud_to_model`)
+/// that lie nearest the model surface of their squared distance to it, each capped at
+/// `truncation²`, m²: [`truncated_score`] of the best-fitting part of the cloud, so that a
+/// deformed part of the organ does not decide the pose. `share` 1 is [`truncated_score`].
+pub fn trimmed_score(
+    target: &ModelTarget,
+    cloud: &[Point3<f64>],
+    cloud_to_model: &RigidTransform,
+    truncation: f64,
+    share: f64,
+) -> f64 {
+    if cloud.is_empty() {
+        return f64::INFINITY;
+    }
+    let cap = truncation * truncation;
+    let mut d2: Vec<f64> = cloud
+        .par_iter()
+        .with_min_len(256)
+        .map(|p| target.closest_point(&cloud_to_model.apply(p)).1.min(cap))
+        .collect();
+    let keep = ((share.clamp(0.0, 1.0) * d2.len() as f64).ceil() as usize).clamp(1, d2.len());
+    if keep < d2.len() {
+        d2.select_nth_unstable_by(keep - 1, f64::total_cmp);
+    }
+    d2[..keep].iter().sum::<f64>() / keep as f64
 }
 
 /// The mean of `points` (the origin when empty).

@@ -134,13 +134,60 @@ pub struct AnchoredPairs {
     pub rms: f64,
 }
 
+/// Cloud neighbours whose pair lengths decide whether a long pair is a deformation the model
+/// has not followed yet or an outlier ([`CoherentPairs`]).
+pub const COHERENCE_NEIGHBOURS: usize = 8;
+
+/// The pair length of every cloud point, to tell a long pair that belongs to a coherent
+/// region of long pairs (the cloud shows the surface somewhere the model has not reached: a
+/// dent, a lifted lobe) from an outlier among points the model fits. The length-based outlier
+/// rule alone cannot: on a noise-free cloud its threshold is a fraction of a millimetre, and
+/// every point of a dent the registration has not yet reached was dropped, so it never was
+/// reached (a force-driven 50 mm dent on the indentation liver ended 10 mm short).
+struct CoherentPairs<'a> {
+    cloud: &'a IndexedPoints,
+    /// Pair length of each cloud point, m (NaN: not paired).
+    length: Vec<f64>,
+}
+
+impl<'a> CoherentPairs<'a> {
+    fn new(cloud: &'a IndexedPoints, found: &[(usize, SurfaceAnchor, f64)]) -> Self {
+        let mut length = vec![f64::NAN; cloud.len()];
+        for &(j, _, d) in found {
+            length[j] = d;
+        }
+        Self { cloud, length }
+    }
+
+    /// Whether cloud point `j`, `d` (m) from the surface, lies among [`COHERENCE_NEIGHBOURS`]
+    /// cloud neighbours whose median pair length is at least half its own: a region of the
+    /// cloud off the surface as a whole, not a lone point off it.
+    fn holds(&self, j: usize, d: f64) -> bool {
+        let mut near: Vec<f64> = self
+            .cloud
+            .nearest_k(&self.cloud.points[j], COHERENCE_NEIGHBOURS + 1)
+            .into_iter()
+            .filter(|&(k, _)| k != j)
+            .map(|(k, _)| self.length[k])
+            .filter(|v| v.is_finite())
+            .collect();
+        if near.len() < COHERENCE_NEIGHBOURS / 2 {
+            return false;
+        }
+        let mid = near.len() / 2;
+        let median = *near.select_nth_unstable_by(mid, f64::total_cmp).1;
+        median >= 0.5 * d
+    }
+}
+
 /// Pairs every point of `cloud` with its closest point on the surface (`x`: current vertex
 /// positions, `triangles`, `incident`: [`incident_triangles`], `vertex_normals`: unit outward
 /// normals at `x`), looking only at triangles with a corner flagged in `allowed` when given
 /// (the vertices the camera sees), except that with [`PairingRule::hidden_match`] a point
-/// lying on a hidden part of the surface pairs there. Pairs farther than the rule's threshold (mean + kσ, or
-/// median + k·1.4826 MAD, of the pair distances, and `max_pair_distance`) are dropped. `None`
-/// when fewer than 3 pairs remain.
+/// lying on a hidden part of the surface pairs there. Pairs farther than the rule's threshold
+/// (mean + kσ, or median + k·1.4826 MAD, of the pair distances) are dropped unless their cloud
+/// neighbours lie as far off the surface ([`CoherentPairs`]); pairs farther than
+/// `max_pair_distance` always. `None` when fewer than 3 pairs remain.
 pub fn pair_cloud_to_surface(
     x: &[Point3<f64>],
     triangles: &[[usize; 3]],
@@ -198,6 +245,8 @@ pub fn pair_cloud_to_surface(
         .collect();
     let dists: Vec<f64> = found.iter().map(|f| f.2).collect();
     let limit = rule.limit(&dists);
+    let coherent = CoherentPairs::new(cloud, &found);
+    let cap = rule.max_pair_distance.unwrap_or(f64::INFINITY);
     let mut out = AnchoredPairs {
         anchors: Vec::new(),
         dominant: Vec::new(),
@@ -208,7 +257,7 @@ pub fn pair_cloud_to_surface(
     };
     let mut sum2 = 0.0;
     for (j, a, d) in found {
-        if d > limit {
+        if d > cap || (d > limit && !coherent.holds(j, d)) {
             continue;
         }
         let Some(n) = a.normal(vertex_normals, triangles) else {

@@ -673,6 +673,11 @@ pub struct RegistrationSpec {
     /// (docs/registration.md, "Pose uncertainty").
     #[serde(default)]
     pub max_pose_uncertainty: Option<f64>,
+    /// A frame whose expected error (`results.jsonl` `expected_error`: the registration's
+    /// estimate of the mean error of the structures) exceeds this, scene units, is flagged
+    /// `expected_error_high`, for a display to dim its overlay. Omitted: 5 mm.
+    #[serde(default)]
+    pub max_expected_error: Option<f64>,
     /// Warm frames refactorise the tangent on a helper thread while their Newton steps go on
     /// with the old factorisation (default false): faster on large grids, slightly less
     /// accurate (docs/registration.md). Results stay deterministic.
@@ -718,6 +723,7 @@ impl Default for RegistrationSpec {
             rest_test: defaults::rest_test(),
             still_frames: defaults::still_frames(),
             max_pose_uncertainty: None,
+            max_expected_error: None,
             background_factorization: false,
             remove_isolated_points: defaults::remove_isolated_points(),
             data_term: DataTerm::default(),

@@ -441,6 +441,9 @@ fn check_registration(c: &mut Checker, r: &RegistrationSpec) {
     if let Some(d) = r.max_pose_uncertainty {
         c.positive("registration.max_pose_uncertainty", d, " scene units");
     }
+    if let Some(d) = r.max_expected_error {
+        c.positive("registration.max_expected_error", d, " scene units");
+    }
     if let Some(b) = r.time_budget_ms {
         c.positive("registration.time_budget_ms", b, " ms");
     }

@@ -353,6 +353,7 @@ impl ResultMessage {
                 centre: c.centre.to_vec(),
             }),
             pose_uncertainty: rec.rigid.uncertainty,
+            expected_error: rec.expected_error,
             skipped: self.skipped,
             server_ms: self.server_ms,
             queue_ms: self.queue_ms,

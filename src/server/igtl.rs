@@ -502,6 +502,9 @@ pub fn result_messages(c: &Completed, handle: &SessionHandle, ras: bool) -> Vec<
         if let Some(u) = r.pose_uncertainty {
             md.insert("livereg.pose_uncertainty_mm", format!("{:.6}", u * to_mm));
         }
+        if let Some(e) = &r.expected_error {
+            md.insert("livereg.expected_error_mm", format!("{:.6}", e.expected * to_mm));
+        }
         if !r.flags.is_empty() {
             md.insert("livereg.flags", r.flags.join(","));
         }

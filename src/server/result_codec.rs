@@ -109,6 +109,7 @@ struct MetaOut<'a> {
     diagnostics: &'a DiagnosticsRecord,
     #[serde(skip_serializing_if = "Option::is_none")]
     contact_force: Option<&'a ContactForceRecord>,
+    expected_error: Option<f64>,
     structure_names: Vec<&'a str>,
 }
 
@@ -129,6 +130,8 @@ struct MetaIn {
     diagnostics: DiagnosticsRecord,
     #[serde(default)]
     contact_force: Option<ContactForceRecord>,
+    #[serde(default)]
+    expected_error: Option<f64>,
     structure_names: Vec<String>,
 }
 
@@ -152,6 +155,7 @@ pub fn encode_binary_result(msg: &ResultMessage) -> Result<Vec<u8>, ResultDecode
         diagnostics,
         structures,
         contact_force,
+        expected_error,
     } = &msg.record;
     let meta = MetaOut {
         kind: "result",
@@ -166,6 +170,7 @@ pub fn encode_binary_result(msg: &ResultMessage) -> Result<Vec<u8>, ResultDecode
         rigid,
         diagnostics,
         contact_force: contact_force.as_ref(),
+        expected_error: *expected_error,
         structure_names: structures.keys().map(String::as_str).collect(),
     };
     let mut json = serde_json::to_vec(&meta).map_err(|e| bad(format!("metadata: {e}")))?;
@@ -291,6 +296,7 @@ pub fn decode_binary_result(bytes: &[u8]) -> Result<ResultMessage, ResultDecodeE
             diagnostics: meta.diagnostics,
             structures,
             contact_force: meta.contact_force,
+            expected_error: meta.expected_error,
         },
         surface,
     })
@@ -343,6 +349,7 @@ mod tests {
                     magnitude_n: 3.648,
                     centre: [-12.5, 40.25, 8.0],
                 }),
+                expected_error: Some(2.625),
             },
             surface: (0..50)
                 .map(|i| {

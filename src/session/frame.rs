@@ -219,4 +219,8 @@ pub struct FrameResult {
     /// the pose was given (`rigid = "none"`) or not determined. A lower bound: deformation
     /// and a wrong pose basin are not in it.
     pub pose_uncertainty: Option<f64>,
+    /// The registration's estimate of the mean error of the structures in this frame, and its
+    /// parts, scene units ([`crate::registration::error_estimate`]); a failed frame carries
+    /// the last good state's. `None` before any frame succeeded.
+    pub expected_error: Option<crate::registration::ErrorEstimate>,
 }

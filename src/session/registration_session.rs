@@ -20,6 +20,7 @@ use crate::registration::isolated_points::{
 use crate::registration::non_rigid_icp::{NonRigidReport, NonRigidTimings};
 use crate::registration::pose_search::centroid;
 use crate::registration::surface_normals::NormalsAtScale;
+use crate::registration::{expected_error, ErrorEstimate, ErrorEvidence};
 use crate::registration::{ContactForce, RestCompliance};
 use crate::registration::{
     IcpResult, IndexedPoints, ModelTarget, NonRigidIcp, NonRigidSettings, Prolongation, RigidIcp,
@@ -48,6 +49,9 @@ struct GoodState {
     /// The pose's uncertainty when it was fitted (m, [`Session::pose_uncertainty`]); `None`
     /// when the pose was given (`rigid = "none"`) or its fit did not determine it.
     pose_uncertainty: Option<f64>,
+    /// The expected error of the good state (m, [`Session::error_estimate`]); `None` before
+    /// the first good frame.
+    expected_error: Option<ErrorEstimate>,
 }
 
 /// Registers a stream of frames to one model, carrying the state from frame to frame.
@@ -242,6 +246,7 @@ impl Session {
                 contact_force: None,
                 pose_ambiguous: false,
                 pose_uncertainty: None,
+                expected_error: None,
             },
             frames: 0,
             coarse: None,
@@ -266,6 +271,7 @@ impl Session {
             contact_force: None,
             pose_ambiguous: false,
             pose_uncertainty: None,
+            expected_error: None,
         };
         self.good_surface = std::sync::OnceLock::new();
         self.non_rigid_cold.invalidate();
@@ -363,6 +369,7 @@ impl Session {
             times,
             contact_force: None,
             pose_uncertainty: None,
+            expected_error: self.good.expected_error.map(|e| scaled_estimate(&e, scale)),
         };
         match outcome {
             Ok(done) => {
@@ -385,6 +392,11 @@ impl Session {
                     result.flags.push("pose_uncertain".into());
                 }
                 result.pose_uncertainty = pose_uncertainty.map(|v| v / scale);
+                let estimate = self.error_estimate(&done, pose_uncertainty);
+                if estimate.expected > self.settings.max_expected_error {
+                    result.flags.push("expected_error_high".into());
+                }
+                result.expected_error = Some(scaled_estimate(&estimate, scale));
                 if let Some(surface) = done.surface {
                     self.good_surface = std::sync::OnceLock::from(Some(surface));
                 } else if done.u != self.good.u {
@@ -398,6 +410,7 @@ impl Session {
                     contact_force: done.contact_force,
                     pose_ambiguous,
                     pose_uncertainty,
+                    expected_error: Some(estimate),
                 };
                 self.still = done.still;
                 result.model_to_cloud = done.model_to_cloud;
@@ -453,6 +466,25 @@ impl Session {
         result
     }
 
+    /// The expected error of the frame `done` whose pose has the uncertainty
+    /// `pose_uncertainty` (m): the evidence of [`ErrorEvidence`] from the registered
+    /// displacement of the structures, the fit of the cloud and its noise, metres.
+    fn error_estimate(&self, done: &Done, pose_uncertainty: Option<f64>) -> ErrorEstimate {
+        let (mut sum, mut count) = (0.0, 0usize);
+        for s in &self.model.structures {
+            for d in s.embedding.interpolate(&done.u) {
+                sum += d.norm_squared();
+                count += 1;
+            }
+        }
+        expected_error(&ErrorEvidence {
+            pose_uncertainty: pose_uncertainty.unwrap_or(0.0),
+            displacement_rms: (sum / count.max(1) as f64).sqrt(),
+            fit_rms: done.fit_rms,
+            noise: done.noise,
+        })
+    }
+
     /// One frame through the named stages: [`Session::prepare_cloud`] (checks, thinning,
     /// isolated points), [`Session::rigid_stage`] (the pose), [`Session::non_rigid_stage`]
     /// (coarse start, the registration, the recovery ladder), then the gate on the registered
@@ -492,14 +524,10 @@ impl Session {
         let at_rest = self.rest_shape_if_unchanged(&aligned, noise.as_ref(), flags);
         times.change_ms = ms(t);
         if let Some((u, fit, force)) = at_rest {
-            return Ok(Done::without_non_rigid(
-                u,
-                model_to_cloud,
-                rigid_iterations,
-                cloud,
-                fit,
-                force,
-            ));
+            return Ok(Done {
+                noise: noise.as_ref().map_or(0.0, |n| n.sigma),
+                ..Done::without_non_rigid(u, model_to_cloud, rigid_iterations, cloud, fit, force)
+            });
         }
         let camera = match &frame.camera {
             Some(c) => Some(camera_to_model(c, scale, &cloud_to_model)?),
@@ -571,6 +599,8 @@ impl Session {
             contact_force,
             still,
             surface,
+            fit_rms: fit,
+            noise: noise.as_ref().map_or(0.0, |n| n.sigma),
         })
     }
 
@@ -1233,6 +1263,10 @@ struct Done {
     /// The surface index of `u` the frame's fit built (`None` when it built none): the next
     /// frame's [`Session::good_surface`].
     surface: Option<SurfaceDistances>,
+    /// RMS distance of the cloud to the registered surface after the outlier rule, m.
+    fit_rms: f64,
+    /// The cloud's measured noise, m (0 when not measured).
+    noise: f64,
 }
 
 impl Done {
@@ -1263,6 +1297,8 @@ impl Done {
             contact_force,
             still: StillWindow::default(),
             surface: None,
+            fit_rms: surface_rms,
+            noise: 0.0,
         }
     }
 }
@@ -1396,4 +1432,14 @@ fn camera_to_model(
 
 fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
+}
+
+/// `e` (m) in scene units (`scale`: metres per scene unit).
+fn scaled_estimate(e: &ErrorEstimate, scale: f64) -> ErrorEstimate {
+    ErrorEstimate {
+        expected: e.expected / scale,
+        pose: e.pose / scale,
+        unseen: e.unseen / scale,
+        residual: e.residual / scale,
+    }
 }

@@ -26,6 +26,10 @@ pub struct SessionSettings {
     /// that holds it (`registration.max_pose_uncertainty`, default 2 mm; docs/registration.md,
     /// "Pose uncertainty").
     pub max_pose_uncertainty: f64,
+    /// A frame whose expected error ([`crate::registration::error_estimate`]) exceeds this,
+    /// metres, is flagged `expected_error_high`: a display should dim its overlay
+    /// (`registration.max_expected_error`, default 5 mm: a tumour margin's order).
+    pub max_expected_error: f64,
     /// Rigid ICP settings.
     pub rigid: RigidIcp,
     /// The multi-start search of the rigid pose on a frame whose pose is not known from the
@@ -114,6 +118,7 @@ impl Default for SessionSettings {
             pose_update: PoseUpdate::Hold,
             pose_reacquire_rms: 0.008,
             max_pose_uncertainty: 0.002,
+            max_expected_error: 0.005,
             // Median/MAD pruning (`registration.robust_pruning`, default true); the rigid
             // ICP's own default stays the thesis's mean + 2σ.
             rigid: RigidIcp {
@@ -169,6 +174,9 @@ impl SessionSettings {
             s.still_frames = r.still_frames as usize;
             if let Some(d) = r.max_pose_uncertainty {
                 s.max_pose_uncertainty = d * scale;
+            }
+            if let Some(d) = r.max_expected_error {
+                s.max_expected_error = d * scale;
             }
             // Warm frames prune at median/MAD with the cloud → surface term (measured in
             // docs/registration.md); the thesis's direction keeps mean + 2σ.
