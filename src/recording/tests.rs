@@ -48,7 +48,6 @@ fn frame(k: usize) -> Frame {
 }
 
 fn result(k: usize) -> FrameResult {
-        expected_error: None,
     FrameResult {
         frame: k,
         source: format!("f{k}"),
@@ -74,6 +73,10 @@ fn result(k: usize) -> FrameResult {
             centre: Point3::new(10.0, -20.5, 3.0),
         }),
         pose_uncertainty: None,
+        expected_error: Some(crate::registration::ErrorEstimate {
+            expected: 0.75 + k as f64,
+            ..Default::default()
+        }),
     }
 }
 

@@ -51,8 +51,8 @@ mod tests;
 
 pub use coarse_to_fine::Prolongation;
 pub use contact_force::{ContactForce, RestCompliance};
-pub use error_estimate::{expected_error, ErrorEstimate, ErrorEvidence};
 pub use correspondences::{Correspondences, IndexedPoints, PairingRule};
+pub use error_estimate::{expected_error, ErrorEstimate, ErrorEvidence};
 pub use kabsch::kabsch;
 pub use model_target::ModelTarget;
 pub use non_rigid_icp::{

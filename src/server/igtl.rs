@@ -503,7 +503,10 @@ pub fn result_messages(c: &Completed, handle: &SessionHandle, ras: bool) -> Vec<
             md.insert("livereg.pose_uncertainty_mm", format!("{:.6}", u * to_mm));
         }
         if let Some(e) = &r.expected_error {
-            md.insert("livereg.expected_error_mm", format!("{:.6}", e.expected * to_mm));
+            md.insert(
+                "livereg.expected_error_mm",
+                format!("{:.6}", e.expected * to_mm),
+            );
         }
         if !r.flags.is_empty() {
             md.insert("livereg.flags", r.flags.join(","));
