@@ -8,7 +8,9 @@ pub mod tre;
 
 pub use error::EvalError;
 pub use jsonl::{read_jsonl, read_results, read_truth, JsonlWriter};
-pub use records::{ContactForceRecord, DiagnosticsRecord, ResultRecord, RigidRecord, TruthRecord};
+pub use records::{
+    ContactForceRecord, DiagnosticsRecord, ErrorPartsRecord, ResultRecord, RigidRecord, TruthRecord,
+};
 pub use tre::{evaluate, percentile, EvalReport, FrameReport, StructureFrameTre, Summary};
 
 #[cfg(test)]

@@ -74,6 +74,22 @@ pub struct DiagnosticsRecord {
     /// Warnings of the solver (for example a bisection limit reached), with their cause.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub warnings: Vec<String>,
+    /// The parts of `expected_error`, scene units: from the pose's uncertainty, from the
+    /// deformation the cloud does not show, from the fit residual beyond the cloud's noise
+    /// (`registration::error_estimate`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub expected_error_parts: Option<ErrorPartsRecord>,
+}
+
+/// The parts of a frame's expected error, scene units.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ErrorPartsRecord {
+    /// From the pose's uncertainty.
+    pub pose: f64,
+    /// From the deformation the cloud does not show.
+    pub unseen: f64,
+    /// From the fit residual beyond the cloud's noise.
+    pub residual: f64,
 }
 
 fn is_zero(n: &usize) -> bool {
@@ -173,6 +189,11 @@ impl ResultRecord {
                 flags: r.flags.clone(),
                 error: r.error.as_ref().map(|e| e.to_string()),
                 warnings: r.warnings.clone(),
+                expected_error_parts: r.expected_error.map(|e| ErrorPartsRecord {
+                    pose: e.pose,
+                    unseen: e.unseen,
+                    residual: e.residual,
+                }),
             },
             structures: r
                 .structures

@@ -133,7 +133,12 @@ pub fn result() -> Value {
                     "timings_ms": {"type": "object", "additionalProperties": {"type": "number"}},
                     "flags": {"type": "array", "items": {"type": "string"}},
                     "error": {"type": "string"},
-                    "warnings": {"type": "array", "items": {"type": "string"}}
+                    "warnings": {"type": "array", "items": {"type": "string"}},
+                    "expected_error_parts": {
+                        "type": "object",
+                        "required": ["pose", "unseen", "residual"],
+                        "properties": {"pose": {"type": "number"}, "unseen": {"type": "number"}, "residual": {"type": "number"}}
+                    }
                 }
             },
             "structures": {

@@ -108,23 +108,26 @@ impl IndexedPoints {
     /// partial cloud they belong to the unseen part, and pairing them with the rim would drag
     /// the unseen surface onto it.
     pub fn rim_mask(&self, k: usize, ratio: f64) -> Vec<bool> {
-        self.points
-            .iter()
-            .map(|p| {
-                let nn = self.nearest_k(p, k + 1);
-                let others: Vec<&(usize, f64)> = nn.iter().filter(|n| n.1 > 0.0).collect();
-                if others.len() < 3 {
-                    return true;
-                }
-                let m = others.len() as f64;
-                let centroid = others
-                    .iter()
-                    .fold(Vector3::zeros(), |acc, n| acc + self.points[n.0].coords)
-                    / m;
-                let mean_d = others.iter().map(|n| n.1).sum::<f64>() / m;
-                (centroid - p.coords).norm() > ratio * mean_d
-            })
+        (0..self.points.len())
+            .map(|i| self.is_rim(i, k, ratio))
             .collect()
+    }
+
+    /// Whether point `i` lies on the rim of the sampled patch ([`IndexedPoints::rim_mask`]).
+    pub fn is_rim(&self, i: usize, k: usize, ratio: f64) -> bool {
+        let p = &self.points[i];
+        let nn = self.nearest_k(p, k + 1);
+        let others: Vec<&(usize, f64)> = nn.iter().filter(|n| n.1 > 0.0).collect();
+        if others.len() < 3 {
+            return true;
+        }
+        let m = others.len() as f64;
+        let centroid = others
+            .iter()
+            .fold(Vector3::zeros(), |acc, n| acc + self.points[n.0].coords)
+            / m;
+        let mean_d = others.iter().map(|n| n.1).sum::<f64>() / m;
+        (centroid - p.coords).norm() > ratio * mean_d
     }
 
     /// Number of points.
@@ -165,6 +168,11 @@ pub struct PairingRule {
     /// model predicted; the point shows where the surface is (an offset of a noise's size),
     /// not a motion towards the visible part. `None`: only visible triangles pair.
     pub hidden_match: Option<f64>,
+    /// Cloud → surface pairing keeps pairs beyond the outlier threshold whose cloud
+    /// neighbours lie as far off the surface (a coherent region: a deformation not yet
+    /// followed), and pulls up model vertices that lie beyond it below the cloud's interior
+    /// (`registration::surface_anchors`). False: the threshold alone decides.
+    pub keep_coherent: bool,
 }
 
 impl PairingRule {
@@ -374,6 +382,7 @@ mod tests {
             max_pair_distance: None,
             min_outlier_distance: 0.0,
             hidden_match: None,
+            keep_coherent: false,
         }
     }
 

@@ -18,12 +18,13 @@
 //!
 //! [`PoseCovariance`]: super::PoseCovariance
 
-/// The share of the registered displacement the estimate counts as unseen-deformation error:
-/// what a 15 % partial view leaves to the model on the bundled tool-indentation class is
-/// 18–25 % of the displacement even for noise-free clouds (`cargo run --release --example
-/// indentation_error_budget`); twice that bounds the frames where the far field is guessed
-/// worse than on average.
-pub const UNSEEN_SHARE: f64 = 0.5;
+/// The share of the registered displacement the estimate counts as unseen-deformation error.
+/// Chosen on the tuning set of `fixtures/liver_force` (SPLIT.md: the indentation liver's four
+/// force-driven truths, 120 frames; `python3 fixtures/liver_force/grade.py --calibrate`):
+/// 0.3 bounds the true mean node error in 99 % of frames at a median estimate of 2.6× the
+/// true error (0.25: 98 %, 2.1×; 0.5: 100 %, 4.3×; 0.2: 96 %, 1.7×), leaving a margin for
+/// classes it was not chosen on.
+pub const UNSEEN_SHARE: f64 = 0.3;
 
 /// What a frame's registration shows about its own error, metres.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]

@@ -10,6 +10,7 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
 use super::correspondences::{IndexedPoints, PairingRule};
+use super::correspondences::{RIM_NEIGHBOURS, RIM_RATIO};
 use crate::geometry::closest_point::closest_barycentric;
 
 /// A point of the model surface: a triangle and barycentric weights of its corners.
@@ -257,7 +258,7 @@ pub fn pair_cloud_to_surface(
     };
     let mut sum2 = 0.0;
     for (j, a, d) in found {
-        if d > cap || (d > limit && !coherent.holds(j, d)) {
+        if d > cap || (d > limit && !(rule.keep_coherent && coherent.holds(j, d))) {
             continue;
         }
         let Some(n) = a.normal(vertex_normals, triangles) else {
@@ -271,11 +272,69 @@ pub fn pair_cloud_to_surface(
         out.cloud_index.push(j);
         sum2 += d * d;
     }
+    if rule.keep_coherent {
+        sum2 += pull_up_uncovered_vertices(
+            x,
+            &searchable,
+            incident,
+            triangles,
+            vertex_normals,
+            cloud,
+            (limit, cap),
+            &mut out,
+        );
+    }
     if out.anchors.len() < 3 {
         return None;
     }
     out.rms = (sum2 / out.anchors.len() as f64).sqrt();
     Some(out)
+}
+
+/// Adds to `out` a pair for every vertex of `vertices` (at `x`) that lies farther than
+/// `limit` (m) below the cloud where the cloud covers it: its nearest cloud point is not on
+/// the rim of the seen patch and lies outward along the vertex normal. Cloud → surface pairs
+/// alone never pull such a vertex: every cloud point above a hollow of the model (a dent the
+/// tool has left) is closer to the hollow's rim than to its floor, so the hollow would stay.
+/// Pairs longer than `cap` (m) are not made. Returns the sum of the added pairs' squared
+/// lengths, m².
+#[allow(clippy::too_many_arguments)]
+fn pull_up_uncovered_vertices(
+    x: &[Point3<f64>],
+    vertices: &[usize],
+    incident: &[Vec<usize>],
+    triangles: &[[usize; 3]],
+    vertex_normals: &[Vector3<f64>],
+    cloud: &IndexedPoints,
+    (limit, cap): (f64, f64),
+    out: &mut AnchoredPairs,
+) -> f64 {
+    let mut sum2 = 0.0;
+    for &v in vertices {
+        let (j, d) = cloud.nearest(&x[v]);
+        let n = vertex_normals[v];
+        let offset = n.dot(&(cloud.points[j] - x[v]));
+        // Mostly along the outward normal: the cloud shows the surface above this vertex.
+        if d <= limit || d > cap || offset < 0.7 * d || cloud.is_rim(j, RIM_NEIGHBOURS, RIM_RATIO) {
+            continue;
+        }
+        let Some(&t) = incident[v].first() else {
+            continue;
+        };
+        let corner = triangles[t].iter().position(|&c| c == v).unwrap_or(0);
+        let mut weights = [0.0; 3];
+        weights[corner] = 1.0;
+        out.anchors.push(SurfaceAnchor {
+            triangle: t,
+            weights,
+        });
+        out.normals.push(n);
+        out.offsets.push(offset);
+        out.dominant.push(v);
+        out.cloud_index.push(j);
+        sum2 += d * d;
+    }
+    sum2
 }
 
 #[cfg(test)]
@@ -292,6 +351,7 @@ mod tests {
             max_pair_distance: None,
             min_outlier_distance: 0.0,
             hidden_match: None,
+            keep_coherent: false,
         }
     }
 

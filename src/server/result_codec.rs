@@ -342,6 +342,7 @@ mod tests {
                     flags: vec!["failed".into()],
                     error: Some("no-match: too few pairs".into()),
                     warnings: vec!["bisection limit".into()],
+                    expected_error_parts: None,
                 },
                 structures,
                 contact_force: Some(ContactForceRecord {
