@@ -236,11 +236,15 @@ fn a_perfect_cloud_of_the_rest_surface_keeps_the_rest_shape() {
     let anterior = ymax - 0.35 * (ymax - ymin);
     for rigid in [
         livereg::scene::RigidMode::Icp,
-        livereg::scene::RigidMode::None,
+        livereg::scene::RigidMode::Identity,
     ] {
         for (partial, sigma) in [(false, 0.0), (true, 0.0), (false, 0.1), (true, 0.5)] {
             let mut loaded = load_scene(&scene).unwrap();
-            loaded.scene.registration.rigid = rigid;
+            loaded
+                .scene
+                .registration
+                .get_or_insert_with(Default::default)
+                .rigid = rigid;
             let mut session = Session::from_scene(&loaded).unwrap();
             let targets = livereg::mesh::read_points(&scene.with_file_name("targets.xyz")).unwrap();
             for k in 0..3 {

@@ -97,6 +97,8 @@ pub struct IndentationFrameMetrics {
     /// The frame's pose uncertainty (`FrameResult::pose_uncertainty`), mm; `None` when the
     /// pose was given.
     pub pose_uncertainty_mm: Option<f64>,
+    /// The frame's expected error (`FrameResult::expected_error`), mm.
+    pub expected_error_mm: Option<f64>,
 }
 
 /// What an indentation run gave, mm and ms.
@@ -132,6 +134,11 @@ pub struct IndentationMetrics {
     pub pose_uncertainty_max_mm: Option<f64>,
     /// Frames flagged `pose_uncertain`.
     pub pose_uncertain_frames: usize,
+    /// The share of frames whose expected error is at least their true mean node error
+    /// (`None`: no frame has an estimate).
+    pub expected_error_bounded: Option<f64>,
+    /// Median over frames of expected error / true mean node error.
+    pub expected_error_ratio_median: Option<f64>,
     /// Median and 95th percentile wall time of the warm frames, ms.
     pub warm_ms_p50: f64,
     /// See `warm_ms_p50`.
@@ -191,6 +198,7 @@ pub fn indentation_metrics(
                 .map(|e| (e - truth_force).norm() / truth_force.norm().max(1e-12)),
             force_centre_error_mm: centre_error_mm,
             pose_uncertainty_mm: s.pose_uncertainty_mm,
+            expected_error_mm: s.expected_error_mm,
         });
         all.extend_from_slice(&s.tre_mm);
         none_all.extend(none);
@@ -243,8 +251,38 @@ pub fn indentation_metrics(
             .count(),
         warm_ms_p50: q(0.5),
         warm_ms_p95: q(0.95),
+        expected_error_bounded: expected_error_bounded(&per_frame),
+        expected_error_ratio_median: expected_error_ratio_median(&per_frame),
         frames: per_frame,
     }
+}
+
+/// The share of `frames` with an expected error whose estimate is at least their mean node
+/// error.
+fn expected_error_bounded(frames: &[IndentationFrameMetrics]) -> Option<f64> {
+    let with: Vec<&IndentationFrameMetrics> = frames
+        .iter()
+        .filter(|f| f.expected_error_mm.is_some())
+        .collect();
+    (!with.is_empty()).then(|| {
+        with.iter()
+            .filter(|f| f.expected_error_mm.is_some_and(|e| e >= f.mean_mm))
+            .count() as f64
+            / with.len() as f64
+    })
+}
+
+/// The median over `frames` of expected error / mean node error.
+fn expected_error_ratio_median(frames: &[IndentationFrameMetrics]) -> Option<f64> {
+    let mut r: Vec<f64> = frames
+        .iter()
+        .filter_map(|f| f.expected_error_mm.map(|e| e / f.mean_mm.max(1e-9)))
+        .collect();
+    if r.is_empty() {
+        return None;
+    }
+    r.sort_by(f64::total_cmp);
+    Some(percentile(&r, 0.5))
 }
 
 /// Median of `pick` over the frames whose true force exceeds a quarter of the sequence's
@@ -498,6 +536,8 @@ mod tests {
             force_centre_error_median_mm: None,
             warm_ms_p50,
             warm_ms_p95: 0.0,
+            expected_error_bounded: None,
+            expected_error_ratio_median: None,
             frames: Vec::new(),
         }
     }

@@ -88,6 +88,8 @@ pub struct FrameSample {
     pub contact_centre_m: Option<[f64; 3]>,
     /// The frame's pose uncertainty (`FrameResult::pose_uncertainty`), mm.
     pub pose_uncertainty_mm: Option<f64>,
+    /// The frame's expected error (`FrameResult::expected_error`), mm.
+    pub expected_error_mm: Option<f64>,
 }
 
 impl FrameSample {
@@ -194,6 +196,7 @@ pub fn sample_of(
             .map(|c| [c.resultant.x, c.resultant.y, c.resultant.z]),
         contact_centre_m: r.contact_force.map(|c| (c.centre.coords * scale).into()),
         pose_uncertainty_mm: r.pose_uncertainty.map(|v| v * scale * 1e3),
+        expected_error_mm: r.expected_error.map(|e| e.expected * scale * 1e3),
     }
 }
 
@@ -489,6 +492,7 @@ mod tests {
             contact_force_n: None,
             contact_centre_m: None,
             pose_uncertainty_mm: None,
+            expected_error_mm: None,
         }
     }
 

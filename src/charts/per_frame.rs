@@ -40,6 +40,19 @@ pub fn none_rigid_non_rigid(none: Vec<f64>, rigid: Vec<f64>, non_rigid: Vec<f64>
     .collect()
 }
 
+/// [`none_rigid_non_rigid`] with a fourth line: the non-rigid registration's own estimate of
+/// its error per frame (`expected_error`, mm; `None` where a frame has none).
+pub fn with_expected_error(mut series: Vec<Series>, expected: Vec<Option<f64>>) -> Vec<Series> {
+    series.push(Series {
+        name: "expected error (non-rigid)".into(),
+        values: expected
+            .into_iter()
+            .map(|e| e.unwrap_or(f64::NAN))
+            .collect(),
+    });
+    series
+}
+
 /// Draws `series` (error in mm against the frame index) to `png` and/or `svg` with `title`.
 /// Errors name the file.
 pub fn write_per_frame_chart(

@@ -15,7 +15,7 @@ use super::register::{
 use super::vtk_series::VtkSeriesWriter;
 use super::RerunArgs;
 use crate::benchmark::indentation::{IndentationFrameMetrics, IndentationMetrics};
-use crate::charts::per_frame::{none_rigid_non_rigid, write_per_frame_chart};
+use crate::charts::per_frame::{none_rigid_non_rigid, with_expected_error, write_per_frame_chart};
 use crate::charts::surface_view::{write_surface_view, SurfaceView};
 use crate::evaluation::{evaluate, read_truth, DiagnosticsRecord, ResultRecord, RigidRecord};
 use crate::mesh::TriSurface;
@@ -171,7 +171,12 @@ pub fn run_with(
             e.frames.iter().map(|f| f.mean).collect()
         };
         write_per_frame_chart(
-            &none_rigid_non_rigid(per_frame(&e_none), per_frame(&e_rigid), per_frame(&e_full)),
+            &with_expected_error(
+                none_rigid_non_rigid(per_frame(&e_none), per_frame(&e_rigid), per_frame(&e_full)),
+                full.iter()
+                    .map(|r| r.expected_error.map(|e| e.expected))
+                    .collect(),
+            ),
             &format!("{}: mean target error per frame", kind.name()),
             Some(&dir.join("error_per_frame.png")),
             Some(&dir.join("error_per_frame.svg")),
@@ -328,10 +333,13 @@ fn run_indentation_demo(out: &Path, vtk: Option<&Path>) -> Result<Vec<ScenarioSu
                          f: fn(&IndentationFrameMetrics) -> f64|
          -> Vec<f64> { m.frames.iter().map(f).collect() };
         write_per_frame_chart(
-            &none_rigid_non_rigid(
-                per_frame(&m, |f| f.none_mean_mm),
-                per_frame(&m_rigid, |f| f.mean_mm),
-                per_frame(&m, |f| f.mean_mm),
+            &with_expected_error(
+                none_rigid_non_rigid(
+                    per_frame(&m, |f| f.none_mean_mm),
+                    per_frame(&m_rigid, |f| f.mean_mm),
+                    per_frame(&m, |f| f.mean_mm),
+                ),
+                m.frames.iter().map(|f| f.expected_error_mm).collect(),
             ),
             &format!("{name}: mean node error per frame (tet-FE truth, linear)"),
             Some(&dir.join("error_per_frame.png")),
