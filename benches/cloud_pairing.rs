@@ -45,6 +45,8 @@ fn bench_cloud_pairing(c: &mut Criterion) {
         robust: true,
         max_pair_distance: None,
         min_outlier_distance: 0.0,
+        hidden_match: None,
+        keep_coherent: true,
     };
     let radius = NormalsAtScale::default_radius(&model.vertices, &model.triangles).unwrap();
     let at_scale = NormalsAtScale::new(&model.vertices, &model.triangles, radius).unwrap();

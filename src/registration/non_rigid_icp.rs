@@ -394,7 +394,7 @@ impl Target {
             keep_coherent: settings.robust_pruning
                 && settings
                     .cloud_noise
-                    .is_none_or(|s| !(s > COHERENT_MAX_NOISE)),
+                    .is_none_or(|s| s.is_nan() || s <= COHERENT_MAX_NOISE),
         };
         Ok(Self { cloud, rim, rule })
     }
