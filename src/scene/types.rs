@@ -554,6 +554,14 @@ pub enum PoseUpdate {
     /// pose (clouds in a moving camera's frame with no tracker).
     #[serde(rename = "track")]
     Track,
+    /// `"follow"`: held as with `"hold"`, but a warm frame whose whole view moved (the
+    /// best-fitting half of the cloud lies at least twice as close to the last registered
+    /// shape after rigid ICP from the held pose, and closer by more than 0.3 mm) takes the
+    /// fitted pose: clouds from a camera that moves slowly and has no tracker, which the
+    /// elastic model would otherwise absorb frame after frame (docs/registration.md, "What
+    /// the cloud shows").
+    #[serde(rename = "follow")]
+    Follow,
 }
 
 /// The camera pose (scene units, model frame), used to find the visible part of the surface.

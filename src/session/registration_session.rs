@@ -696,7 +696,10 @@ impl Session {
         // Rigid stage: hold the pose, or track it against the current deformed surface.
         self.fitted_pose_uncertainty = None;
         let hold = self.settings.non_rigid
-            && self.settings.pose_update == PoseUpdate::Hold
+            && matches!(
+                self.settings.pose_update,
+                PoseUpdate::Hold | PoseUpdate::Follow
+            )
             && self.settings.rigid_mode == RigidMode::Icp
             && self.good.registered;
         let (model_to_cloud, rigid_iterations) = if hold {
@@ -713,8 +716,8 @@ impl Session {
         Ok((model_to_cloud, rigid_iterations))
     }
 
-    /// The held pose, or the pose rigid ICP finds from it against the last registered shape
-    /// when the whole view moved: when the best-fitting half of the cloud
+    /// The held pose, or with [`PoseUpdate::Follow`] the pose rigid ICP finds from it against
+    /// the last registered shape when the whole view moved: when the best-fitting half of the cloud
     /// ([`Session::best_half_rms`]) lies [`MOVED_VIEW_FIT_RATIO`] times closer to that shape at
     /// the fitted pose than at the held one, and closer by more than [`MOVED_VIEW_MIN_GAIN`].
     /// A deformation moves a part of the seen surface and leaves the best half where it was,
@@ -727,7 +730,7 @@ impl Session {
         held_rms: f64,
     ) -> Result<(RigidTransform, usize), FrameError> {
         let held = self.good.model_to_cloud;
-        if held_rms <= MOVED_VIEW_MIN_GAIN {
+        if self.settings.pose_update != PoseUpdate::Follow || held_rms <= MOVED_VIEW_MIN_GAIN {
             return Ok((held, 0));
         }
         let mut scratch = Vec::new();
