@@ -365,19 +365,16 @@ fn a_force_driven_dent_on_a_noise_free_cloud_is_reached() {
             .map(|p| nalgebra::Point3::new(p[0], p[1], p[2]))
             .collect();
         let registered = &r.structures.iter().find(|s| s.0 == "nodes").unwrap().1;
-        let n = truth_nodes.len() as f64;
-        error += registered
-            .iter()
-            .zip(&truth_nodes)
-            .map(|(a, b)| (a - b).norm())
-            .sum::<f64>()
-            / n;
-        none += rest
-            .iter()
-            .zip(&truth_nodes)
-            .map(|(a, b)| (a - b).norm())
-            .sum::<f64>()
-            / n;
+        let mean_distance = |nodes: &[nalgebra::Point3<f64>]| {
+            nodes
+                .iter()
+                .zip(&truth_nodes)
+                .map(|(a, b)| (a - b).norm())
+                .sum::<f64>()
+                / truth_nodes.len() as f64
+        };
+        error += mean_distance(registered);
+        none += mean_distance(&rest);
         let near: Vec<_> = points
             .iter()
             .filter(|p| (*p - truth_nodes[centre]).norm() < 15.0)

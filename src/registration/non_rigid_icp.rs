@@ -347,9 +347,10 @@ pub fn hidden_match_tolerance(cloud_noise: Option<f64>, h: f64) -> f64 {
 /// warm frame (median/MAD pruning, [`NonRigidSettings::robust_pruning`]) keeps long pairs in
 /// coherent regions ([`PairingRule::keep_coherent`]); a noisier cloud, and a cold frame, are
 /// pruned by the pair-length threshold alone (a cold frame from rest with 30 % outliers
-/// moved the structures 2.9 → 4.6 mm with it). Measured (docs/registration.md, "What the cloud shows"): on
-/// noise-free clouds of force-driven 50 mm dents the kept pairs reach the dent (distance of
-/// the cloud to the registered surface at the dent 4.5 → 1.0 mm, node error 1.41 → 1.07 mm);
+/// moved the structures 2.9 → 4.6 mm with it). Measured (docs/registration.md, "What the
+/// cloud shows"): on noise-free clouds of force-driven 50 mm dents the kept pairs reach the
+/// dent (distance of the cloud to the registered surface at the dent 4.5 → 1.0 mm, node
+/// error 1.41 → 1.07 mm);
 /// on the bundled tool-indentation class (1.5 mm noise, 50–70 mm displacement-driven dents)
 /// they made the registration drift (press-slide linear 1.08 → 5.9 mm).
 pub const COHERENT_MAX_NOISE: f64 = 0.5e-3;

@@ -13,9 +13,9 @@
 //! 4. every refined fit is scored by the truncated mean square distance of the best-fitting
 //!    [`PoseSearch::score_share`] of the cloud ([`trimmed_score`]): unlike ICP's own inlier
 //!    RMS, a pose cannot score well by declaring most of the points it does not fit outliers,
-//!    and unlike the whole cloud's score, a deformed part of the organ does not decide. A searched pose replaces the plain fit only when it
-//!    is a different pose and scores below [`PoseSearch::replace_ratio`] × the plain fit's
-//!    score; when the best and the next distinct pose score within
+//!    and unlike the whole cloud's score, a deformed part of the organ does not decide. A
+//!    searched pose replaces the plain fit only when it is a different pose and scores below
+//!    [`PoseSearch::replace_ratio`] × the plain fit's score; when the best and the next distinct pose score within
 //!    [`PoseSearch::ambiguity_ratio`] of each other, the result says the pose is ambiguous.
 //!
 //! Lengths in metres, angles in degrees where named so.

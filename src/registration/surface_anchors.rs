@@ -246,7 +246,9 @@ pub fn pair_cloud_to_surface(
         .collect();
     let dists: Vec<f64> = found.iter().map(|f| f.2).collect();
     let limit = rule.limit(&dists);
-    let coherent = CoherentPairs::new(cloud, &found);
+    let coherent = rule
+        .keep_coherent
+        .then(|| CoherentPairs::new(cloud, &found));
     let cap = rule.max_pair_distance.unwrap_or(f64::INFINITY);
     let mut out = AnchoredPairs {
         anchors: Vec::new(),
@@ -258,7 +260,7 @@ pub fn pair_cloud_to_surface(
     };
     let mut sum2 = 0.0;
     for (j, a, d) in found {
-        if d > cap || (d > limit && !(rule.keep_coherent && coherent.holds(j, d))) {
+        if d > cap || (d > limit && !coherent.as_ref().is_some_and(|c| c.holds(j, d))) {
             continue;
         }
         let Some(n) = a.normal(vertex_normals, triangles) else {

@@ -717,9 +717,10 @@ impl Session {
     }
 
     /// The held pose, or with [`PoseUpdate::Follow`] the pose rigid ICP finds from it against
-    /// the last registered shape when the whole view moved: when the best-fitting half of the cloud
-    /// ([`Session::best_half_rms`]) lies [`MOVED_VIEW_FIT_RATIO`] times closer to that shape at
-    /// the fitted pose than at the held one, and closer by more than [`MOVED_VIEW_MIN_GAIN`].
+    /// the last registered shape when the whole view moved: when the best-fitting half of the
+    /// cloud ([`Session::best_half_rms`]) lies [`MOVED_VIEW_FIT_RATIO`] times closer to that
+    /// shape at the fitted pose than at the held one, and closer by more than
+    /// [`MOVED_VIEW_MIN_GAIN`].
     /// A deformation moves a part of the seen surface and leaves the best half where it was,
     /// so the held pose stays; a camera that moved shifts every point, which the elastic model
     /// would otherwise absorb frame after frame (a camera turning to 10° and moving 20 mm over
@@ -733,12 +734,12 @@ impl Session {
         if self.settings.pose_update != PoseUpdate::Follow || held_rms <= MOVED_VIEW_MIN_GAIN {
             return Ok((held, 0));
         }
-        let mut scratch = Vec::new();
         let held_fit = self.best_half_rms(cloud, &held);
         if held_fit <= MOVED_VIEW_MIN_GAIN {
             return Ok((held, 0));
         }
-        let fit = self.rigid_fit(cloud, held.inverse(), true, false, &mut scratch)?;
+        let mut no_flags = Vec::new();
+        let fit = self.rigid_fit(cloud, held.inverse(), true, false, &mut no_flags)?;
         let moved_fit = self.best_half_rms(cloud, &fit.model_to_cloud);
         if moved_fit * MOVED_VIEW_FIT_RATIO < held_fit && held_fit - moved_fit > MOVED_VIEW_MIN_GAIN
         {
@@ -752,13 +753,11 @@ impl Session {
     /// RMS distance (m) of the half of `cloud` (metres, cloud frame) nearest the last
     /// registered shape at the model → cloud pose `model_to_cloud`.
     fn best_half_rms(&self, cloud: &[Point3<f64>], model_to_cloud: &RigidTransform) -> f64 {
-        let to_model = model_to_cloud.inverse();
-        let aligned: Vec<Point3<f64>> = cloud.iter().map(|p| to_model.apply(p)).collect();
         let Some(surface) = self.good_surface() else {
             return f64::INFINITY;
         };
         let mut d2: Vec<f64> = surface
-            .signed_distances(&aligned)
+            .signed_distances(&in_model_frame(cloud, model_to_cloud))
             .iter()
             .map(|d| d * d)
             .collect();
@@ -1134,8 +1133,7 @@ impl Session {
 
     /// [`Session::held_pose_rms`] at the model → cloud pose `model_to_cloud`.
     fn pose_rms(&self, cloud: &[Point3<f64>], model_to_cloud: &RigidTransform) -> f64 {
-        let to_model = model_to_cloud.inverse();
-        let aligned: Vec<Point3<f64>> = cloud.iter().map(|p| to_model.apply(p)).collect();
+        let aligned = in_model_frame(cloud, model_to_cloud);
         self.good_surface()
             .map_or(f64::INFINITY, |s| s.fit_rms(&aligned))
     }
@@ -1256,17 +1254,18 @@ impl Session {
 /// A re-acquired pose that is the held one shifted by the cloud centroid's motion is kept
 /// without ICP when the cloud's fit there is at most this times the last frame's fit at the
 /// held pose, plus [`SAME_VIEW_FIT_SLACK`].
-/// A held pose is replaced on a warm frame by rigid ICP's fit from it when that fit leaves the
-/// best-fitting half of the cloud this many times closer to the last registered shape
-/// ([`Session::held_or_moved_pose`]).
-const MOVED_VIEW_FIT_RATIO: f64 = 2.0;
-/// ... and closer by more than this, metres: a view that moved by less is left to the elastic
-/// model, as a cloud's noise moves its fit by a fraction of a millimetre.
-const MOVED_VIEW_MIN_GAIN: f64 = 0.3e-3;
 const SAME_VIEW_FIT_RATIO: f64 = 1.2;
 /// See [`SAME_VIEW_FIT_RATIO`], metres (a new frame's noise changes the fit by a fraction of
 /// a millimetre).
 const SAME_VIEW_FIT_SLACK: f64 = 0.5e-3;
+/// With `pose = "follow"`, a held pose is replaced on a warm frame by rigid ICP's fit from it
+/// when that fit leaves the best-fitting half of the cloud this many times closer to the last
+/// registered shape ([`Session::held_or_moved_pose`]).
+const MOVED_VIEW_FIT_RATIO: f64 = 2.0;
+/// See [`MOVED_VIEW_FIT_RATIO`]: and closer by more than this, metres; a view that moved by
+/// less is left to the elastic model, as a cloud's noise moves its fit by a fraction of a
+/// millimetre.
+const MOVED_VIEW_MIN_GAIN: f64 = 0.3e-3;
 
 /// A frame's cloud with its own noise, for the tests of change
 /// ([`Session::rest_shape_if_unchanged`], [`Session::still_frames`]) and the data term's
@@ -1496,6 +1495,12 @@ fn camera_to_model(
 
 fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
+}
+
+/// `cloud` (cloud frame) taken to the model frame by the inverse of `model_to_cloud`.
+fn in_model_frame(cloud: &[Point3<f64>], model_to_cloud: &RigidTransform) -> Vec<Point3<f64>> {
+    let to_model = model_to_cloud.inverse();
+    cloud.iter().map(|p| to_model.apply(p)).collect()
 }
 
 /// `e` (m) in scene units (`scale`: metres per scene unit).
