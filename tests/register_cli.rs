@@ -222,3 +222,88 @@ fn register_rejects_a_missing_or_empty_frame_directory() {
     assert_ne!(code, 0);
     assert!(stderr.contains("no point files"), "{stderr}");
 }
+
+/// One frame's points as `.xyz`, as a hand-written legacy ASCII `.vtk` PolyData and as a `.vtp`
+/// (written by the library): `register --frames` takes each, and the three registrations agree
+/// to the digit; a directory mixing them with a note registers the point files and names the
+/// note on stderr.
+#[test]
+fn register_takes_vtk_and_vtp_frames_and_names_the_files_it_skips() {
+    let d = case("vtk");
+    let points = livereg::mesh::read_points(&d.join("frames/f03.xyz")).unwrap();
+    let mut legacy = format!(
+        "# vtk DataFile Version 4.2\nframe 3\nASCII\nDATASET POLYDATA\nPOINTS {} double\n",
+        points.len()
+    );
+    for p in &points {
+        legacy.push_str(&format!("{} {} {}\n", p.x, p.y, p.z));
+    }
+    let run = |dir: &std::path::Path, tag: &str| {
+        let out = d.join(format!("out-{tag}"));
+        let (code, stdout, stderr) = livereg(&[
+            "register",
+            d.join("scene.toml").to_str().unwrap(),
+            "--frames",
+            dir.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert_eq!(code, 0, "{tag}: {stderr}");
+        let text = std::fs::read_to_string(out.join("results.jsonl")).unwrap();
+        let lines: Vec<serde_json::Value> = text
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect();
+        (stdout, stderr, lines)
+    };
+    let mut structures = Vec::new();
+    for tag in ["xyz", "vtk", "vtp"] {
+        let dir = d.join(format!("only-{tag}"));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join(format!("frame.{}", tag.to_uppercase()));
+        match tag {
+            "xyz" => write_points(&file, &points).unwrap(),
+            "vtk" => std::fs::write(&file, &legacy).unwrap(),
+            _ => livereg::mesh::write_vtk(
+                &file,
+                &livereg::mesh::vtk::VtkPolyData {
+                    points: &points,
+                    triangles: &[],
+                    arrays: &[],
+                },
+            )
+            .unwrap(),
+        }
+        let (_, stderr, lines) = run(&dir, tag);
+        assert_eq!(lines.len(), 1, "{tag}: {stderr}");
+        assert!(
+            lines[0]["diagnostics"].get("error").is_none(),
+            "{tag}: {}",
+            lines[0]
+        );
+        assert!(!stderr.contains("skipped"), "{tag}: {stderr}");
+        structures.push(lines[0]["structures"].clone());
+    }
+    assert_eq!(structures[0], structures[1], "legacy .vtk against .xyz");
+    assert_eq!(structures[0], structures[2], ".vtp against .xyz");
+
+    let mixed = d.join("mixed");
+    std::fs::create_dir_all(&mixed).unwrap();
+    for tag in ["xyz", "vtk", "vtp"] {
+        let from = d.join(format!("only-{tag}/frame.{}", tag.to_uppercase()));
+        std::fs::copy(from, mixed.join(format!("f-{tag}.{tag}"))).unwrap();
+    }
+    std::fs::write(mixed.join("notes.md"), "camera notes\n").unwrap();
+    let (stdout, stderr, lines) = run(&mixed, "mixed");
+    let summary: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert_eq!(summary["frames"], 3, "{stderr}");
+    let sources: Vec<&str> = lines
+        .iter()
+        .map(|l| l["source"].as_str().unwrap())
+        .collect();
+    assert_eq!(sources, ["f-vtk.vtk", "f-vtp.vtp", "f-xyz.xyz"]);
+    assert!(
+        stderr.contains("notes.md") && stderr.contains("skipped 1 file"),
+        "the note is named: {stderr}"
+    );
+}

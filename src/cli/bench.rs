@@ -1,4 +1,4 @@
-//! `livereg bench`: the speed-versus-accuracy sweep (issue 5). Every configuration of
+//! `livereg bench`: the speed-versus-accuracy sweep. Every configuration of
 //! [`sweep_configs`] registers the same workloads — the phantom's synthetic scenarios (truth
 //! from a different discretisation and law), or the user's scene, frames and truth — and
 //! `DIR/bench.json`, `DIR/bench.png` and `DIR/bench.svg` show TRE against ms per frame with
@@ -76,7 +76,7 @@ pub struct BenchArgs {
     /// stability-indentation.md).
     #[arg(long, conflicts_with_all = ["frames", "only"])]
     pub stability: bool,
-    /// Run the tool-indentation class (issue 18) instead: the sequences of
+    /// Run the tool-indentation class instead: the sequences of
     /// `fixtures/liver_indentation` (truth from a tetrahedral FE solve) registered with the
     /// scene (default: that fixture's scene) and each configuration of `--only` (default:
     /// the scene as it is); writes indentation.json and indentation.md. With `--stability`,

@@ -95,7 +95,7 @@ pub fn run_with(
         );
         let seq = generate_sequence(&loaded, &spec).map_err(|e| e.to_string())?;
         write_sequence(&seq, &dir, scale).map_err(|e| format!("{}: {e}", dir.display()))?;
-        let files = frame_files(&dir.join(crate::synthetic::sequence::FRAMES_DIR))?;
+        let files = frame_files(&dir.join(crate::synthetic::sequence::FRAMES_DIR))?.frames;
         let truth = read_truth(dir.join(crate::synthetic::sequence::TRUTH_FILE))
             .map_err(|e| e.to_string())?;
 
@@ -263,7 +263,7 @@ fn write_view(
     )
 }
 
-/// The tool-indentation class (issue 18) in the demo: each sequence of the bundled
+/// The tool-indentation class in the demo: each sequence of the bundled
 /// tet-FE truth (linear law), clouds without a camera pose, registered with the fixture's
 /// scene (every default) and rigidly only (rigid ICP tracking); the per-frame chart and the
 /// deepest frame's view go to `DIR/tool-indentation/<sequence>/`.
