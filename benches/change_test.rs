@@ -6,8 +6,8 @@
 //! warm clouds) on a curved 12 × 9 cm surface with 1.5 mm noise. And the signed distances
 //! the test is given (`SurfaceDistances`: the k-d tree and normals of a 2,562-vertex surface,
 //! then each point's closest point on the triangles around its nearest vertex), for 680
-//! points off a 10 cm sphere. And the still window's test against its first cloud (session
-//! 37): each point's 32 nearest points of a second cloud of the same patch
+//! points off a 10 cm sphere. And the still window's test against its first cloud: each
+//! point's 32 nearest points of a second cloud of the same patch
 //! (`ChangeTest::neighbours_in`) and the comparison of the two clouds' local medians
 //! (`ChangeTest::evaluate_against`).
 //!

@@ -1,4 +1,4 @@
-//! A warm-started frame on the bundled phantom (issue 3's goal: 30 ms per warm frame):
+//! A warm-started frame on the bundled phantom (the goal: 30 ms per warm frame):
 //! `Session::register` of a partial cloud (30 % of the surface, 3 samples/cm², 1 mm noise,
 //! 10 % outliers: ~800 points) after the session has followed the first frames of a
 //! tool-push sequence. The bench alternates between two nearby frames (the end of the load

@@ -2,7 +2,7 @@
 //! synthetic scenarios and prints, per frame, the wall time and each stage's share
 //! (`FrameResult::times`), the ICP and Newton iterations, the factorisations and the flags;
 //! then the warm frames' p50, p95 and mean, and each stage's mean over them. A diagnostic for
-//! where a warm frame's time goes (docs/registration.md, "The cost of a warm frame"). Run:
+//! where a warm frame's time goes (docs/frames.md#the-cost-of-a-warm-frame). Run:
 //!
 //! `cargo run --release --example frame_stages -- press-slide linear` (a sequence and a truth
 //! law of the fixture; clouds in the model's frame, no camera), or

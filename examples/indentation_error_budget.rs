@@ -17,8 +17,8 @@
 //! right amount of motion; below 1, the registration moves the liver too little). Run:
 //!
 //! `cargo run --release --example indentation_error_budget [-- SCENE]` (about a minute; SCENE:
-//! another scene for the fixture's surface, e.g. finer cells). docs/registration.md, "The
-//! error budget", quotes its table.
+//! another scene for the fixture's surface, e.g. finer cells).
+//! docs/error-estimate.md#the-error-budget quotes its table.
 
 use livereg::benchmark::indentation::{indentation_workload, scene_for, IndentationVariant};
 use livereg::benchmark::Workload;

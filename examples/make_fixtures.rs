@@ -36,7 +36,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         Point3::new(-60.0, -30.0, -10.0),
     ];
     write_points(&dir.join("targets.xyz"), &targets)?;
-    // The liver phantom (issue 3): surface, vessel targets, tumour, ligament, scene (mm).
+    // The liver phantom: surface, vessel targets, tumour, ligament, scene (mm).
     livereg::phantom::write_phantom(&root.join("liver_phantom"))?;
 
     println!("fixtures written under {}", root.display());

@@ -1,4 +1,4 @@
-//! Bad frames on the bundled phantom (issue 3): an empty frame, a NaN coordinate, a cloud far
+//! Bad frames on the bundled phantom: an empty frame, a NaN coordinate, a cloud far
 //! from the model (1 m away: `no-match`) and a million-point frame (thinned, flagged
 //! `decimated`, registered in bounded time). A rejected frame leaves the session exactly as
 //! it was, and the next good frame continues from the last good state: the good frames of a
@@ -246,7 +246,7 @@ fn bad_frames_are_rejected_and_leave_no_trace_on_the_phantom() {
     // Registered, not lost: within twice the noise σ of the truth. (Not as good as the
     // normal cloud of the same frame: on the phantom the non-rigid TRE grows with the
     // cloud's density — 3 → 30 → 83 samples/cm²: 0.41 → 0.68 → 1.04 mm from the same warm
-    // state — see the report in docs/registration.md.)
+    // state — see docs/registration.md#known-limits.)
     let sigma_mm = spec.cloud.noise_sigma / scale;
     assert!(
         big_tre < 2.0 * sigma_mm,

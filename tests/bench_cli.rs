@@ -1,4 +1,4 @@
-//! `livereg bench` (issue 5) as CI runs it: the quick sweep's JSON has finite numbers for
+//! `livereg bench` as CI runs it: the quick sweep's JSON has finite numbers for
 //! every configuration and a chart; the reduced stability matrix has no crash and no
 //! non-finite output, and every cell whose truth could be simulated has numbers.
 
@@ -288,7 +288,7 @@ fn truth_law_changes_the_ground_truth_and_is_recorded() {
     assert!(rel > 1e-4 && rel < 0.3, "max displacements {max_disp:?}");
 }
 
-/// `bench --indentation --stability` (issue 18) end to end, cut to one sequence, one variant
+/// `bench --indentation --stability` end to end, cut to one sequence, one variant
 /// and one frame per cell: it writes both files, every cell of the reduced matrix has numbers
 /// (no crash, no non-finite output) and the table names every axis.
 #[test]

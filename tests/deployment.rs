@@ -1,4 +1,4 @@
-//! The deployment as shipped starts (issue 20): `livereg` is run with the exact argv of
+//! The deployment as shipped starts: `livereg` is run with the exact argv of
 //! `deploy/Dockerfile` (ENTRYPOINT + CMD, its ENV and the configuration it copies, and the
 //! `docker run -e …` its header documents) and of `deploy/kubernetes/livereg.yaml` (the image's
 //! ENTRYPOINT + the container's `args`, the ConfigMap's `config.toml`, the token Secret's file

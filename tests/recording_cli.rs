@@ -2,7 +2,7 @@
 //! Python package (channels, schemas, counts, payloads), `register --frames FILE.mcap`, a
 //! SIGKILL mid-stream leaving a readable file with every frame reported done, and bad files.
 //!
-//! The Python checks need `python3 -m pip install mcap` (done by `.ci/run`).
+//! The Python checks need `python3 -m pip install mcap` (`scripts/test` sets it up).
 
 use std::path::Path;
 use std::process::{Command, Stdio};

@@ -1,5 +1,5 @@
 //! `livereg demo --rerun FILE.rrd` (feature `rerun`): the .rrd file is read back by rerun's
-//! Python SDK (`rerun-sdk` 0.36, installed by `.ci/run`) and holds the expected entities.
+//! Python SDK (`rerun-sdk` 0.36, installed by `scripts/test`) and holds the expected entities.
 #![cfg(feature = "rerun")]
 
 use std::path::Path;

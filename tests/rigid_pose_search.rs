@@ -1,11 +1,12 @@
-//! The rigid stage's global pose search (issue 18, item 6), graded by the truth of synthetic
+//! The rigid stage's global pose search, graded by the truth of synthetic
 //! clouds of the bundled phantom (the cloud is made, then moved by a known motion).
 //!
 //! The study: 27 first frames, a 30 % patch seen from 3 viewpoints × 9 random rotation axes,
 //! 3 samples/cm², 1 mm noise, 10 % outliers, the patch turned by 90° about its centroid and
 //! shifted by 2 cm, the pose otherwise unknown (ICP starts from the identity). Plain ICP ends
-//! in a wrong minimum in most of them (measured: 17 of 27, session 26; a session took one of those frames 104.5° off without any flag or error); the search must find
-//! every pose within 2° and 3 mm (its error is the noise's: 0.1–0.5°). A session then shows
+//! in a wrong minimum in most of them (17 of 27; a session without the search takes one of
+//! those frames 104.5° off without any flag or error); the search must find every pose within
+//! 2° and 3 mm (its error is the noise's: 0.1–0.5°). A session then shows
 //! the search on its first frame and says so (`pose_searched`).
 //!
 //! Run: `cargo test --release --test rigid_pose_search -- --nocapture`.
@@ -204,9 +205,10 @@ fn a_session_searches_the_first_frames_pose_and_says_so() {
 #[test]
 fn an_ambiguous_pose_is_flagged_on_every_frame_that_holds_it() {
     // The indentation class's press-slide with its clouds moved by an unknown offset and only
-    // 5 % of the surface seen: the stability matrix's failing cell (docs/bench.md). The
-    // search finds two poses about as good on the first frame; the session holds that pose,
-    // and every frame built on it must say the pose is ambiguous.
+    // 5 % of the surface seen: the stability matrix's failing cell
+    // (docs/indentation.md#the-classs-stability-matrix). The search finds two poses about as
+    // good on the first frame; the session holds that pose, and every frame built on it must
+    // say the pose is ambiguous.
     use livereg::benchmark::indentation::{
         run_case, scene_for, IndentationCase, IndentationVariant,
     };

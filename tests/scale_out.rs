@@ -1,4 +1,4 @@
-//! Scale-out on one machine (issue 20): two `livereg serve` processes behind a real nginx,
+//! Scale-out on one machine: two `livereg serve` processes behind a real nginx,
 //! configured from `deploy/nginx/livereg.conf` (consistent hashing on `X-Livereg-Session`, as
 //! the Kubernetes Ingress asks ingress-nginx). Sixteen sessions created through the proxy,
 //! half over HTTP and half over gRPC, each stay on one backend over HTTP, WebSocket and gRPC;
@@ -6,7 +6,7 @@
 //! and every session it held moves to the other backend, Rust (WebSocket and gRPC) and Python
 //! alike, with every frame answered.
 //!
-//! nginx comes from the OS packages (`.ci/run` installs it); without it this test fails.
+//! nginx comes from the OS packages (`scripts/test` installs it); without it this test fails.
 
 use std::collections::BTreeSet;
 use std::net::SocketAddr;
@@ -100,7 +100,7 @@ fn start_nginx(dir: &Path, backends: &[&Backend]) -> (Child, SocketAddr, SocketA
         .stdout(Stdio::null())
         .stderr(Stdio::inherit())
         .spawn()
-        .expect("nginx runs (Debian package nginx-light; .ci/run installs it)");
+        .expect("nginx runs (Debian package nginx-light; scripts/test installs it)");
     let http: SocketAddr = format!("127.0.0.1:{hp}").parse().unwrap();
     let grpc: SocketAddr = format!("127.0.0.1:{gp}").parse().unwrap();
     let t = Instant::now();

@@ -3,7 +3,7 @@
 //! extracted from them lies within one voxel (symmetric Hausdorff distance, sampled) of the
 //! bundled phantom liver they were voxelised from.
 //!
-//! Needs `python3 -m pip install nibabel==5.4.2 pynrrd==1.1.3 numpy` (done by `.ci/run`); the
+//! Needs `python3 -m pip install nibabel==5.4.2 pynrrd==1.1.3 numpy` (`scripts/test` sets it up); the
 //! test fails, never skips, when they are missing.
 
 use std::path::{Path, PathBuf};

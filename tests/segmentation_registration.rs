@@ -151,7 +151,7 @@ fn a_labelmap_model_registers_like_the_phantom() {
                     kind.name(),
                     100.0 * (tre / reference - 1.0)
                 );
-                // The 10 %, plus a tenth of a voxel: a model made of voxels is only
+                // The bound's 10 %, plus a tenth of a voxel: a model made of voxels is only
                 // known to within them (the full measurement, 10 frames of every scenario,
                 // is in docs/segmentation.md).
                 if tre > 1.1 * reference + 0.1 * h {

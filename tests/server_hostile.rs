@@ -1,4 +1,4 @@
-//! The server against hostile clients on loopback (issue 20): slow headers, slow bodies, idle
+//! The server against hostile clients on loopback: slow headers, slow bodies, idle
 //! WebSockets, 200 idle connections from one address (and 60 on the gRPC port), a flood of
 //! bad tokens, 1e300 and NaN coordinates, a scene asking for 10⁶ iterations and a frame of 10⁶
 //! points are each refused or cut within their limit, while 4 honest sessions streaming at

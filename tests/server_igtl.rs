@@ -1,5 +1,5 @@
 //! The OpenIGTLink transport end to end, against a real client: pyigtl (PyPI, installed by
-//! `.ci/run`) streams 50 frames of a scene to `livereg serve`'s OpenIGTLink port and gets
+//! `scripts/test`) streams 50 frames of a scene to `livereg serve`'s OpenIGTLink port and gets
 //! back TRANSFORM, POLYDATA and POINT per frame, whose targets equal `livereg register`'s on
 //! the same frames. Then hostile input — a malformed header, a wrong CRC, a content that
 //! disagrees with its size, an unknown message type, a 1 GB body claim — each gets a STATUS

@@ -1,4 +1,4 @@
-//! Every served session writes one MCAP recording (issue 6): a WebSocket session on the
+//! Every served session writes one MCAP recording: a WebSocket session on the
 //! phantom is read back frame for frame and replays with zero difference; a `livereg serve`
 //! killed (SIGKILL) in the middle of a stream leaves a recording holding every frame whose
 //! result the client had received; a `livereg serve` whose disk fills up mid-stream goes on

@@ -1,5 +1,5 @@
-//! Issue 3: "a 50-frame sequence stays stable: no drift when the liver stops moving, no NaN,
-//! bounded work per frame".
+//! A 50-frame sequence stays stable: no drift when the liver stops moving, no NaN, bounded
+//! work per frame.
 //!
 //! The bundled phantom, a synthetic tool-push sequence of 50 frames whose load ramps over the
 //! first third ([`SequenceSpec::ramp_fraction`] = 1/3: full load at frame 16) and then holds;

@@ -1,8 +1,8 @@
-//! Issue 18: the tool-indentation class against a truth from an independent discretisation
+//! The tool-indentation class against a truth from an independent discretisation
 //! (quadratic tetrahedra solved by scikit-fem, `fixtures/liver_indentation`), with clouds as a
 //! camera gives them (500 points on 15 % of the surface around the contact, 1.5 mm noise per
 //! axis, `rigid = "none"`, no camera pose). Tolerances come from the measurements recorded in
-//! docs/registration.md (release build, `livereg bench --indentation`), with margin.
+//! docs/indentation.md#results (release build, `livereg bench --indentation`), with margin.
 
 use livereg::benchmark::indentation::{
     indentation_cases, run_indentation, IndentationCase, IndentationMetrics, IndentationVariant,
@@ -44,11 +44,8 @@ fn run(data_term: DataTerm) -> IndentationMetrics {
 /// Two sites, the first on the thin left lobe (30 mm deep), the second 70 mm deep on the
 /// thick lobe, 50 frames, no camera pose: the default registration follows (measured mean
 /// node error 0.79 mm against 2.90 mm unregistered, p95 2.56 against 10.16 mm, no failed
-/// frame), and better than the thesis's surface → cloud pairing (measured 0.98 mm here since
-/// session 36, when the tests of change began measuring distances to the surface itself
-/// rather than to the tangent planes at its vertices; with the linear law in the model that
-/// pairing once pulled the thin lobe's far side onto the dent and ended at 6.74 mm, worse
-/// than no registration: docs/registration.md).
+/// frame), and better than the thesis's surface → cloud pairing (measured 0.98 mm here;
+/// docs/data-term.md).
 #[test]
 fn the_default_follows_a_deep_indentation_without_camera_and_the_old_pairing_did_not() {
     let m = run(DataTerm::CloudToSurface);
@@ -75,10 +72,10 @@ fn the_default_follows_a_deep_indentation_without_camera_and_the_old_pairing_did
         last.none_mean_mm
     );
     // The contact force on the deep frames (true force above half the sequence's largest):
-    // the concentrated load fitted to the registered field (docs/registration.md, "The contact
-    // force"). Measured: median vector error 0.44, magnitude ratio median 0.87 (0.78–1.08);
-    // before it (the data term's spring sum) 0.84 and 0.94 (0.66–5.54). Issue 18's goal (15 %)
-    // is not met: the model's compliance on 11.5 mm cells and the unobservable sideways part.
+    // the concentrated load fitted to the registered field (docs/contact-force.md). Measured:
+    // median vector error 0.44, magnitude ratio median 0.87 (0.78–1.08); the data term's
+    // spring sum gives 0.84 and 0.94 (0.66–5.54). A 15 % error is out of reach: the model's
+    // compliance on 11.5 mm cells and the unobservable sideways part.
     let largest = m.frames.iter().map(|f| f.force_true_n).fold(0.0, f64::max);
     let deep: Vec<_> = m
         .frames
@@ -229,9 +226,9 @@ fn the_fit_of_the_true_field_measures_the_models_compliance() {
 /// The data term weighed by the cloud's noise (`registration::noise_weight`): press-slide on
 /// the neo-Hookean truth, whose dent is shallow (at most 9.6 mm) against the clouds' 1.5 mm of
 /// noise, registered with the default (the ramp scaled by (1 mm / σ̂)², about 0.44 here) and
-/// with the reference stiffnesses given explicitly (0.02 E h … 2 E h, as before session 30).
+/// with the reference stiffnesses given explicitly (0.02 E h … 2 E h, no noise weight).
 /// Measured (release, `livereg bench --indentation`): 0.32 against 0.54 mm mean node error,
-/// 1.06 mm unregistered; the springs at the reference stiffness pulled the surface onto the
+/// 1.06 mm unregistered; the springs at the reference stiffness pull the surface onto the
 /// noise, far from the dent as well.
 #[test]
 fn a_noisy_clouds_springs_weigh_less_and_its_noise_is_not_registered() {
@@ -276,8 +273,8 @@ fn a_noisy_clouds_springs_weigh_less_and_its_noise_is_not_registered() {
 /// against 3.23 mm (13 %), region 1.49 against 5.47 mm (27 %); over the whole sequence
 /// (`cargo run --release --example indentation_error_budget`) 0.47 mm, 10 %. The camera's
 /// clouds (15 % of the surface, 1.5 mm noise) end at 23 % of no registration on that
-/// sequence and 18 % noise-free: what keeps issue 18's 20 % out of reach is what the cloud
-/// does not show, not the grid (docs/registration.md, "The error budget").
+/// sequence and 18 % noise-free: what keeps 20 % of no registration out of reach is what the
+/// cloud does not show, not the grid (docs/error-estimate.md#the-error-budget).
 #[test]
 fn the_whole_surface_seen_without_noise_leaves_the_models_own_error() {
     let dir = bundled_fixture_dir();

@@ -1,5 +1,5 @@
 //! VTK files against the reference implementation, VTK itself (the `vtk` Python package,
-//! installed by `.ci/run`): what livereg writes (`write_vtk`, `register --vtk`) VTK reads
+//! installed by `scripts/test`): what livereg writes (`write_vtk`, `register --vtk`) VTK reads
 //! back with the same points and cells; what VTK writes in each of its encodings livereg
 //! reads back as the surface VTK was given. The tests fail, not skip, without `vtk`.
 

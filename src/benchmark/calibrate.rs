@@ -1,4 +1,4 @@
-//! `livereg calibrate` (issue 5): model no more than a scene needs. Candidate models, from
+//! `livereg calibrate`: model no more than a scene needs. Candidate models, from
 //! cheap to fine, register synthetic deformations of the patient's own model; the cheapest
 //! that meets a TRE target (or the most accurate within a latency budget) is chosen, and then
 //! checked on fresh frames it was not chosen on.

@@ -1,4 +1,4 @@
-//! The tool-indentation class (issue 18) as bench workloads and its metrics: node error over
+//! The tool-indentation class as bench workloads and its metrics: node error over
 //! the truth mesh's nodes (mean, p95), the error inside the indented region, and each frame's
 //! error against no registration.
 
@@ -21,7 +21,7 @@ use crate::synthetic::indentation::{
 pub const NODES_STRUCTURE: &str = "nodes";
 
 /// A frame is "worse than no registration" when its mean node error exceeds this times the
-/// rest shape's (issue 18: no frame may end more than 10 % worse than no registration).
+/// rest shape's (no frame may end more than 10 % worse than no registration).
 pub const WORSE_THAN_NONE_FACTOR: f64 = 1.1;
 
 /// The frames of an indentation sequence as a [`Workload`] in a scene whose unit is `scale`
@@ -306,7 +306,7 @@ fn loaded_median(
 #[serde(rename_all = "kebab-case")]
 pub enum IndentationVariant {
     /// Clouds in the model's frame (`rigid = "none"`), no camera pose known: the third-party
-    /// benchmark's conditions (issue 18).
+    /// benchmark's conditions.
     NoCamera,
     /// Clouds in the model's frame, each frame with the camera that saw it.
     Camera,

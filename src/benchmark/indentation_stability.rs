@@ -1,4 +1,4 @@
-//! The tool-indentation class (issue 18) in the stability matrix: the fixture's sequences
+//! The tool-indentation class in the stability matrix: the fixture's sequences
 //! (`fixtures/liver_indentation`, truth from a tetrahedral FE solve) registered with one scene,
 //! with ONE condition changed per cell along [`Axis::INDENTATION`] — the clouds' noise, visible
 //! fraction, size and outliers (fields of [`IndentationCloudSpec`]), the registration model's

@@ -1,4 +1,4 @@
-//! Speed against accuracy (issue 5): the configuration sweep of `livereg bench`, the
+//! Speed against accuracy: the configuration sweep of `livereg bench`, the
 //! stability matrix, and the measurements both rest on.
 //!
 //! - [`config`]: a registration model configuration applied on top of a scene;
@@ -7,7 +7,7 @@
 //! - [`sweep`]: every configuration on every workload, the Pareto front, the report;
 //! - [`stability`]: the stability matrix (noise, outliers, visible fraction, deformation,
 //!   grid offset, Poisson's ratio, penalty stiffness) with failures by cause;
-//! - [`indentation`], [`indentation_stability`]: the tool-indentation class (issue 18), its
+//! - [`indentation`], [`indentation_stability`]: the tool-indentation class, its
 //!   workloads and metrics, and its stability matrix (noise, visible fraction, cloud size,
 //!   outliers, Poisson's ratio, law);
 //! - [`calibrate`]: the cheapest model that meets a TRE target or a latency budget;

@@ -1,4 +1,4 @@
-//! The stability matrix (issue 5): each registration method against one disturbance at a
+//! The stability matrix: each registration method against one disturbance at a
 //! time — cloud noise, outliers, visible fraction, deformation size, grid offset (cells cut
 //! differently), Poisson's ratio and penalty stiffness — with the failure rate by cause, the
 //! frames a recovery rescued, and the TRE of each cell. Nothing in it may panic or produce a

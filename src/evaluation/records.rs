@@ -19,7 +19,7 @@ pub struct RigidRecord {
     pub translation: [f64; 3],
     /// How uncertain the pose is: the 1σ misplacement of the model's surface (root mean
     /// square over its vertices) from the noise of the fit that found it, scene units; a
-    /// lower bound (docs/registration.md, "Pose uncertainty"). Omitted when the pose was given
+    /// lower bound (docs/pose.md#pose-uncertainty). Omitted when the pose was given
     /// (`rigid = "none"`) or not determined. This project's addition to the contract.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub uncertainty: Option<f64>,
@@ -120,14 +120,14 @@ pub struct ResultRecord {
     pub contact_force: Option<ContactForceRecord>,
     /// The registration's estimate of the mean error of this frame's structures, scene units
     /// (contracts.md; `null` before any frame succeeded): a bound on the true mean error in
-    /// most frames (docs/registration.md, "Expected error").
+    /// most frames (docs/error-estimate.md#expected-error).
     #[serde(default)]
     pub expected_error: Option<f64>,
 }
 
 /// The contact force a frame's registration implies: the concentrated load at the dent that
 /// explains the registered deformation (N, cloud frame) and where it acts (scene units, cloud
-/// frame); see docs/registration.md, "Contact force".
+/// frame); see docs/contact-force.md.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ContactForceRecord {
     /// Resultant force, N, cloud frame.

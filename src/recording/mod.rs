@@ -1,4 +1,4 @@
-//! Recordings of registration sessions (issue 6): one MCAP file per session holding the scene
+//! Recordings of registration sessions: one MCAP file per session holding the scene
 //! and pre-operative model, every input frame and every result, on JSON channels described by
 //! JSON Schema so that generic MCAP tools decode them.
 //!

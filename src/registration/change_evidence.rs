@@ -1,10 +1,10 @@
-//! Does a cloud show a change of shape beyond its own noise? (issue 18: frames where the liver
-//! is at rest, or has not moved since the last frame, must not end worse than no registration.)
+//! Does a cloud show a change of shape beyond its own noise? (Frames where the liver is at
+//! rest, or has not moved since the last frame, must not end worse than no registration.)
 //!
 //! Registering a cloud that shows no deformation can only fit its noise: on the indentation
-//! class, frames with the tool lifted ended 0.2–0.3 mm from the truth where the rest shape is
-//! exact. [`ChangeTest`] decides from the cloud alone whether the surface it is compared with
-//! (the last registered state, or the rest shape) explains it:
+//! class, frames with the tool lifted end 0.2–0.3 mm from the truth when registered, where the
+//! rest shape is exact. [`ChangeTest`] decides from the cloud alone whether the surface it is
+//! compared with (the last registered state, or the rest shape) explains it:
 //!
 //! 1. the noise of the cloud, σ, from the cloud itself ([`cloud_noise_sigma`]): the RMS
 //!    residual of a quadric fitted to each point's neighbourhood (a surface is smooth at that

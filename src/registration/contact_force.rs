@@ -31,9 +31,9 @@
 //! displacements, 1.31 times the truth's force on press-slide and 1.18 on two-sites with the
 //! point-by-point hold, 1.08 and 1.10 lumped. Only the fit's compliance is lumped; the
 //! registration keeps its hold (lumping it there too cost press-slide neo-Hookean 13 % in node
-//! error; docs/registration.md, "Contact force").
+//! error; docs/contact-force.md).
 //!
-//! Measured on the tool-indentation class (no camera; docs/registration.md, "Contact force"):
+//! Measured on the tool-indentation class (no camera; docs/contact-force.md):
 //! median vector error 19 / 70 / 38 / 31 % (press-slide linear, neo-Hookean, two-sites
 //! linear, neo-Hookean) against 101 / 177 / 79 / 156 % for the spring sum. What remains:
 //! - the model's compliance: even lumped, the fit of the truth's own field needs 1.01–1.22

@@ -14,7 +14,7 @@
 //!
 //! Lengths in metres. The estimate's calibration (the share of frames whose true mean error
 //! it bounds, and its median ratio to the true error) is measured by `livereg bench
-//! --indentation` against tetrahedral FE truths (docs/registration.md, "Expected error").
+//! --indentation` against tetrahedral FE truths (docs/error-estimate.md#expected-error).
 //!
 //! [`PoseCovariance`]: super::PoseCovariance
 

@@ -61,7 +61,8 @@ pub struct NonRigidSettings {
     /// surface, against 0.58 mm with mean + 2σ). A warm frame starts from the last one, so
     /// its true pairs are short, and there it stops the drift of a sliding tool
     /// (tool-indentation press-slide, linear truth, 12 mm cells: 6.75 → 1.24 mm mean node
-    /// error; docs/registration.md). The rigid stage uses it too (`RigidIcp::robust_pruning`).
+    /// error; docs/data-term.md#which-pairs-are-kept). The rigid stage uses it too
+    /// (`RigidIcp::robust_pruning`).
     pub robust_pruning: bool,
     /// Pairs farther apart than this (m) are dropped as well: with a partial cloud, visible
     /// model points beyond the seen patch would otherwise be dragged onto its rim. `None`: no cap.
@@ -83,7 +84,7 @@ pub struct NonRigidSettings {
     /// With `factor_reuse > 1`: refactorisations run on a helper thread and are swapped in
     /// this many Newton steps after they were asked for, the steps in between using the old
     /// factorisation ([`NewtonSolver::set_background_lag`]); 0 (default): refactorise in
-    /// place. Faster on large grids, less accurate (docs/registration.md).
+    /// place. Faster on large grids, less accurate (docs/frames.md#opt-in-speed-settings).
     pub background_lag: usize,
     /// Which way points are paired: model surface vertices to their nearest cloud points
     /// (thesis alg. 3), or every cloud point to its closest point on the model surface
@@ -94,8 +95,8 @@ pub struct NonRigidSettings {
     pub normal_scale: NormalScale,
     /// Factor on every data-term spring's stiffness (the whole penalty ramp), > 0: 1 for one
     /// frame's cloud; `1/n` when the clouds of `n` still frames are registered together, so
-    /// that they weigh as one frame against the body (`Session`, docs/registration.md,
-    /// "Still frames").
+    /// that they weigh as one frame against the body (`Session`,
+    /// docs/frames.md#still-frames).
     pub data_weight: f64,
     /// The noise of the cloud being registered (m, 1σ along the normal), when measured: the
     /// automatic penalty ramp (no `penalty_start`/`penalty_end` given) is scaled by
@@ -106,8 +107,8 @@ pub struct NonRigidSettings {
 /// The scale at which the cloud → surface term takes the surface normal at an anchor.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub enum NormalScale {
-    /// Interpolated vertex normals: the scale of the mesh's triangles (before session 25;
-    /// the registration then depended on the triangulation, docs/registration.md).
+    /// Interpolated vertex normals: the scale of the mesh's triangles (the registration then
+    /// depends on the triangulation, docs/data-term.md#normals-at-the-organs-scale).
     Vertex,
     /// Averaged over a ball whose radius follows the organ's size
     /// ([`NormalsAtScale::default_radius`]: 0.125 × ∛volume, about 1.3 cm for a liver).
@@ -161,22 +162,18 @@ impl NonRigidSettings {
     /// Settings for a frame that starts from the previous frame's result: the shape is
     /// already close, so one stiff penalty step with cheap (modified-Newton) iterations, one
     /// Newton step per ICP iteration, and a tighter ICP stop (0.3 mm RMS surface motion). A
-    /// second step on the same springs with the kept factorisation was often cut by the line
-    /// search below ½, which drops the factorisation; one step alone stopped the ICP loop
-    /// before coarse grids had followed (45 mm cells: 1.52 against 1.44 mm), which the tighter
-    /// stop restores. `livereg bench --only "default,cell x2,full-cell,cell x0.75"` (session 7,
-    /// two quiet runs), against two steps and 0.5 mm: TRE 1.22 / 1.45 / 1.36 / 1.22 against
-    /// 1.23 / 1.44 / 1.37 / 1.23 mm; warm p95 29–30 against 41–48 ms on the default grid (p50
-    /// 21–23 against 15 ms) and 45–46 against 131–151 ms on 646 nodes (p50 37 against
-    /// 36–44 ms).
+    /// second step on the same springs with the kept factorisation is often cut by the line
+    /// search below ½, which drops the factorisation; one step with the 0.5 mm stop ends the
+    /// ICP loop before coarse grids have followed (45 mm cells: 1.52 against 1.44 mm).
+    /// `livereg bench --only "default,cell x2,full-cell,cell x0.75"`: TRE 1.22 / 1.45 / 1.36 /
+    /// 1.22 mm, as with two steps and 0.5 mm, at warm p95 29–30 ms on the default grid and
+    /// 45–46 ms on 646 nodes (two steps: 41–48 and 131–151 ms).
     ///
-    /// At most 6 ICP iterations (10 before session 8): on a noisy cloud the surface never
-    /// stops moving by the 0.3 mm test — after 4–5 iterations it keeps moving 0.4–0.8 mm RMS
-    /// per iteration chasing single pairs that switch between neighbouring noisy samples,
-    /// so most frames ran to the cap for no gain. `livereg bench --only "default,cell x0.75,
-    /// cell x2"` with 10 / 8 / 6 / 4 iterations: TRE 1.22 / 1.24 / 1.23 / 1.30 mm on the
-    /// default grid, 1.22 / 1.22 / 1.23 / 1.29 on 646 nodes, 1.45 / 1.46 / 1.52 / 1.53 on
-    /// 45 mm cells, at warm p50 22 / 18 / 15 / 13 ms on the default grid.
+    /// At most 6 ICP iterations: on a noisy cloud the surface never stops moving by the
+    /// 0.3 mm test — after 4–5 iterations it keeps moving 0.4–0.8 mm RMS per iteration
+    /// chasing single pairs that switch between neighbouring noisy samples — so more
+    /// iterations buy nothing. `livereg bench --only "default,cell x0.75,cell x2"`: TRE 1.23
+    /// mm on the default grid at warm p50 15 ms (10 iterations: 1.22 mm at 22 ms; 4: 1.30 mm).
     pub fn warm() -> Self {
         Self {
             penalty_steps: 1,
@@ -347,10 +344,10 @@ pub fn hidden_match_tolerance(cloud_noise: Option<f64>, h: f64) -> f64 {
 /// warm frame (median/MAD pruning, [`NonRigidSettings::robust_pruning`]) keeps long pairs in
 /// coherent regions ([`PairingRule::keep_coherent`]); a noisier cloud, and a cold frame, are
 /// pruned by the pair-length threshold alone (a cold frame from rest with 30 % outliers
-/// moved the structures 2.9 → 4.6 mm with it). Measured (docs/registration.md, "What the
-/// cloud shows"): on noise-free clouds of force-driven 50 mm dents the kept pairs reach the
-/// dent (distance of the cloud to the registered surface at the dent 4.5 → 1.0 mm, node
-/// error 1.41 → 1.07 mm);
+/// moved the structures 2.9 → 4.6 mm with it). Measured
+/// (docs/data-term.md#which-pairs-are-kept): on noise-free clouds of force-driven 50 mm
+/// dents the kept pairs reach the dent (distance of the cloud to the registered surface at
+/// the dent 4.5 → 1.0 mm, node error 1.41 → 1.07 mm);
 /// on the bundled tool-indentation class (1.5 mm noise, 50–70 mm displacement-driven dents)
 /// they made the registration drift (press-slide linear 1.08 → 5.9 mm).
 pub const COHERENT_MAX_NOISE: f64 = 0.5e-3;
@@ -415,8 +412,8 @@ pub const PENALTY_END_PER_EH: f64 = 2.0;
 pub const REFERENCE_NOISE: f64 = 1e-3;
 
 /// The smallest [`noise_weight`]: a cloud noisier than 2 mm is weighted as one of 2 mm.
-/// Measured with the quick stability matrices (docs/registration.md, "The data term's
-/// stiffness"): without the bound, the phantom at 4 mm noise went from 1.87 to 2.08 mm mean
+/// Measured with the quick stability matrices (docs/data-term.md#the-data-terms-stiffness):
+/// without the bound, the phantom at 4 mm noise went from 1.87 to 2.08 mm mean
 /// TRE (weight 1/16: the large deformation was no longer followed); with it, 1.84 mm, while
 /// tool-indentation at 3 mm noise kept most of its gain (1.33 → 1.18 mm, 1.12 unbounded).
 pub const MIN_NOISE_WEIGHT: f64 = 0.25;
@@ -426,12 +423,12 @@ pub const MIN_NOISE_WEIGHT: f64 = 0.25;
 /// `(REFERENCE_NOISE / σ)²`, within [[`MIN_NOISE_WEIGHT`], 1]; 1 when not measured. Each
 /// spring is one point's evidence, and evidence weighs as the inverse of its variance: the
 /// data term `Σ k (n·(x − q))²/2` is the log-likelihood of points of noise σ when
-/// `k ∝ 1/σ²`, against the elastic energy as the prior (docs/registration.md, "The data
-/// term's stiffness"). With a fixed k a noisy cloud's springs pulled the surface onto its
-/// noise: tool-indentation (1.5 mm noise, weight 0.44) press-slide neo-Hookean went from
-/// 0.54 to 0.32 mm mean node error. Never above 1: a cleaner cloud than the reference keeps
-/// the reference stiffness (stiffer springs were not measured to pay, and σ → 0 would make
-/// them unbounded).
+/// `k ∝ 1/σ²`, against the elastic energy as the prior
+/// (docs/data-term.md#the-data-terms-stiffness). With a fixed k a noisy cloud's springs
+/// pulled the surface onto its noise: tool-indentation (1.5 mm noise, weight 0.44)
+/// press-slide neo-Hookean went from 0.54 to 0.32 mm mean node error. Never above 1: a
+/// cleaner cloud than the reference keeps the reference stiffness (stiffer springs were not
+/// measured to pay, and σ → 0 would make them unbounded).
 pub fn noise_weight(sigma: Option<f64>) -> f64 {
     match sigma {
         Some(s) if s.is_finite() && s > REFERENCE_NOISE => {

@@ -15,7 +15,7 @@
 //! `tr(J C Jᵀ)`. A patch that is nearly flat or nearly a surface of revolution leaves a
 //! direction of `ξ` almost unseen, and `C` says so: on the tool-indentation class's 15 %
 //! patches (500 points, 1.5 mm noise per axis) the rotation's 1σ is 1.6–2.5°, as large as the
-//! pose errors measured there (1–4°; docs/registration.md, "The rigid stage").
+//! pose errors measured there (1–4°; docs/pose.md#limits).
 //!
 //! What it leaves out: a residual that is not noise (a deformation the rigid fit cannot
 //! follow, a systematic bias) and a wrong pose basin (flag `pose_ambiguous`); it is the noise's

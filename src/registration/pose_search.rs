@@ -1,4 +1,4 @@
-//! Global search of the rigid pose when the start is only roughly known (issue 18, item 6).
+//! Global search of the rigid pose when the start is only roughly known.
 //!
 //! Rigid ICP is a local method: from a start some tens of degrees off, a partial patch of a
 //! smooth organ can slide into a wrong minimum and stop there *converged* (measured on the

@@ -1,4 +1,4 @@
-//! The cloud → surface data term of non-rigid ICP (issue 18): every cloud point is paired with
+//! The cloud → surface data term of non-rigid ICP: every cloud point is paired with
 //! its closest point on the model's current deformed surface — a point inside a triangle,
 //! given by its barycentric weights (a [`SurfaceAnchor`]) — and the spring acts there. Every
 //! point of a partial cloud has a counterpart on the whole model, but not the reverse, so this

@@ -1,15 +1,14 @@
 //! A triangle surface (typically the model's, deformed) prepared for signed distances of
 //! points to it: the measure behind the session's tests of what a frame is (at rest, still
-//! since the last frame, a pose that still fits; issue 18) and its gate.
+//! since the last frame, a pose that still fits) and its gate.
 //!
 //! A cloud point's signed distance is to its closest point ON the surface's triangles (found
 //! on the triangles around its nearest vertex, [`closest_anchor`]), positive outside by the
-//! interpolated vertex normal there. Until session 36 it was the distance to the tangent
-//! plane at the nearest vertex, which on a curved surface puts a point lying on it
-//! `≈ κ r² / 2` inside (`κ` the curvature, `r` the distance to that vertex): on the
-//! indentation fixture's liver (7 mm edges) the clouds of a liver at rest sat 0.17–0.19 mm
-//! inside on average, which at 0.5 mm camera noise was enough for the rest test to see a
-//! change where there was none.
+//! interpolated vertex normal there. The distance to the tangent plane at the nearest vertex
+//! would put a point lying on a curved surface `≈ κ r² / 2` inside (`κ` the curvature, `r`
+//! the distance to that vertex): on the indentation fixture's liver (7 mm edges) the clouds
+//! of a liver at rest would sit 0.17–0.19 mm inside on average, which at 0.5 mm camera noise
+//! is enough for the rest test to see a change where there is none.
 //! Lengths in metres.
 
 use std::sync::Arc;

@@ -6,9 +6,9 @@
 //! scale of the mesh's own triangles: the same shape triangulated four times finer gives a
 //! nearly faceted normal field (inside every old triangle the normal is that triangle's), and
 //! a surface the registration has wrinkled at the scale of its grid cells turns its vertex
-//! normals with the wrinkles. Both made the registration depend on how the surface was
-//! triangulated (issue 19: the same phantom geometry, midpoint-subdivided from 5,120 to
-//! 81,920 triangles, registered 23 % worse on the pneumoperitoneum).
+//! normals with the wrinkles. Both make the registration depend on how the surface is
+//! triangulated (with vertex normals, the same phantom geometry midpoint-subdivided from
+//! 5,120 to 81,920 triangles registers 23 % worse on the pneumoperitoneum).
 //!
 //! [`NormalsAtScale`] averages the interpolated vertex-normal field over a ball of fixed
 //! radius around each vertex instead, and the pairing interpolates these smoothed vertex
@@ -21,10 +21,10 @@
 //! clusters: a cost of samples plus vertices × clusters in reach, whatever the cloud. So the
 //! average is over the *area* near the vertex whatever the size of the triangles that make it
 //! up; on a mesh whose triangles are larger than the ball it is the vertex normal itself (a
-//! facet's own normal would be worse: measured in docs/registration.md). The radius is a length of
+//! facet's own normal would be worse: measured in docs/data-term.md). The radius is a length of
 //! the organ, not of its mesh: [`NormalsAtScale::default_radius`], 0.125 × the cube root of
 //! the enclosed volume (about 1.3 cm for a liver), chosen on two liver surfaces and five
-//! scenario classes in docs/registration.md ("Normals at the organ's scale"). Lengths in
+//! scenario classes in docs/data-term.md#normals-at-the-organs-scale. Lengths in
 //! metres.
 
 use std::collections::HashMap;

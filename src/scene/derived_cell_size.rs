@@ -1,12 +1,13 @@
-//! The cell size a scene gets when `grid.cell_size` is omitted (issue 18): derived from the
+//! The cell size a scene gets when `grid.cell_size` is omitted: derived from the
 //! enclosed volume of its surface, so that one default serves livers of any size and any
 //! file unit.
 //!
 //! Rule: `h = V^(1/3) / CELLS_PER_CUBE_ROOT`, with `V` the volume the surface encloses (scene
 //! units³). A liver of 1.1–1.2 L gets 11.5–11.8 mm cells (about 1,500 active nodes): on the
-//! tool-indentation class they give 1.32 / 0.82 mm mean node error at 23 ms warm p50 / 35 ms
-//! p95, where 8 mm cells with 4 levels gave 7–9 % less error at 89 / 115 ms (issue 18's goal:
-//! p50 ≤ 30 ms, p95 ≤ 60 ms); see docs/registration.md.
+//! tool-indentation class (`livereg bench --indentation`) they give 1.32 / 0.82 mm mean node
+//! error at 23 ms warm p50 / 35 ms p95, where 8 mm cells with 4 levels give 7–9 % less error
+//! at 89 / 115 ms, beyond a warm frame's 30 ms p50 and 60 ms p95; see
+//! docs/indentation.md#the-classs-sweep.
 
 use crate::mesh::TriSurface;
 

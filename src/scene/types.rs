@@ -558,8 +558,8 @@ pub enum PoseUpdate {
     /// best-fitting half of the cloud lies at least twice as close to the last registered
     /// shape after rigid ICP from the held pose, and closer by more than 0.3 mm) takes the
     /// fitted pose: clouds from a camera that moves slowly and has no tracker, which the
-    /// elastic model would otherwise absorb frame after frame (docs/registration.md, "What
-    /// the cloud shows").
+    /// elastic model would otherwise absorb frame after frame
+    /// (docs/pose.md#hold-track-or-follow).
     #[serde(rename = "follow")]
     Follow,
 }
@@ -624,8 +624,8 @@ pub struct RegistrationSpec {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub penalty_end: Option<f64>,
     /// Factor on the automatic ramp's ends (those not given above), > 0 (default 1): stiffer
-    /// or softer springs that keep the cloud-noise weight (docs/registration.md, "The data
-    /// term's stiffness").
+    /// or softer springs that keep the cloud-noise weight
+    /// (docs/data-term.md#the-data-terms-stiffness).
     #[serde(default = "defaults::penalty_scale")]
     pub penalty_scale: f64,
     /// Number of steps n_p of the ramp (default 3), ≥ 1.
@@ -642,7 +642,7 @@ pub struct RegistrationSpec {
     /// flagged `time_budget` (`None`: no budget); > 0.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub time_budget_ms: Option<f64>,
-    /// Clouds with more points are thinned to at most this many (default 5 000); ≥ 3.
+    /// Clouds with more points are thinned to at most this many (default 2 000); ≥ 3.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_cloud_points: Option<u32>,
     /// Coarse-to-fine start: a cold frame (the first, or after a reset or failure) is first
@@ -651,34 +651,34 @@ pub struct RegistrationSpec {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub coarse_to_fine: Option<f64>,
     /// Rigid ICP prunes its pairs at median + 2 × 1.4826 MAD of their distances when true
-    /// (the default since session 11: docs/bench.md); false: at mean + 2σ as in the thesis,
-    /// which gross outliers and small visible patches defeat. (The non-rigid stage keeps
-    /// mean + 2σ: see `NonRigidSettings::robust_pruning`.)
+    /// (the default: docs/bench.md#why-each-default); false: at mean + 2σ as in the thesis,
+    /// which gross outliers and small visible patches defeat. (The non-rigid stage has its own
+    /// rule: see `NonRigidSettings::robust_pruning`.)
     #[serde(default = "defaults::robust_pruning")]
     pub robust_pruning: bool,
     /// A frame whose pose is not known from the last one (the first, after a reset or a
     /// failure, a re-acquisition) has its rigid pose searched from many starts around the
-    /// initial one, every turn up to a half turn (default true since session 26;
-    /// docs/registration.md, "The rigid stage"); false: plain ICP from the initial pose.
+    /// initial one, every turn up to a half turn (default true;
+    /// docs/pose.md#global-pose-search); false: plain ICP from the initial pose.
     #[serde(default = "defaults::pose_search")]
     pub pose_search: bool,
     /// A frame whose cloud the rest shape explains within the cloud's own noise is kept at
-    /// rest (flag `at_rest`) instead of being registered (default true since session 26;
-    /// docs/registration.md, "Frames at rest").
+    /// rest (flag `at_rest`) instead of being registered (default true;
+    /// docs/frames.md#frames-at-rest).
     #[serde(default = "defaults::rest_test")]
     pub rest_test: bool,
     /// Warm frames whose clouds the last registered shape explains within their noise (the
     /// liver has not moved; seen by the same camera) are registered together, the newest up
     /// to this many (and `max_cloud_points` points), each cloud's springs at `1/n` of the
     /// stiffness: the cloud noise averages over the frames while the data term weighs as
-    /// one frame's. 1: every frame alone. Default 4 since session 28 (docs/registration.md,
-    /// "Still frames"); needs `rest_test`'s noise test (off with it).
+    /// one frame's. 1: every frame alone. Default 4 (docs/frames.md#still-frames);
+    /// needs `rest_test`'s noise test (off with it).
     #[serde(default = "defaults::still_frames")]
     pub still_frames: u32,
     /// A fitted pose whose uncertainty (the 1σ misplacement of the model's surface from the
     /// noise of its rigid fit, root mean square over the vertices) exceeds this, scene units,
     /// is flagged `pose_uncertain` on every frame that holds it. Omitted: 2 mm
-    /// (docs/registration.md, "Pose uncertainty").
+    /// (docs/pose.md#pose-uncertainty).
     #[serde(default)]
     pub max_pose_uncertainty: Option<f64>,
     /// A frame whose expected error (`results.jsonl` `expected_error`: the registration's
@@ -688,13 +688,13 @@ pub struct RegistrationSpec {
     pub max_expected_error: Option<f64>,
     /// Warm frames refactorise the tangent on a helper thread while their Newton steps go on
     /// with the old factorisation (default false): faster on large grids, slightly less
-    /// accurate (docs/registration.md). Results stay deterministic.
+    /// accurate (docs/frames.md#opt-in-speed-settings). Results stay deterministic.
     #[serde(default)]
     pub background_factorization: bool,
     /// Cloud points far from every other point (statistical outlier removal on the cloud
     /// alone: mean distance to their 8 nearest neighbours above median + 3 × 1.4826 MAD and
-    /// 2.5 × the median) are removed before both stages when true (the default since session
-    /// 12: docs/bench.md); the frame is flagged `isolated_removed`.
+    /// 2.5 × the median) are removed before both stages when true (the default:
+    /// docs/bench.md#why-each-default); the frame is flagged `isolated_removed`.
     #[serde(default = "defaults::remove_isolated_points")]
     pub remove_isolated_points: bool,
     /// Direction of the non-rigid stage's correspondences (`"surface-to-cloud"`: model
@@ -703,9 +703,9 @@ pub struct RegistrationSpec {
     #[serde(default)]
     pub data_term: DataTerm,
     /// Radius of the ball the cloud → surface term averages the surface normal over, scene
-    /// units; 0: interpolated vertex normals (the mesh's own scale, before session 25).
+    /// units; 0: interpolated vertex normals (the mesh's own scale).
     /// Omitted: 0.125 × the cube root of the surface's volume, about 1.3 cm for a liver
-    /// (docs/registration.md, "Normals at the organ's scale").
+    /// (docs/data-term.md#normals-at-the-organs-scale).
     #[serde(default)]
     pub normal_radius: Option<f64>,
 }

@@ -117,7 +117,7 @@ fn schemas() -> Value {
                        "translation": {"$ref": "#/components/schemas/Point"},
                          "uncertainty": {"type": "number", "description": "The pose's 1σ misplacement of the model surface (RMS over its vertices) from the fit's noise, scene units; a lower bound. Absent when the pose was given (rigid = none) or not determined."}}},
       "ContactForce": {"type": "object", "required": ["resultant_n", "magnitude_n", "centre"],
-        "description": "The one concentrated load at the dent that explains the registered deformation (docs/registration.md, Contact force).",
+        "description": "The one concentrated load at the dent that explains the registered deformation (docs/contact-force.md).",
         "properties": {"resultant_n": {"$ref": "#/components/schemas/Point"},
                        "magnitude_n": {"type": "number"},
                        "centre": {"$ref": "#/components/schemas/Point"}}},

@@ -387,8 +387,8 @@ mod tests {
         assert_eq!(choose(&s, now, limit, fresh), Some(0));
         s[2].since = at(60);
         assert_eq!(choose(&s, now, limit, fresh), Some(2));
-        // Only frames at most 25 ms old may jump the queue: session 2's (20 ms) may, session
-        // 0's (30 ms) may not; with neither fresh enough, the freshest frame wins again.
+        // Only frames at most 25 ms old may jump the queue: `s[2]`'s (20 ms) may, `s[0]`'s
+        // (30 ms) may not; with neither fresh enough, the freshest frame wins again.
         let gate = Duration::from_millis(25);
         assert_eq!(choose(&s, now, limit, gate), Some(2));
         s[2].pending = Some(at(160));

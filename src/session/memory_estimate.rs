@@ -1,6 +1,6 @@
 //! How much memory a registration session will hold once it has registered frames, estimated
 //! when it is created, before its first frame: a server admits a session only when its
-//! estimate fits the memory budget left (issue 20).
+//! estimate fits the memory budget left.
 //!
 //! The estimate is the peak live heap of a session over its first frames, summed over its
 //! models (the fine one, and the coarse one of a coarse-to-fine start), as a linear function
@@ -13,9 +13,9 @@
 //! | embedded point (surface vertex, structure point, probe) | 420 | embedding, k-d trees, correspondences |
 //! | triangle (surface, structure meshes) | 600 | adjacency, surface samples of the rigid and data terms |
 //! | the normals' averaging | its own count | samples and vertex–cluster entries (`NormalsAtScale::heap_bytes`, counted, not fitted) |
-//! | the surface's topology for signed distances | its own count | triangles and the triangles around each vertex (`SurfaceTopology::heap_bytes`, counted, not fitted; session 36) |
+//! | the surface's topology for signed distances | its own count | triangles and the triangles around each vertex (`SurfaceTopology::heap_bytes`, counted, not fitted) |
 //! | the rest compliance of the contact force | 8 per factor value, 16 per tangent entry | its own f64 factor and copy of the rest tangent (`RestCompliance`, counted, not fitted; non-rigid sessions) |
-//! | the still window's registered points | 800 per point, at the `max_cloud_points` cap | the data term, trees and neighbour lists of a union of clouds (non-rigid sessions with `still_frames` > 1; session 37, measured: below) |
+//! | the still window's registered points | 800 per point, at the `max_cloud_points` cap | the data term, trees and neighbour lists of a union of clouds (non-rigid sessions with `still_frames` > 1; measured: below) |
 //!
 //! The factor's size comes from the same symbolic analysis the solver makes (fill-reducing
 //! ordering included), without allocating the factor: it grows faster than the grid (about
@@ -26,10 +26,10 @@
 //! `tests/session_memory.rs` checks all four against the allocator.
 //!
 //! The fit's sessions registered one cloud of a third of the surface's vertices per frame.
-//! A still window registers the union of its clouds, up to `max_cloud_points` points: when
-//! that test's frames began to gather (session 37), the peaks grew by 0.6–0.7 MiB for 854
-//! more points on the phantom and 0.2–0.5 MiB for 1,251 on the tool-indentation liver, and
-//! the coarse phantom's estimate fell to 0.79 of its peak. The window is counted at its cap,
+//! A still window registers the union of its clouds, up to `max_cloud_points` points: where
+//! that test's frames gather, the peaks grow by 0.6–0.7 MiB for 854 more points on the
+//! phantom and 0.2–0.5 MiB for 1,251 on the tool-indentation liver (without a term for them,
+//! the coarse phantom's estimate is 0.79 of its peak). The window is counted at its cap,
 //! [`BYTES_PER_WINDOW_POINT`] each (the phantom's, the larger).
 
 use crate::linalg::{predicted_factor_len, SolverKind};

@@ -950,8 +950,8 @@ impl Session {
         // Frame to frame (rigid-only or tracked pose): the start is the last pose.
         let tracking = self.good.registered;
         let r = self.rigid_fit(cloud, start, tracking, !tracking, flags)?;
-        // A fit stopped by its iteration cap says so (issue 18: rigid ICP on a partial patch
-        // ended 43–88° off while reporting convergence).
+        // A fit stopped by its iteration cap says so (rigid ICP on a partial patch can stop
+        // there 43–88° off).
         if r.iterations > 0 && !r.converged {
             flags.push("rigid_not_converged".into());
         }
@@ -1437,11 +1437,11 @@ pub struct RecoveryRung {
 ///    (Levenberg–Marquardt diagonal shift), so every step is a descent direction and the line
 ///    search on the energy always finds a decrease that keeps every cell uninverted.
 ///
-/// Until issue 18 the second rung swapped the material law (corotated, or linear for a
-/// corotated model) for the frame. What it rescued was the linear solve, not the law: with
-/// Jacobi-CG, the exact (indefinite) neo-Hookean, Mooney–Rivlin and SVK tangents stopped CG
-/// ("matrix is not positive definite") while the corotated law's projected tangent did not.
-/// The damped direct solve rescues those frames with the scene's law (`src/session/tests.rs`,
+/// Both rungs keep the scene's material law: what fails on such frames is the linear solve,
+/// not the law. With Jacobi-CG, the exact (indefinite) neo-Hookean, Mooney–Rivlin and SVK
+/// tangents stop CG ("matrix is not positive definite"), while the corotated law's projected
+/// tangent does not; swapping in that law would register another law's answer. The damped
+/// direct solve rescues those frames with the scene's law (`src/session/tests.rs`,
 /// `the_recovery_keeps_the_scenes_law`).
 pub fn recovery_ladder(cold: &NonRigidSettings, newton: &NewtonSettings) -> [RecoveryRung; 2] {
     let smaller = recovery_settings(cold);

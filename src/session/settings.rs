@@ -23,8 +23,8 @@ pub struct SessionSettings {
     /// A fitted pose whose uncertainty ([`PoseCovariance`](crate::registration::PoseCovariance):
     /// the 1σ misplacement of the model's surface, root mean square over its vertices, from
     /// the fit's own noise) exceeds this, metres, is flagged `pose_uncertain` on every frame
-    /// that holds it (`registration.max_pose_uncertainty`, default 2 mm; docs/registration.md,
-    /// "Pose uncertainty").
+    /// that holds it (`registration.max_pose_uncertainty`, default 2 mm;
+    /// docs/pose.md#pose-uncertainty).
     pub max_pose_uncertainty: f64,
     /// A frame whose expected error ([`crate::registration::error_estimate`]) exceeds this,
     /// metres, is flagged `expected_error_high`: a display should dim its overlay
@@ -35,7 +35,7 @@ pub struct SessionSettings {
     /// The multi-start search of the rigid pose on a frame whose pose is not known from the
     /// last one (the first frame, after a reset or failure, and a re-acquisition): `None`
     /// fits by plain ICP from the start alone (`registration.pose_search = false`). Default
-    /// [`PoseSearch::default`] (docs/registration.md, "The rigid stage").
+    /// [`PoseSearch::default`] (docs/pose.md#global-pose-search).
     pub pose_search: Option<PoseSearch>,
     /// A frame whose cloud (after the rigid stage) the rest shape explains within the cloud's
     /// own noise is kept at rest (flag `at_rest`), without the non-rigid stage
@@ -49,8 +49,9 @@ pub struct SessionSettings {
     /// when the mean squared inlier distance changes by at most this fraction (default 1e-4,
     /// an RMS change of 0.005 %), if looser than `rigid.relative_tolerance` (1e-6, kept for
     /// the first frame and pose re-acquisition). On noisy clouds the mean + 2σ inlier set
-    /// keeps switching and 1e-6 is never met: every tracked frame ran all 50 iterations
-    /// (`livereg bench`, rigid only, session 7: 21 → 1.5 ms per frame p50, TRE 2.22 → 2.21 mm).
+    /// keeps switching and 1e-6 is never met: every tracked frame would run all 50 iterations
+    /// (`livereg bench`, the rigid-only row: 1.5 ms per frame p50 against 21 ms with 1e-6,
+    /// TRE 2.21 against 2.22 mm).
     pub tracking_relative_tolerance: f64,
     /// Spacing of the surface samples rigid ICP pairs with, metres.
     pub target_spacing: f64,
@@ -58,9 +59,9 @@ pub struct SessionSettings {
     /// registered surface (RMS of point-to-tangent-plane distances after mean + 2σ, metres) is
     /// rejected as not showing this liver (the default 2 cm is far above noise and the
     /// residual of any frame the registration followed). Judged after the non-rigid stage: a
-    /// deep indentation is far from the *rest* shape, not from the registered one (issue 18:
-    /// a 5 cm tool push gave 23 mm before registration and was refused when this gate looked
-    /// at the rigid fit). Re-acquiring a lost pose also uses it.
+    /// deep indentation is far from the *rest* shape, not from the registered one (a 5 cm
+    /// tool push is 23 mm from it before registration: a gate on the rigid fit would refuse
+    /// it). Re-acquiring a lost pose also uses it.
     pub max_rigid_rms: f64,
     /// Before registration, a cloud whose RMS distance to the current surface (after rigid
     /// ICP, or at the identity with `rigid = "none"`) exceeds this (metres) is rejected at
@@ -99,16 +100,16 @@ pub struct SessionSettings {
 }
 
 /// Default of [`SessionSettings::max_cloud_points`]: about twice a normal frame's cloud on the
-/// phantom. Denser clouds register worse there: a million-point frame thinned to 20,000 points
-/// gave TRE 2.5 mm (session 4); with session 7's code, thinned to 5,000: 1.36 mm, to 2,000:
-/// 0.98 mm, to 1,000: 0.88 mm (the next normal frame then 0.52 against 0.44 mm); the normal
-/// ~700-point cloud of that frame: 0.45 mm (`cargo test --test bad_frames -- --nocapture`).
+/// phantom. Denser clouds register worse there: a million-point frame thinned to 5,000 points
+/// gives TRE 1.36 mm, to 2,000: 0.98 mm, to 1,000: 0.88 mm (the next normal frame then 0.52
+/// against 0.44 mm); the normal ~700-point cloud of that frame: 0.45 mm
+/// (`cargo test --test bad_frames -- --nocapture`).
 pub const DEFAULT_MAX_CLOUD_POINTS: usize = 2_000;
 
 /// Newton steps a helper-thread refactorisation lags behind its request when the scene asks
 /// for `registration.background_factorization` (`NonRigidSettings::background_lag`). Two steps
 /// hide most of a 1,443-node factorisation (20 ms against ~5 ms per step); three lose more
-/// accuracy (docs/registration.md).
+/// accuracy (docs/frames.md#opt-in-speed-settings).
 pub const BACKGROUND_FACTORIZATION_LAG: usize = 2;
 
 impl Default for SessionSettings {
@@ -179,7 +180,7 @@ impl SessionSettings {
                 s.max_expected_error = d * scale;
             }
             // Warm frames prune at median/MAD with the cloud → surface term (measured in
-            // docs/registration.md); the thesis's direction keeps mean + 2σ.
+            // docs/data-term.md#which-pairs-are-kept); the thesis's direction keeps mean + 2σ.
             s.warm.robust_pruning = r.data_term == DataTerm::CloudToSurface;
             if r.background_factorization {
                 s.warm.background_lag = BACKGROUND_FACTORIZATION_LAG;
@@ -199,10 +200,9 @@ impl SessionSettings {
             LawKind::NeoHookean | LawKind::Svk | LawKind::MooneyRivlin
         ) {
             // `NonRigidSettings::warm`'s single Newton step per ICP iteration and 0.3 mm stop
-            // are measured on the corotated and linear laws. The hyperelastic laws keep the
-            // earlier two steps and 0.5 mm (`livereg bench`, session 7: neo-Hookean 1.72 mm
-            // TRE with one step against 1.32 with two; SVK 1.40 with one step and 0.3 mm
-            // against 1.32).
+            // are measured on the corotated and linear laws. The hyperelastic laws take two
+            // steps and 0.5 mm (`livereg bench`: neo-Hookean 1.72 mm TRE with one step against
+            // 1.32 with two; SVK 1.40 with one step and 0.3 mm against 1.32).
             s.warm.newton_iterations = 2;
             s.warm.tolerance = 5e-4;
         }

@@ -3,17 +3,17 @@
 //! Between two motions of the tool the liver is still, and each new cloud is the same surface
 //! seen again through new noise. Registered alone, every frame refits its own noise and the
 //! overlay trembles: on the tool-indentation class, ten frames of press-slide (neo-Hookean)
-//! with the tool held still scored 0.35–0.76 mm each against an unchanged truth. The window
+//! with the tool held still score 0.35–0.76 mm each against an unchanged truth. The window
 //! keeps the clouds (model frame, metres) of the frames whose cloud showed no change against
 //! the window's first cloud (below) and that the same camera saw; the session
 //! registers their union with each spring at `1/n` of its stiffness
 //! ([`NonRigidSettings::data_weight`](crate::registration::NonRigidSettings::data_weight)), so
 //! the data term weighs as one frame's against the body while its noise averages over `n`
 //! frames. A frame that shows a change, a new camera, a reset or a frame kept at rest starts
-//! the window again. Measured in docs/registration.md, "Still frames".
+//! the window again. Measured in docs/frames.md#still-frames.
 //!
 //! "No change" is judged against the window's first cloud, not against the last registered
-//! shape (session 37): both clouds are measured to that shape and their local medians
+//! shape: both clouds are measured to that shape and their local medians
 //! compared ([`ChangeTest::evaluate_against`](crate::registration::change_evidence::ChangeTest::evaluate_against)),
 //! so that what the model cannot follow (a dent narrower than a cell) cancels instead of
 //! reading as motion; and every cloud of the window is then within the noise of its first.

@@ -254,7 +254,7 @@ fn isolated_outliers_case(data_term: DataTerm) {
     // sample spacing of the surface) gets a spring, so a cold frame with 30 % outliers moves
     // further (measured: 2.94 mm with the filter, 7.08 mm without, against 0.5 mm / more
     // than twice that with surface → cloud): the price of that term, reported in
-    // docs/registration.md; the filter still removes most of the harm.
+    // docs/data-term.md; the filter still removes most of the harm.
     let with = max_change(&filtered, &reference);
     let without = max_change(&unfiltered, &reference);
     let bound = match data_term {
@@ -551,10 +551,10 @@ fn contact_force_recovers_a_concentrated_load() {
 /// definite"), in the first attempt and in the `smaller-steps` rung (same solver); the
 /// `damped-newton` rung (a direct, Levenberg–Marquardt-damped factorisation) finishes it. The
 /// expectation is independent of the ladder: the same frame registered with the direct solver
-/// in one attempt (no failure), i.e. the neo-Hookean answer, not another law's. Until issue 18
-/// the ladder swapped in the corotated law; the corotated registration of the frame is
-/// 1.4 mm from the neo-Hookean one at the worst target, the rescued frame 0.14 mm (the ramps
-/// differ in steps, so the pairs do), so 0.5 mm tells the laws apart.
+/// in one attempt (no failure), i.e. the neo-Hookean answer, not another law's. The corotated
+/// registration of the frame is 1.4 mm from the neo-Hookean one at the worst target, the
+/// rescued frame 0.14 mm (the ramps differ in steps, so the pairs do), so 0.5 mm tells the
+/// laws apart.
 #[test]
 fn the_recovery_keeps_the_scenes_law() {
     let (path, rest) = scene("recovery", "none");
@@ -713,12 +713,11 @@ fn still_frames_average_the_noise_of_a_still_liver() {
 }
 
 /// Still frames of a liver whose cloud shows detail the grid cannot follow gather all the
-/// same (session 37). A dent 32 mm wide and 6 mm deep (23 of the cloud's 642 points) at the
-/// top of the bent body, 1 mm noise, 20 mm cells: the registered shape stays 5.6–5.9 mm above
-/// its bottom. Measured against that shape every new cloud looked changed (statistic 6.3–8.8
-/// against the threshold 5) and no frame gathered, as the test before session 37 did (this
-/// test then: one cloud per frame throughout); the window now compares each cloud with its
-/// first one, both measured to that shape (2.8–4.6), and the dent cancels.
+/// same. A dent 32 mm wide and 6 mm deep (23 of the cloud's 642 points) at the top of the
+/// bent body, 1 mm noise, 20 mm cells: the registered shape stays 5.6–5.9 mm above its
+/// bottom. Measured against that shape every new cloud would look changed (statistic 6.3–8.8
+/// against the threshold 5) and no frame would gather; the window compares each cloud with
+/// its first one, both measured to that shape (2.8–4.6), and the dent cancels.
 #[test]
 fn still_frames_gather_where_the_grid_cannot_follow_the_surface() {
     const RADIUS: f64 = 16.0;

@@ -1,4 +1,4 @@
-//! The TOOL-INDENTATION scenario class (issue 18): a tool pressing 2–7 cm into a liver surface
+//! The TOOL-INDENTATION scenario class: a tool pressing 2–7 cm into a liver surface
 //! that is not the phantom, graded against a ground truth from an INDEPENDENT discretisation —
 //! quadratic tetrahedra solved by scikit-fem (`fixtures/liver_indentation/make_truth.py`), not
 //! our immersed grid — with the linear and the neo-Hookean law.
@@ -475,8 +475,8 @@ pub fn indentation_sequence(
 /// truth's surface and every triangle's centroid, metres, model frame (the camera is the one
 /// [`IndentationCloudSpec::default`] places, for the record only). Not what a camera gives: an
 /// oracle's cloud, with nothing hidden and nothing noise, so that what the registration misses
-/// on it is the model's error (grid, law, hold) and not the data's (docs/registration.md, "The
-/// error budget").
+/// on it is the model's error (grid, law, hold) and not the data's
+/// (docs/error-estimate.md#the-error-budget).
 pub fn whole_surface_sequence(
     truth: &IndentationTruth,
 ) -> Result<Vec<IndentationFrame>, IndentationError> {

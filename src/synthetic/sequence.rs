@@ -1,4 +1,4 @@
-//! Synthetic intra-operative SEQUENCES with ground truth (issue 3): a scene's liver deformed
+//! Synthetic intra-operative SEQUENCES with ground truth: a scene's liver deformed
 //! over a number of frames by a surgical scenario, each frame seen as a partial, noisy point
 //! cloud by the scene's virtual camera, with the true positions of the internal structures.
 //!

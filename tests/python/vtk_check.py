@@ -4,7 +4,7 @@
   vtk_check.py write OBJ OUTDIR    writes the OBJ's surface in the encodings VTK itself uses
   vtk_check.py pvd FILE.pvd        prints JSON: the (timestep, file) entries of a collection
 
-Needs the `vtk` package (python3 -m pip install vtk==9.7.1; .ci/run installs it).
+Needs the `vtk` package (python3 -m pip install vtk==9.7.1; scripts/test installs it).
 """
 import json
 import os

@@ -268,7 +268,7 @@ pub const PYTHON_CLIENT: &str = concat!(
 );
 
 /// Fails the test unless `python3` runs here: the Python client is a real third-party peer
-/// of these tests, and `.ci/run` provides it (never a silent skip).
+/// of these tests, and `scripts/test` provides it (never a silent skip).
 pub fn require_python() {
     let ok = std::process::Command::new("python3")
         .arg("--version")

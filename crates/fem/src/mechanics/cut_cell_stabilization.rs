@@ -31,7 +31,7 @@
 //! Why not in the energy: as a model term it stiffens exactly the badly cut cells a coarse
 //! grid's thin lobe is made of. On the phantom's 22.5 mm grid the forward solution of a
 //! pneumoperitoneum load fell from 20.2 mm to 17.2 mm at γ = 1 and to 9.4 mm at γ = 100
-//! (truth 23.8 mm; docs/registration.md).
+//! (truth 23.8 mm).
 //!
 //! Every affine displacement (rigid motions and uniform strains) has `P u = 0`, so the step
 //! is not damped in those modes however large the rotation; for a smooth field `P u = O(h²)`.
