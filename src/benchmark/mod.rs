@@ -15,6 +15,7 @@
 
 pub mod calibrate;
 pub mod config;
+pub mod force_truths;
 pub mod indentation;
 pub mod indentation_stability;
 pub mod memory;

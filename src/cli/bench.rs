@@ -11,6 +11,10 @@ use nalgebra::Point3;
 use super::progress::bar;
 use super::register::frame_inputs;
 use crate::benchmark::config::law_name;
+use crate::benchmark::force_truths::{
+    force_truth_cases, force_truths_dir, force_truths_table, run_force_truth, CameraMotion,
+    ForceTruthMetrics, ForceTruthOptions, TruthSet,
+};
 use crate::benchmark::indentation::{
     indentation_cases, indentation_chart_point, indentation_table, run_indentation,
     IndentationMetrics, IndentationVariant,
@@ -26,7 +30,7 @@ use crate::benchmark::{
 use crate::charts::pareto::write_chart;
 use crate::evaluation::read_truth;
 use crate::mechanics::LawKind;
-use crate::scene::{load_scene, LoadedScene};
+use crate::scene::{load_scene, LoadedScene, PoseUpdate};
 use crate::synthetic::indentation::{
     bundled_fixture_dir, INDENTATION_LAWS, INDENTATION_SEQUENCES, INDENTATION_STICKING_LAWS,
 };
@@ -91,6 +95,28 @@ pub struct BenchArgs {
     /// that many of them.
     #[arg(long, value_name = "N", requires = "indentation", value_parser = clap::value_parser!(u32).range(1..))]
     pub frame_stride: Option<u32>,
+    /// Run the force-driven tetrahedral FE truths of `fixtures/liver_force` instead (three
+    /// livers, a load on a small vertex patch pushing up to 63 mm deep, noise-free 500-point
+    /// clouds of 15 % of the surface), each with its liver's scene of its law; writes
+    /// force-truths.json and force-truths.md. `--frame-count` keeps the first N frames.
+    #[arg(long, conflicts_with_all = ["frames", "indentation", "stability", "only"])]
+    pub force_truths: bool,
+    /// With `--force-truths`: the cases of the fixture's SPLIT.md set (`tuning`, `test`,
+    /// default `all`): defaults are chosen on `tuning`, reports quote `test`.
+    #[arg(long, value_name = "SET", requires = "force_truths")]
+    pub set: Option<String>,
+    /// With `--force-truths`: this cell size (mm) instead of the derived one.
+    #[arg(long, value_name = "MM", requires = "force_truths")]
+    pub cell_size: Option<f64>,
+    /// With `--force-truths`: the clouds and truths seen by a camera turning by up to DEG
+    /// degrees and moving by up to MM millimetres over each sequence (e.g. `10,20`),
+    /// registered with `rigid = "icp"`.
+    #[arg(long, value_name = "DEG,MM", requires = "force_truths")]
+    pub moving_camera: Option<String>,
+    /// With `--moving-camera`: `registration.pose` (`hold`, `track`, `follow`; default the
+    /// scene's).
+    #[arg(long, value_name = "MODE", requires = "moving_camera")]
+    pub pose: Option<String>,
 }
 
 /// Runs `livereg bench`; prints the table and writes the report and chart (the sweep's
@@ -107,6 +133,9 @@ pub fn run(args: &BenchArgs) -> Result<Option<BenchReport>, String> {
     }
     if args.indentation {
         return run_indentation_bench(args).map(|_| None);
+    }
+    if args.force_truths {
+        return run_force_truths_bench(args).map(|_| None);
     }
     let scene = match &args.scene {
         Some(p) => load_scene(p).map_err(|e| e.to_string())?,
@@ -286,6 +315,47 @@ pub fn run_indentation_bench(args: &BenchArgs) -> Result<Vec<IndentationMetrics>
     }
     let table = indentation_table(&rows);
     write_json_and_table(&args.out, "indentation", &rows, &table)?;
+    print!("{table}");
+    Ok(rows)
+}
+
+/// `livereg bench --force-truths`: every case of the set (module
+/// [`crate::benchmark::force_truths`]), written to `force-truths.json` and `force-truths.md`.
+pub fn run_force_truths_bench(args: &BenchArgs) -> Result<Vec<ForceTruthMetrics>, String> {
+    let set = TruthSet::from_name(args.set.as_deref().unwrap_or("all"))?;
+    let pose = args
+        .pose
+        .as_deref()
+        .map(|p| match p {
+            "hold" => Ok(PoseUpdate::Hold),
+            "track" => Ok(PoseUpdate::Track),
+            "follow" => Ok(PoseUpdate::Follow),
+            other => Err(format!(
+                "--pose: unknown `{other}` (known: hold, track, follow)"
+            )),
+        })
+        .transpose()?;
+    let options = ForceTruthOptions {
+        cell_size: args.cell_size,
+        moving_camera: args
+            .moving_camera
+            .as_deref()
+            .map(CameraMotion::parse)
+            .transpose()?,
+        pose,
+        max_frames: args.frame_count,
+    };
+    let cases = force_truth_cases(&force_truths_dir(), set)?;
+    let pb = bar(cases.len(), "force truths");
+    let mut rows = Vec::with_capacity(cases.len());
+    for case in &cases {
+        pb.set_message(case.name.clone());
+        rows.push(run_force_truth(case, &options).map_err(|e| format!("{}: {e}", case.name))?);
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let table = force_truths_table(&rows);
+    write_json_and_table(&args.out, "force-truths", &rows, &table)?;
     print!("{table}");
     Ok(rows)
 }

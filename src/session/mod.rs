@@ -7,6 +7,7 @@
 //! its [`FrameResult`] carries the last good state, flagged, with the cause.
 
 pub mod frame;
+pub mod frame_files;
 pub mod memory_estimate;
 pub mod observer;
 pub mod registration_session;
@@ -17,6 +18,7 @@ pub mod still_window;
 mod tests;
 
 pub use frame::{Frame, FrameError, FrameResult, StageTimes};
+pub use frame_files::{frame_files, FrameFiles};
 pub use memory_estimate::ModelSize;
 pub use observer::FrameObserver;
 pub use registration_session::{
