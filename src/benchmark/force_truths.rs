@@ -27,7 +27,7 @@ use serde::{Deserialize, Serialize};
 use crate::evaluation::read_truth;
 use crate::evaluation::tre::percentile;
 use crate::mesh::{read_obj, read_points};
-use crate::registration::{SurfaceDistances, SurfaceTopology};
+use crate::registration::{RigidTransform, SurfaceDistances, SurfaceTopology};
 use crate::scene::{load_scene, LoadedScene, PoseUpdate, RigidMode};
 use crate::session::{Frame, Session};
 
@@ -188,26 +188,15 @@ impl CameraMotion {
         Ok(Self { degrees, mm })
     }
 
-    /// The motion of frame `k` of `n` about `centre` (mm): rotation, then the shift.
-    pub fn at(
-        &self,
-        k: usize,
-        n: usize,
-        centre: &Point3<f64>,
-    ) -> impl Fn(&Point3<f64>) -> Point3<f64> {
+    /// The camera's motion at frame `k` of `n`: a turn about the fixed axis through `centre`
+    /// (mm), then the shift; the identity at frame 0. Points and forces seen from it are
+    /// `apply` and `apply_vector` of it.
+    pub fn at(&self, k: usize, n: usize, centre: &Point3<f64>) -> RigidTransform {
         let t = k as f64 / n.saturating_sub(1).max(1) as f64;
         let axis = Unit::new_normalize(Vector3::new(0.3, 0.5, 0.8));
-        let shift = Vector3::new(1.0, -0.5, 0.3).normalize() * self.mm * t;
         let rotation = Rotation3::from_axis_angle(&axis, self.degrees.to_radians() * t);
-        let centre = *centre;
-        move |p| centre + rotation * (p - centre) + shift
-    }
-
-    /// The rotation of frame `k` of `n` (forces turn with the camera).
-    pub fn rotation_at(&self, k: usize, n: usize) -> Rotation3<f64> {
-        let t = k as f64 / n.saturating_sub(1).max(1) as f64;
-        let axis = Unit::new_normalize(Vector3::new(0.3, 0.5, 0.8));
-        Rotation3::from_axis_angle(&axis, self.degrees.to_radians() * t)
+        let shift = Vector3::new(1.0, -0.5, 0.3).normalize() * self.mm * t;
+        RigidTransform::new(rotation, centre.coords - rotation * centre.coords + shift)
     }
 }
 
@@ -388,20 +377,26 @@ pub fn run_force_truth(
     let mut session = Session::from_scene(&scene).map_err(|e| e.to_string())?;
     let mut frames = Vec::with_capacity(n);
     for (k, cloud_path) in frame_files.iter().enumerate().take(n) {
-        let seen = |p: &Point3<f64>| match options.moving_camera {
-            Some(m) => m.at(k, n, &centroid)(p),
-            None => *p,
+        let camera = options
+            .moving_camera
+            .map_or_else(RigidTransform::identity, |m| m.at(k, n, &centroid));
+        let frame = Frame {
+            source: cloud_path
+                .file_name()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            points: camera.apply_all(&read_points(cloud_path).map_err(|e| at(cloud_path, &e))?),
+            camera: None,
         };
-        let cloud: Vec<Point3<f64>> = read_points(cloud_path)
-            .map_err(|e| at(cloud_path, &e))?
-            .iter()
-            .map(seen)
-            .collect();
         let true_nodes: Vec<Point3<f64>> = truth
             .iter()
             .find(|t| t.frame == k)
             .and_then(|t| t.structures.get("nodes"))
-            .map(|pts| pts.iter().map(|p| seen(&Point3::from(*p))).collect())
+            .map(|pts| {
+                pts.iter()
+                    .map(|p| camera.apply(&Point3::from(*p)))
+                    .collect()
+            })
             .ok_or_else(|| format!("{}: frame {k} has no `nodes`", truth_path.display()))?;
         if true_nodes.len() != rest.len() || vertices > rest.len() {
             return Err(format!(
@@ -411,35 +406,22 @@ pub fn run_force_truth(
                 rest.len()
             ));
         }
-        let frame = Frame {
-            source: cloud_path
-                .file_name()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default(),
-            points: cloud.clone(),
-            camera: None,
-        };
         let r = session.register(&frame);
         let registered = r
             .structures
             .iter()
             .find(|(name, _)| name == "nodes")
-            .map(|(_, pts)| pts.clone())
-            .unwrap_or_default();
-        let rotation = options
-            .moving_camera
-            .map_or_else(Rotation3::identity, |m| m.rotation_at(k, n));
-        let force = rotation * Vector3::from(meta.force_vector_n[k]);
+            .map_or(&[][..], |(_, pts)| pts.as_slice());
         frames.push(grade_frame(&FrameToGrade {
-            registered: &registered,
+            registered,
             truth: &true_nodes,
-            rest_seen: &rest.iter().map(seen).collect::<Vec<_>>(),
-            cloud: &cloud,
+            rest_seen: &camera.apply_all(&rest),
+            cloud: &frame.points,
             topology: &topology,
             surface_vertices: vertices,
             patch_centre: centre,
             near_tool: &near_tool,
-            force,
+            force: camera.apply_vector(&Vector3::from(meta.force_vector_n[k])),
             result: &r,
         }));
     }
@@ -710,11 +692,12 @@ mod tests {
         let m = CameraMotion::parse("10,20").unwrap();
         let c = Point3::new(1.0, 2.0, 3.0);
         let (a, b) = (Point3::new(40.0, -5.0, 7.0), Point3::new(-3.0, 22.0, 9.0));
-        assert_eq!(m.at(0, 5, &c)(&a), a);
+        assert_eq!(m.at(0, 5, &c).apply(&a), a);
         let last = m.at(4, 5, &c);
-        assert!(((last(&a) - last(&b)).norm() - (a - b).norm()).abs() < 1e-12);
-        assert!(((last(&c) - c).norm() - 20.0).abs() < 1e-12);
-        let angle = m.rotation_at(4, 5).angle().to_degrees();
+        let distance = (last.apply(&a) - last.apply(&b)).norm();
+        assert!((distance - (a - b).norm()).abs() < 1e-12);
+        assert!(((last.apply(&c) - c).norm() - 20.0).abs() < 1e-12);
+        let angle = last.rotation_angle().to_degrees();
         assert!((angle - 10.0).abs() < 1e-9, "{angle}");
         assert!(CameraMotion::parse("10").is_err());
         assert!(CameraMotion::parse("x,2").is_err());

@@ -7,6 +7,8 @@
 use std::path::{Path, PathBuf};
 
 use nalgebra::Point3;
+use serde::de::IntoDeserializer;
+use serde::Deserialize;
 
 use super::progress::bar;
 use super::register::frame_inputs;
@@ -323,16 +325,13 @@ pub fn run_indentation_bench(args: &BenchArgs) -> Result<Vec<IndentationMetrics>
 /// [`crate::benchmark::force_truths`]), written to `force-truths.json` and `force-truths.md`.
 pub fn run_force_truths_bench(args: &BenchArgs) -> Result<Vec<ForceTruthMetrics>, String> {
     let set = TruthSet::from_name(args.set.as_deref().unwrap_or("all"))?;
+    // The scene file's names for `registration.pose`, read by the scene's own deserialiser.
     let pose = args
         .pose
         .as_deref()
-        .map(|p| match p {
-            "hold" => Ok(PoseUpdate::Hold),
-            "track" => Ok(PoseUpdate::Track),
-            "follow" => Ok(PoseUpdate::Follow),
-            other => Err(format!(
-                "--pose: unknown `{other}` (known: hold, track, follow)"
-            )),
+        .map(|p| {
+            PoseUpdate::deserialize(p.into_deserializer())
+                .map_err(|e: serde::de::value::Error| format!("--pose: {e}"))
         })
         .transpose()?;
     let options = ForceTruthOptions {

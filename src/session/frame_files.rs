@@ -87,9 +87,6 @@ pub fn frame_files(dir: &Path) -> Result<FrameFiles, String> {
 
 /// Whether `path` has a point file extension (any case).
 fn is_point_file(path: &Path) -> bool {
-    path.extension().and_then(|e| e.to_str()).is_some_and(|e| {
-        crate::mesh::POINT_EXTENSIONS
-            .iter()
-            .any(|p| p.eq_ignore_ascii_case(e))
-    })
+    crate::mesh::extension(path)
+        .is_some_and(|e| crate::mesh::POINT_EXTENSIONS.contains(&e.as_str()))
 }
