@@ -227,6 +227,14 @@ pub struct ForceTruthFrame {
     pub dent_mm: Option<f64>,
     /// Mean node error within [`NEAR_TOOL_MM`] of the patch centre at rest, mm.
     pub near_tool_mm: f64,
+    /// How far the registered pose puts the rest nodes from where the frame's true camera
+    /// sees them (root mean square), mm: the pose's share of the error.
+    pub pose_error_mm: f64,
+    /// How far the truth's own deformation moves the seen part of the surface as a rigid body
+    /// (`registration::pose_share::rigid_share_of_deformation` of the surface vertices the
+    /// cloud lies on, rest → truth, still camera), mm: the camera motion this frame's
+    /// deformation looks like from the cloud alone.
+    pub seen_rigid_motion_mm: f64,
     /// The frame's `expected_error`, mm (`None` when it has none).
     pub expected_error_mm: Option<f64>,
     /// The truth's applied force, N.
@@ -266,6 +274,12 @@ pub struct ForceTruthMetrics {
     pub dent_max_mm: f64,
     /// Mean over frames of the node error near the tool, mm.
     pub near_tool_mm: f64,
+    /// Mean over frames of the pose error ([`ForceTruthFrame::pose_error_mm`]), mm.
+    pub pose_error_mm: f64,
+    /// Largest frame pose error, mm.
+    pub pose_error_max_mm: f64,
+    /// Largest frame [`ForceTruthFrame::seen_rigid_motion_mm`], mm.
+    pub seen_rigid_motion_max_mm: f64,
     /// Share of frames whose expected error is at least the true mean node error.
     pub expected_error_bounded: Option<f64>,
     /// Median over frames of expected error / true mean node error.
@@ -380,24 +394,22 @@ pub fn run_force_truth(
         let camera = options
             .moving_camera
             .map_or_else(RigidTransform::identity, |m| m.at(k, n, &centroid));
+        let raw_cloud = read_points(cloud_path).map_err(|e| at(cloud_path, &e))?;
         let frame = Frame {
             source: cloud_path
                 .file_name()
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_default(),
-            points: camera.apply_all(&read_points(cloud_path).map_err(|e| at(cloud_path, &e))?),
+            points: camera.apply_all(&raw_cloud),
             camera: None,
         };
-        let true_nodes: Vec<Point3<f64>> = truth
+        let unmoved_nodes: Vec<Point3<f64>> = truth
             .iter()
             .find(|t| t.frame == k)
             .and_then(|t| t.structures.get("nodes"))
-            .map(|pts| {
-                pts.iter()
-                    .map(|p| camera.apply(&Point3::from(*p)))
-                    .collect()
-            })
+            .map(|pts| pts.iter().map(|p| Point3::from(*p)).collect())
             .ok_or_else(|| format!("{}: frame {k} has no `nodes`", truth_path.display()))?;
+        let true_nodes = camera.apply_all(&unmoved_nodes);
         if true_nodes.len() != rest.len() || vertices > rest.len() {
             return Err(format!(
                 "{}: frame {k}: {} true nodes, {} rest nodes, {vertices} surface vertices",
@@ -416,6 +428,12 @@ pub fn run_force_truth(
             registered,
             truth: &true_nodes,
             rest_seen: &camera.apply_all(&rest),
+            rest: &rest,
+            seen_rigid_motion_mm: seen_rigid_motion(
+                &rest[..vertices.min(rest.len())],
+                &unmoved_nodes[..vertices.min(unmoved_nodes.len())],
+                &raw_cloud,
+            ),
             cloud: &frame.points,
             topology: &topology,
             surface_vertices: vertices,
@@ -433,6 +451,8 @@ struct FrameToGrade<'a> {
     registered: &'a [Point3<f64>],
     truth: &'a [Point3<f64>],
     rest_seen: &'a [Point3<f64>],
+    rest: &'a [Point3<f64>],
+    seen_rigid_motion_mm: f64,
     cloud: &'a [Point3<f64>],
     topology: &'a Arc<SurfaceTopology>,
     surface_vertices: usize,
@@ -440,6 +460,26 @@ struct FrameToGrade<'a> {
     near_tool: &'a [bool],
     force: Vector3<f64>,
     result: &'a crate::session::FrameResult,
+}
+
+/// [`ForceTruthFrame::seen_rigid_motion_mm`]: the rigid motion (trimmed to the best-fitting
+/// three quarters) of the surface vertices nearest the cloud's points, from `rest` to
+/// `truth` (both the surface vertices only, mm), RMS over the surface; 0 when undetermined.
+fn seen_rigid_motion(rest: &[Point3<f64>], truth: &[Point3<f64>], cloud: &[Point3<f64>]) -> f64 {
+    let mut seen: Vec<usize> = cloud
+        .iter()
+        .filter_map(|c| {
+            (0..truth.len()).min_by(|&a, &b| {
+                (truth[a] - c)
+                    .norm_squared()
+                    .total_cmp(&(truth[b] - c).norm_squared())
+            })
+        })
+        .collect();
+    seen.sort_unstable();
+    seen.dedup();
+    crate::registration::pose_share::rigid_share_of_deformation(rest, truth, &seen, 0.75)
+        .unwrap_or(0.0)
 }
 
 /// One frame's grades; a registration with no (or non-finite) nodes counts as infinitely off.
@@ -498,8 +538,19 @@ fn grade_frame(g: &FrameToGrade<'_>) -> ForceTruthFrame {
         .as_ref()
         .map(|c| c.resultant)
         .filter(|f| f.iter().all(|v| v.is_finite()));
+    let pose = &g.result.model_to_cloud;
+    let pose_error_mm = (g
+        .rest
+        .iter()
+        .zip(g.rest_seen)
+        .map(|(p, seen)| (pose.apply(&(p * 1e-3)) * 1e3 - seen).norm_squared())
+        .sum::<f64>()
+        / g.rest.len().max(1) as f64)
+        .sqrt();
     ForceTruthFrame {
         mean_mm: mean(&error),
+        pose_error_mm,
+        seen_rigid_motion_mm: g.seen_rigid_motion_mm,
         p95_mm: percentile(&sorted, 0.95),
         none_mm: mean(&distance(g.rest_seen)),
         dent_mm,
@@ -578,6 +629,12 @@ fn summarise(
         dent_mean_mm: mean(&dents),
         dent_max_mm: dents.iter().copied().fold(0.0, f64::max),
         near_tool_mm: mean(&frames.iter().map(|f| f.near_tool_mm).collect::<Vec<_>>()),
+        pose_error_mm: mean(&frames.iter().map(|f| f.pose_error_mm).collect::<Vec<_>>()),
+        pose_error_max_mm: frames.iter().map(|f| f.pose_error_mm).fold(0.0, f64::max),
+        seen_rigid_motion_max_mm: frames
+            .iter()
+            .map(|f| f.seen_rigid_motion_mm)
+            .fold(0.0, f64::max),
         expected_error_bounded: (!expected.is_empty()).then(|| {
             expected.iter().filter(|(e, t)| e >= t).count() as f64 / expected.len() as f64
         }),
@@ -602,12 +659,12 @@ pub fn force_truths_table(rows: &[ForceTruthMetrics]) -> String {
         None => "—".to_string(),
     };
     let mut s = String::from(
-        "| case | set | none | mean | p95 | dent mean / max | near tool | bounded | est./true | force error | pose_uncertain far / near | warm p50 / p95 ms |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "| case | set | none | mean | p95 | dent mean / max | near tool | bounded | est./true | force error | pose error mean / max | seen rigid motion max | pose_uncertain far / near | warm p50 / p95 ms |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         s.push_str(&format!(
-            "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} / {:.2} | {:.2} | {} | {} | {} | {} / {} | {:.0} / {:.0} |\n",
+            "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} / {:.2} | {:.2} | {} | {} | {} | {:.2} / {:.2} | {:.1} | {} / {} | {:.0} / {:.0} |\n",
             r.case,
             r.set.name(),
             r.none_mm,
@@ -619,6 +676,9 @@ pub fn force_truths_table(rows: &[ForceTruthMetrics]) -> String {
             opt(r.expected_error_bounded, true),
             opt(r.expected_error_ratio_median, false),
             opt(r.force_error_median, true),
+            r.pose_error_mm,
+            r.pose_error_max_mm,
+            r.seen_rigid_motion_max_mm,
             opt(r.pose_uncertain_when_far, true),
             opt(r.pose_uncertain_when_near, true),
             r.warm_ms_p50,
@@ -642,7 +702,7 @@ pub fn force_truths_table(rows: &[ForceTruthMetrics]) -> String {
             .filter_map(|f| f.expected_error_mm.map(|e| e >= f.mean_mm))
             .collect();
         s.push_str(&format!(
-            "| all {} ({} frames) | {} | {:.2} | {:.2} | | | {:.2} | {} | | | | |\n",
+            "| all {} ({} frames) | {} | {:.2} | {:.2} | | | {:.2} | {} | | | {:.2} | | | |\n",
             set.name(),
             frames.len(),
             set.name(),
@@ -654,6 +714,7 @@ pub fn force_truths_table(rows: &[ForceTruthMetrics]) -> String {
                     .then(|| bounded.iter().filter(|b| **b).count() as f64 / bounded.len() as f64),
                 true
             ),
+            mean(&|f| f.pose_error_mm),
         ));
     }
     s

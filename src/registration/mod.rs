@@ -38,6 +38,7 @@ pub mod model_target;
 pub mod non_rigid_icp;
 pub mod pose_covariance;
 pub mod pose_search;
+pub mod pose_share;
 pub mod rigid_icp;
 pub mod rigid_transform;
 pub mod surface_anchors;
