@@ -16,7 +16,7 @@ use std::time::Instant;
 
 use livereg::benchmark::workload::Workload;
 use livereg::scene::load_scene;
-use livereg::session::{recovery_ladder, FrameResult, Session};
+use livereg::session::{recovery_ladder, FrameFlag, FrameResult, Session};
 use livereg::synthetic::{generate_sequence, load_fraction, ScenarioKind, SequenceSpec};
 use nalgebra::Point3;
 
@@ -90,7 +90,7 @@ fn fifty_frames_hold_still_after_the_load_stops() {
         let retried = r
             .flags
             .iter()
-            .any(|f| f.starts_with("recovered:") || f == "recovery_failed");
+            .any(|f| matches!(f, FrameFlag::Recovered(_) | FrameFlag::RecoveryFailed));
         let ladder = recovery_ladder(&cold, &session.model.newton);
         let max_icp = caps.penalty_steps * caps.max_icp_iterations
             + if retried {

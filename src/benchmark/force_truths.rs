@@ -248,7 +248,7 @@ pub struct ForceTruthFrame {
     /// Whether the frame started from the previous frame's state.
     pub warm: bool,
     /// The frame's flags.
-    pub flags: Vec<String>,
+    pub flags: Vec<crate::session::FrameFlag>,
 }
 
 /// One case's grades (module docs).
@@ -600,7 +600,7 @@ fn summarise(
         (!picked.is_empty()).then(|| {
             picked
                 .iter()
-                .filter(|f| f.flags.iter().any(|x| x == "pose_uncertain"))
+                .filter(|f| f.flags.contains(&crate::session::FrameFlag::PoseUncertain))
                 .count() as f64
                 / picked.len() as f64
         })

@@ -247,7 +247,7 @@ pub fn indentation_metrics(
             .reduce(f64::max),
         pose_uncertain_frames: samples
             .iter()
-            .filter(|s| s.flags.iter().any(|f| f == "pose_uncertain"))
+            .filter(|s| s.flags.contains(&crate::session::FrameFlag::PoseUncertain))
             .count(),
         warm_ms_p50: q(0.5),
         warm_ms_p95: q(0.95),

@@ -78,7 +78,7 @@ pub struct FrameSample {
     /// The causes seen (a frame may have several).
     pub causes: Vec<Cause>,
     /// The frame's flags (e.g. `recovered:…`).
-    pub flags: Vec<String>,
+    pub flags: Vec<crate::session::FrameFlag>,
     /// Causes of a first attempt that a recovery then rescued (see
     /// [`crate::session::SessionSettings::recovery`]).
     pub recovered_causes: Vec<Cause>,
@@ -107,7 +107,9 @@ pub fn causes_of(r: &FrameResult) -> Vec<Cause> {
         c.push(Cause::Rejected);
     }
     c.extend(r.warnings.iter().filter_map(|w| solver_cause(w)));
-    if r.flags.iter().any(|f| f == "icp_not_converged") {
+    if r.flags
+        .contains(&crate::session::FrameFlag::IcpNotConverged)
+    {
         c.push(Cause::IcpCap);
     }
     c.sort();
@@ -333,7 +335,11 @@ impl Metrics {
             causes,
             recovered_frames: samples
                 .iter()
-                .filter(|s| s.flags.iter().any(|f| f.starts_with("recovered:")))
+                .filter(|s| {
+                    s.flags
+                        .iter()
+                        .any(|f| matches!(f, crate::session::FrameFlag::Recovered(_)))
+                })
                 .count(),
             recovered_causes,
             peak_rss_mib: build.peak_rss_mib,

@@ -223,7 +223,7 @@ pub fn summarize(results: &[FrameResult], path: &Path) -> RegisterSummary {
         failed: results.iter().filter(|r| r.error.is_some()).count(),
         over_budget: results
             .iter()
-            .filter(|r| r.flags.iter().any(|f| f == "time_budget"))
+            .filter(|r| r.flags.contains(&crate::session::FrameFlag::TimeBudget))
             .count(),
         p50_ms: pct(0.5),
         p95_ms: pct(0.95),

@@ -186,7 +186,7 @@ impl ResultRecord {
                 cloud_points: r.cloud_points.0,
                 sources: r.sources,
                 timings_ms,
-                flags: r.flags.clone(),
+                flags: crate::session::flag_texts(&r.flags),
                 error: r.error.as_ref().map(|e| e.to_string()),
                 warnings: r.warnings.clone(),
                 expected_error_parts: r.expected_error.map(|e| ErrorPartsRecord {

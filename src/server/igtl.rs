@@ -509,7 +509,10 @@ pub fn result_messages(c: &Completed, handle: &SessionHandle, ras: bool) -> Vec<
             );
         }
         if !r.flags.is_empty() {
-            md.insert("livereg.flags", r.flags.join(","));
+            md.insert(
+                "livereg.flags",
+                crate::session::flag_texts(&r.flags).join(","),
+            );
         }
         m.metadata = md;
     };

@@ -197,8 +197,9 @@ pub struct FrameResult {
     pub sources: usize,
     /// Whether this frame started from the previous frame's state.
     pub warm: bool,
-    /// Flags: `time_budget`, `decimated`, `icp_not_converged`, `failed`.
-    pub flags: Vec<String>,
+    /// What the frame's registration says about itself ([`FrameFlag`](super::FrameFlag)),
+    /// in the order they arose.
+    pub flags: Vec<super::FrameFlag>,
     /// Solver warnings with their cause.
     pub warnings: Vec<String>,
     /// Why the frame failed; then the positions below are the last good state's.

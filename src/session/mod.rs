@@ -8,6 +8,7 @@
 
 pub mod frame;
 pub mod frame_files;
+pub mod frame_flag;
 pub mod memory_estimate;
 pub mod observer;
 pub mod registration_session;
@@ -19,6 +20,7 @@ mod tests;
 
 pub use frame::{Frame, FrameError, FrameResult, StageTimes};
 pub use frame_files::{frame_files, FrameFiles};
+pub use frame_flag::{flag_texts, FrameFlag};
 pub use memory_estimate::ModelSize;
 pub use observer::FrameObserver;
 pub use registration_session::{

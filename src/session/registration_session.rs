@@ -6,6 +6,7 @@ use std::time::{Duration, Instant};
 use nalgebra::Point3;
 
 use super::frame::{Frame, FrameError, FrameResult, StageTimes};
+use super::frame_flag::FrameFlag;
 use super::memory_estimate::{still_window_bytes, ModelSize};
 use super::settings::SessionSettings;
 use super::still_window::StillWindow;
@@ -339,7 +340,7 @@ impl Session {
         received: usize,
         start: Instant,
         times: StageTimes,
-        flags: Vec<String>,
+        flags: Vec<FrameFlag>,
         outcome: Result<Done, FrameError>,
     ) -> FrameResult {
         let index = self.frames;
@@ -375,11 +376,11 @@ impl Session {
             Ok(done) => {
                 // An ambiguous pose stays ambiguous for as long as it is held; a pose fitted
                 // anew without ambiguity clears it.
-                let searched_ambiguous = result.flags.iter().any(|f| f == "pose_ambiguous");
+                let searched_ambiguous = result.flags.contains(&FrameFlag::PoseAmbiguous);
                 let held = self.good.registered && done.model_to_cloud == self.good.model_to_cloud;
                 let pose_ambiguous = searched_ambiguous || (held && self.good.pose_ambiguous);
                 if pose_ambiguous && !searched_ambiguous {
-                    result.flags.push("pose_ambiguous".into());
+                    result.flags.push(FrameFlag::PoseAmbiguous);
                 }
                 // Likewise the pose's uncertainty: that of its fit, for as long as it is held.
                 let fitted = self.fitted_pose_uncertainty.take();
@@ -389,12 +390,12 @@ impl Session {
                     fitted
                 };
                 if pose_uncertainty.is_some_and(|v| v > self.settings.max_pose_uncertainty) {
-                    result.flags.push("pose_uncertain".into());
+                    result.flags.push(FrameFlag::PoseUncertain);
                 }
                 result.pose_uncertainty = pose_uncertainty.map(|v| v / scale);
                 let estimate = self.error_estimate(&done, pose_uncertainty);
                 if estimate.expected > self.settings.max_expected_error {
-                    result.flags.push("expected_error_high".into());
+                    result.flags.push(FrameFlag::ExpectedErrorHigh);
                 }
                 result.expected_error = Some(scaled_estimate(&estimate, scale));
                 if let Some(surface) = done.surface {
@@ -423,12 +424,12 @@ impl Session {
                 result.cloud_points.1 = done.used_points;
                 result.sources = done.sources;
                 result.warnings = done.warnings;
-                if !done.converged && !result.flags.iter().any(|f| f == "time_budget") {
-                    result.flags.push("icp_not_converged".into());
+                if !done.converged && !result.flags.contains(&FrameFlag::TimeBudget) {
+                    result.flags.push(FrameFlag::IcpNotConverged);
                 }
             }
             Err(e) => {
-                result.flags.push("failed".into());
+                result.flags.push(FrameFlag::Failed);
                 result.error = Some(e);
             }
         }
@@ -494,7 +495,7 @@ impl Session {
         frame: &Frame,
         start: Instant,
         times: &mut StageTimes,
-        flags: &mut Vec<String>,
+        flags: &mut Vec<FrameFlag>,
     ) -> Result<Done, FrameError> {
         let t = Instant::now();
         let scale = self.model.length_scale;
@@ -550,12 +551,12 @@ impl Session {
             return Err(FrameError::NonFiniteState);
         }
         if report.deadline_reached {
-            flags.push("time_budget".into());
+            flags.push(FrameFlag::TimeBudget);
         }
         // A re-acquired pose must not need a new shape: measured on the phantom, a right
         // re-acquisition changes the surface by 0.2 mm RMS, ordinary frames by 0.8–1.6 mm,
         // and a 109° wrong minimum of rigid ICP by 25 mm (`tests/bad_frames.rs`).
-        if flags.iter().any(|f| f == "pose_reacquired") {
+        if flags.contains(&FrameFlag::PoseReacquired) {
             let change = self.surface_change_rms(&u);
             if change > self.settings.pose_reacquire_rms {
                 return Err(FrameError::ImplausibleReacquisition {
@@ -627,7 +628,7 @@ impl Session {
     fn prepare_cloud(
         &self,
         frame: &Frame,
-        flags: &mut Vec<String>,
+        flags: &mut Vec<FrameFlag>,
     ) -> Result<Vec<Point3<f64>>, FrameError> {
         let scale = self.model.length_scale;
         if frame.points.is_empty() {
@@ -647,7 +648,7 @@ impl Session {
             .len()
             .div_ceil(self.settings.max_cloud_points.max(3));
         if stride > 1 {
-            flags.push("decimated".into());
+            flags.push(FrameFlag::Decimated);
         }
         let cloud: Vec<Point3<f64>> = frame
             .points
@@ -658,7 +659,7 @@ impl Session {
         let cloud = if self.settings.remove_isolated_points {
             let (kept, removed) = without_isolated_points(cloud);
             if removed > 0 {
-                flags.push("isolated_removed".into());
+                flags.push(FrameFlag::IsolatedRemoved);
             }
             kept
         } else {
@@ -691,7 +692,7 @@ impl Session {
     fn rigid_stage(
         &mut self,
         cloud: &[Point3<f64>],
-        flags: &mut Vec<String>,
+        flags: &mut Vec<FrameFlag>,
     ) -> Result<(RigidTransform, usize), FrameError> {
         // Rigid stage: hold the pose, or track it against the current deformed surface.
         self.fitted_pose_uncertainty = None;
@@ -707,7 +708,7 @@ impl Session {
             if rms <= self.settings.pose_reacquire_rms {
                 self.held_or_moved_pose(cloud, rms)?
             } else {
-                flags.push("pose_reacquired".into());
+                flags.push(FrameFlag::PoseReacquired);
                 self.reacquire_pose(cloud, rms, flags)?
             }
         } else {
@@ -779,7 +780,7 @@ impl Session {
         data: &StillData,
         camera: Option<&Camera>,
         deadline: Option<Instant>,
-        flags: &mut Vec<String>,
+        flags: &mut Vec<FrameFlag>,
     ) -> Result<(Vec<f64>, NonRigidReport, NonRigidTimings), FrameError> {
         let aligned = &data.points[..];
         let warm = self.good.registered;
@@ -811,7 +812,7 @@ impl Session {
                         start_u = Some(c.prolongation.apply(&uc));
                         settings.penalty_steps = 1;
                         coarse_counts = (r.icp_iterations, r.newton_iterations, r.factorizations);
-                        flags.push("coarse_start".into());
+                        flags.push(FrameFlag::CoarseStart);
                     }
                 } else {
                     c.icp.invalidate();
@@ -849,7 +850,7 @@ impl Session {
         camera: Option<&Camera>,
         deadline: Option<Instant>,
         spent: &mut NonRigidTimings,
-        flags: &mut Vec<String>,
+        flags: &mut Vec<FrameFlag>,
     ) -> Result<(Vec<f64>, NonRigidReport), FrameError> {
         for rung in recovery_ladder(&self.settings.cold, &self.model.newton) {
             if deadline.is_some_and(|d| Instant::now() >= d) {
@@ -868,7 +869,7 @@ impl Session {
                 .map_err(|e| FrameError::NonRigid(e.to_string()))?;
             add_timings(spent, &r.timings);
             if !solver_failed(&r) && all_finite(&u) {
-                flags.push(format!("recovered:{}", rung.name));
+                flags.push(FrameFlag::Recovered(rung.name));
                 let mut r = r;
                 r.warnings = first
                     .warnings
@@ -882,7 +883,7 @@ impl Session {
                 return Ok((u, r));
             }
         }
-        flags.push("recovery_failed".into());
+        flags.push(FrameFlag::RecoveryFailed);
         Ok((first_u, first))
     }
 }
@@ -945,7 +946,7 @@ impl Session {
         &mut self,
         cloud: &[Point3<f64>],
         start: RigidTransform,
-        flags: &mut Vec<String>,
+        flags: &mut Vec<FrameFlag>,
     ) -> Result<(RigidTransform, usize), FrameError> {
         // Frame to frame (rigid-only or tracked pose): the start is the last pose.
         let tracking = self.good.registered;
@@ -953,7 +954,7 @@ impl Session {
         // A fit stopped by its iteration cap says so (rigid ICP on a partial patch can stop
         // there 43–88° off).
         if r.iterations > 0 && !r.converged {
-            flags.push("rigid_not_converged".into());
+            flags.push(FrameFlag::RigidNotConverged);
         }
         let limit = if self.settings.non_rigid {
             self.settings.max_unregistered_rms
@@ -984,7 +985,7 @@ impl Session {
         &mut self,
         cloud: &[Point3<f64>],
         held_rms: f64,
-        flags: &mut Vec<String>,
+        flags: &mut Vec<FrameFlag>,
     ) -> Result<(RigidTransform, usize), FrameError> {
         let held = self.good.model_to_cloud.inverse();
         let mut starts = vec![held];
@@ -1004,7 +1005,7 @@ impl Session {
                 starts.push(shifted);
             }
         }
-        let mut best: Option<(IcpResult, Vec<String>)> = None;
+        let mut best: Option<(IcpResult, Vec<FrameFlag>)> = None;
         let mut iterations = 0;
         let mut last_error = None;
         for start in starts {
@@ -1076,7 +1077,7 @@ impl Session {
         start: RigidTransform,
         tracking: bool,
         search: bool,
-        flags: &mut Vec<String>,
+        flags: &mut Vec<FrameFlag>,
     ) -> Result<IcpResult, FrameError> {
         // With no rigid stage the fit of the identity is still checked (0 iterations).
         let (icp, initial) = match self.settings.rigid_mode {
@@ -1108,10 +1109,10 @@ impl Session {
                     .search(&icp, target, cloud, initial)
                     .map_err(|e| FrameError::Rigid(e.to_string()))?;
                 if found.replaced_plain {
-                    flags.push("pose_searched".into());
+                    flags.push(FrameFlag::PoseSearched);
                 }
                 if found.ambiguous {
-                    flags.push("pose_ambiguous".into());
+                    flags.push(FrameFlag::PoseAmbiguous);
                 }
                 let mut best = found.best;
                 best.iterations = found.iterations;
@@ -1155,7 +1156,7 @@ impl Session {
         &mut self,
         aligned: &[Point3<f64>],
         noise: Option<&CloudNoise>,
-        flags: &mut Vec<String>,
+        flags: &mut Vec<FrameFlag>,
     ) -> Option<(Vec<f64>, f64, Option<ContactForce>)> {
         let test = self.settings.rest_test.clone()?;
         let noise = noise?;
@@ -1168,7 +1169,7 @@ impl Session {
         if test.evaluate_near(&noise.near, &d, noise.sigma).significant {
             return None;
         }
-        flags.push("at_rest".into());
+        flags.push(FrameFlag::AtRest);
         // The solvers' warm state belongs to the shape left behind.
         self.non_rigid_cold.invalidate();
         self.non_rigid_warm.invalidate();
@@ -1193,7 +1194,7 @@ impl Session {
         aligned: &[Point3<f64>],
         camera: Option<Camera>,
         noise: Option<&CloudNoise>,
-        flags: &mut Vec<String>,
+        flags: &mut Vec<FrameFlag>,
     ) -> (StillWindow, StillData) {
         let max_frames = self.settings.still_frames.max(1);
         let Some(noise) = noise else {
@@ -1220,7 +1221,7 @@ impl Session {
             self.settings.max_cloud_points,
         );
         if n > 1 {
-            flags.push(format!("still:{n}"));
+            flags.push(FrameFlag::Still(n));
         }
         let data = StillData {
             points: still.union(),
