@@ -185,7 +185,7 @@ impl RestCompliance {
         if points.is_empty() || moved.len() != points.len() || problem.dofs() != n {
             return None;
         }
-        let h = problem.grid.grid.cell_size;
+        let h = problem.cell_size();
         let rest = &points.rest;
         let centre = dent_centre(rest, moved, normals)?;
         let (load_points, weights) = load_patch(surface, &centre, h);

@@ -455,8 +455,8 @@ impl PenaltyRamp {
     fn new(settings: &NonRigidSettings, problem: &StaticProblem) -> Self {
         Self::for_model(
             settings,
-            young_modulus(&problem.material),
-            problem.grid.grid.cell_size,
+            problem.material.young_modulus(),
+            problem.cell_size(),
         )
     }
 
@@ -549,7 +549,7 @@ impl NonRigidIcp {
         self.newton.set_factor_reuse(settings.factor_reuse);
         self.newton.set_background_lag(settings.background_lag);
         let t = Instant::now();
-        let target = Target::new(cloud, &settings, model.problem.grid.grid.cell_size)?;
+        let target = Target::new(cloud, &settings, model.problem.cell_size())?;
         let prepare_ms = ms(t);
         let ramp = PenaltyRamp::new(&settings, &model.problem);
         let factorizations_before = self.newton.factorizations();
@@ -993,11 +993,6 @@ impl Pulled {
             rms: pairs.rms,
         })
     }
-}
-
-/// Young's modulus (Pa) from the Lamé parameters.
-fn young_modulus(m: &crate::mechanics::Material) -> f64 {
-    m.mu * (3.0 * m.lambda + 2.0 * m.mu) / (m.lambda + m.mu)
 }
 
 #[cfg(test)]

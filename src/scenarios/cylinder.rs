@@ -78,7 +78,7 @@ fn base_problem(
 }
 
 fn held_face(p: &StaticProblem, surface: &TriSurface, z: f64) -> PenaltySprings {
-    let density = HOLD_PENALTY * YOUNG / p.grid.grid.cell_size;
+    let density = HOLD_PENALTY * YOUNG / p.cell_size();
     PenaltySprings::fixed_surface_region(&p.grid, surface, &face_box(z), density)
         .expect("face embeds")
         .expect("face holds samples")

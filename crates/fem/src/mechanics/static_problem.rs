@@ -98,6 +98,11 @@ impl StaticProblem {
         3 * self.grid.node_count()
     }
 
+    /// The grid's cell edge `h`, m.
+    pub fn cell_size(&self) -> f64 {
+        self.grid.grid.cell_size
+    }
+
     /// A zeroed matrix with the tangent's sparsity pattern.
     pub fn new_tangent(&self) -> SymmetricCsc {
         self.assembler.pattern().clone()

@@ -196,6 +196,18 @@ impl Material {
         Ok(Self { law, mu, lambda })
     }
 
+    /// Young's modulus `E = μ(3λ + 2μ)/(λ + μ)`, Pa: the inverse of
+    /// [`Material::from_young_poisson`].
+    pub fn young_modulus(&self) -> f64 {
+        self.mu * (3.0 * self.lambda + 2.0 * self.mu) / (self.lambda + self.mu)
+    }
+
+    /// Poisson's ratio `ν = λ / (2(λ + μ))`, dimensionless: the inverse of
+    /// [`Material::from_young_poisson`].
+    pub fn poisson_ratio(&self) -> f64 {
+        self.lambda / (2.0 * (self.lambda + self.mu))
+    }
+
     /// P-wave modulus `λ + 2μ` in Pa (stiffness scale used to scale penalties).
     pub fn wave_speed_modulus(&self) -> f64 {
         self.lambda + 2.0 * self.mu

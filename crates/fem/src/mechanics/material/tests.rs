@@ -1,6 +1,6 @@
 //! Cross-law tests: finite-difference consistency, part splitting, objectivity,
-//! small-strain limit, S/P consistency, error handling, parameter validation,
-//! and an ignored micro-timing of `response()`.
+//! small-strain limit, S/P consistency, error handling, parameter validation and the
+//! moduli read back (the timing of `response()` is the `material_response` benchmark).
 
 use super::*;
 use nalgebra::{Rotation3, Unit, Vector3};
@@ -489,4 +489,20 @@ fn law_kind_serde_names() {
         assert_eq!(serde_json::from_str::<LawKind>(name).unwrap(), law);
     }
     assert!(serde_json::from_str::<LawKind>("\"NeoHookean\"").is_err());
+}
+
+/// Young's modulus and Poisson's ratio read back from the Lamé parameters they made, over
+/// the range the scenes use (soft tissue, compressible to nearly incompressible).
+#[test]
+fn young_and_poisson_read_back_from_the_lame_parameters() {
+    for (e, nu) in [
+        (4500.0, 0.49),
+        (20_000.0, 0.45),
+        (3000.0, 0.3),
+        (1.0e6, 0.0),
+    ] {
+        let m = Material::from_young_poisson(LawKind::NeoHookean, e, nu).unwrap();
+        assert!((m.young_modulus() - e).abs() <= 1e-12 * e, "E {e}");
+        assert!((m.poisson_ratio() - nu).abs() <= 1e-12, "ν {nu}");
+    }
 }
