@@ -8,7 +8,7 @@ use std::sync::atomic::AtomicU64;
 use std::sync::Arc;
 use std::time::Instant;
 
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::codec::{BufferSettings, DecodeBuf, Decoder, EncodeBuf, Encoder};
 use tonic::{Request, Response, Status, Streaming};
@@ -20,8 +20,9 @@ use super::error::ApiError;
 use super::proto;
 use super::registry::{requested_session_id, SessionInfo, SESSION_HEADER};
 use super::service::AppState;
+use super::stream_frames::{admit_frame, next_message, submit_frame, Next, OpenStream};
 use super::upload::SceneUpload;
-use super::worker::{Job, Reply, SessionHandle, StreamEvent, StreamSink};
+use super::worker::{SessionHandle, StreamEvent, StreamSink};
 use crate::scene::SceneFormat;
 
 /// The protobuf codec of the generated code: tonic-prost's, with decode errors answered
@@ -296,6 +297,10 @@ fn error_response(seq: u64, e: &ApiError) -> proto::StreamResponse {
     }
 }
 
+/// One gRPC stream: bound to the session its first message names, each frame through the
+/// shared admission ([`admit_frame`]) to that session, results and refusals forwarded as they
+/// come, until the client ends the stream, the session is gone, the stream stays idle or the
+/// server shuts down.
 async fn run_stream(
     state: Arc<AppState>,
     owner: Owner,
@@ -303,153 +308,189 @@ async fn run_stream(
     mut inbound: Streaming<proto::StreamRequest>,
     out: mpsc::Sender<Result<proto::StreamResponse, Status>>,
 ) {
-    let _guard = state.stream_guard();
-    let (ev_tx, mut ev_rx) = mpsc::channel::<StreamEvent>(8);
-    let skipped = Arc::new(AtomicU64::new(0));
-    let mut bound: Option<Arc<SessionHandle>> = None;
-    let (bound_tx, mut bound_rx) = tokio::sync::watch::channel::<Option<Arc<SessionHandle>>>(None);
-    let fwd_out = out.clone();
-    let forward = tokio::spawn(async move {
-        while let Some(ev) = ev_rx.recv().await {
-            let msg = match ev {
-                StreamEvent::Result(c) => {
-                    let h = bound_rx.borrow_and_update().clone();
-                    let Some(h) = h else { continue };
-                    proto::StreamResponse {
-                        kind: Some(proto::stream_response::Kind::Result(result_proto(&c, &h))),
+    let stream = OpenStream::new(&state, peer, owner.name());
+    let (ev_tx, ev_rx) = mpsc::channel::<StreamEvent>(8);
+    let results = StreamSink {
+        tx: ev_tx,
+        skipped: Arc::new(AtomicU64::new(0)),
+    };
+    let (bound_tx, bound_rx) = watch::channel::<Option<Arc<SessionHandle>>>(None);
+    let forward = tokio::spawn(forward_results(ev_rx, bound_rx, out.clone()));
+    let reader = StreamReader {
+        state: &state,
+        owner: &owner,
+        stream: &stream,
+        results: &results,
+        out: &out,
+    };
+    let bound = reader.read_frames(&mut inbound, &bound_tx).await;
+    drop(results);
+    let _ = forward.await;
+    if let Some(h) = &bound {
+        stream.close(Some(&h.id), "grpc");
+    }
+}
+
+/// Sends each result (of the session `bound` names once the stream is bound) and each
+/// refusal to the client, in order, until every sender is gone or the client left.
+async fn forward_results(
+    mut events: mpsc::Receiver<StreamEvent>,
+    mut bound: watch::Receiver<Option<Arc<SessionHandle>>>,
+    out: mpsc::Sender<Result<proto::StreamResponse, Status>>,
+) {
+    while let Some(ev) = events.recv().await {
+        let msg = match ev {
+            StreamEvent::Result(c) => {
+                let h = bound.borrow_and_update().clone();
+                let Some(h) = h else { continue };
+                proto::StreamResponse {
+                    kind: Some(proto::stream_response::Kind::Result(result_proto(&c, &h))),
+                }
+            }
+            StreamEvent::Error { seq, error } => error_response(seq, &error),
+        };
+        if out.send(Ok(msg)).await.is_err() {
+            break;
+        }
+    }
+}
+
+/// What a gRPC stream's reader works with.
+struct StreamReader<'a> {
+    state: &'a Arc<AppState>,
+    owner: &'a Owner,
+    stream: &'a OpenStream,
+    results: &'a StreamSink,
+    out: &'a mpsc::Sender<Result<proto::StreamResponse, Status>>,
+}
+
+/// What to do with a stream after a request.
+enum Then<T> {
+    /// Go on with this.
+    Go(T),
+    /// Wait for the next request.
+    Next,
+    /// End the stream.
+    End,
+}
+
+impl StreamReader<'_> {
+    /// Reads requests until the stream ends; returns the session it was bound to, if any.
+    async fn read_frames(
+        &self,
+        inbound: &mut Streaming<proto::StreamRequest>,
+        bound_tx: &watch::Sender<Option<Arc<SessionHandle>>>,
+    ) -> Option<Arc<SessionHandle>> {
+        let state = self.state;
+        let mut shutdown = state.shutdown.clone();
+        let idle = std::time::Duration::from_secs_f64(state.config.limits.stream_idle_timeout_s);
+        let mut bound: Option<Arc<SessionHandle>> = None;
+        loop {
+            let msg = match next_message(inbound.message(), &mut shutdown, idle).await {
+                Next::Message(m) => m,
+                Next::ShuttingDown => break,
+                Next::Idle => {
+                    // Nothing received for the idle timeout: the stream ends with its reason.
+                    let _ = self
+                        .out
+                        .send(Err(Status::deadline_exceeded(format!(
+                            "idle: no message on this stream for {} s (limits.stream_idle_timeout_s)",
+                            state.config.limits.stream_idle_timeout_s
+                        ))))
+                        .await;
+                    break;
+                }
+            };
+            let received = Instant::now();
+            let req = match msg {
+                Ok(Some(r)) => r,
+                Ok(None) => break,
+                Err(status) => {
+                    // A malformed message or a broken transport ends the stream with its status.
+                    if status.code() != tonic::Code::Cancelled {
+                        state.metrics.inc("livereg_errors_total", "bad_request", 1);
+                        let _ = self.out.send(Err(status)).await;
+                    }
+                    break;
+                }
+            };
+            let handle = match self.session_of(&req, &mut bound, bound_tx).await {
+                Then::Go(h) => h,
+                Then::Next => continue,
+                Then::End => break,
+            };
+            if state.registry.get(self.owner, &handle.id).is_err() {
+                let e = state.count(ApiError::unknown_session(&handle.id));
+                let _ = self.out.send(Err(e.to_status())).await;
+                break;
+            }
+            let admitted = match req.frame {
+                None => Err((0, ApiError::bad_request("the message has no `frame`"))),
+                Some(f) => {
+                    let seq = f.seq;
+                    let max_points = state.config.limits.max_frame_points;
+                    let decode = async {
+                        decode_proto_frame(f, max_points).inspect_err(|e| state.reject(&handle, e))
+                    };
+                    admit_frame(state, &handle, seq, decode).await
+                }
+            };
+            match admitted {
+                Ok(frame) => submit_frame(state, &handle, frame, received, self.results),
+                Err((seq, e)) => {
+                    let ev = StreamEvent::Error {
+                        seq,
+                        error: state.count(e),
+                    };
+                    if self.results.tx.send(ev).await.is_err() {
+                        break;
                     }
                 }
-                StreamEvent::Error { seq, error } => error_response(seq, &error),
-            };
-            if fwd_out.send(Ok(msg)).await.is_err() {
-                break;
             }
         }
-    });
-    let mut shutdown = state.shutdown.clone();
-    let idle = std::time::Duration::from_secs_f64(state.config.limits.stream_idle_timeout_s);
-    loop {
-        let msg = tokio::select! {
-            m = inbound.message() => Some(m),
-            _ = shutdown.wait_for(|s| *s) => break,
-            _ = tokio::time::sleep(idle) => None,
-        };
-        let Some(msg) = msg else {
-            // Nothing received for the idle timeout: the stream ends with its reason.
-            let _ = out
-                .send(Err(Status::deadline_exceeded(format!(
-                    "idle: no message on this stream for {} s (limits.stream_idle_timeout_s)",
-                    state.config.limits.stream_idle_timeout_s
-                ))))
-                .await;
-            break;
-        };
-        let received = Instant::now();
-        let req = match msg {
-            Ok(Some(r)) => r,
-            Ok(None) => break,
-            Err(status) => {
-                // A malformed message or a broken transport ends the stream with its status.
-                if status.code() != tonic::Code::Cancelled {
-                    state.metrics.inc("livereg_errors_total", "bad_request", 1);
-                    let _ = out.send(Err(status)).await;
-                }
-                break;
-            }
-        };
-        let handle = match &bound {
-            Some(h) if req.session_id.is_empty() || req.session_id == h.id => h.clone(),
+        bound
+    }
+
+    /// The session `req` is for: the stream's `bound` one (a request naming another is
+    /// refused on the stream), or, on the first request, the one it names, bound from then
+    /// on (audited, and told to the forwarder through `bound_tx`); a session that cannot be
+    /// had ends the stream with its status.
+    async fn session_of(
+        &self,
+        req: &proto::StreamRequest,
+        bound: &mut Option<Arc<SessionHandle>>,
+        bound_tx: &watch::Sender<Option<Arc<SessionHandle>>>,
+    ) -> Then<Arc<SessionHandle>> {
+        match bound {
+            Some(h) if req.session_id.is_empty() || req.session_id == h.id => Then::Go(h.clone()),
             Some(h) => {
-                let e = state.count(ApiError::bad_request(format!(
+                let e = self.state.count(ApiError::bad_request(format!(
                     "this stream is bound to session `{}`; open another stream for `{}`",
                     h.id,
                     req.session_id.chars().take(64).collect::<String>()
                 )));
-                let _ = ev_tx
+                let _ = self
+                    .results
+                    .tx
                     .send(StreamEvent::Error {
-                        seq: req.frame.map(|f| f.seq).unwrap_or(0),
+                        seq: req.frame.as_ref().map(|f| f.seq).unwrap_or(0),
                         error: e,
                     })
                     .await;
-                continue;
+                Then::Next
             }
-            None => match state.session(&owner, &req.session_id) {
+            None => match self.state.session(self.owner, &req.session_id) {
                 Ok(h) => {
-                    audit::event(
-                        Action::OpenStream,
-                        "ok",
-                        peer,
-                        Some(owner.name()),
-                        Some(&h.id),
-                        "grpc",
-                    );
-                    bound = Some(h.clone());
+                    self.stream.audit_open(Some(&h.id), "grpc");
+                    *bound = Some(h.clone());
                     let _ = bound_tx.send(Some(h.clone()));
-                    h
+                    Then::Go(h)
                 }
                 Err(e) => {
-                    let _ = out.send(Err(state.count(e).to_status())).await;
-                    break;
+                    let _ = self.out.send(Err(self.state.count(e).to_status())).await;
+                    Then::End
                 }
             },
-        };
-        if state.registry.get(&owner, &handle.id).is_err() {
-            let _ = out
-                .send(Err(state
-                    .count(ApiError::unknown_session(&handle.id))
-                    .to_status()))
-                .await;
-            break;
         }
-        let refused = match req.frame {
-            None => Err((0, ApiError::bad_request("the message has no `frame`"))),
-            Some(f) => match state.admit_rate(&handle) {
-                Err(e) => Err((f.seq, e)),
-                Ok(()) => match decode_proto_frame(f, state.config.limits.max_frame_points) {
-                    Err(e) => {
-                        state.reject(&handle, &e);
-                        Err((0, e))
-                    }
-                    Ok(inc) => match state.admit_decoded(&handle, &inc) {
-                        Ok(()) => Ok(inc),
-                        Err(e) => Err((inc.seq, e)),
-                    },
-                },
-            },
-        };
-        match refused {
-            Ok(incoming) => handle.submit(
-                Job {
-                    incoming,
-                    received,
-                    reply: Reply::Stream(StreamSink {
-                        tx: ev_tx.clone(),
-                        skipped: skipped.clone(),
-                    }),
-                },
-                &state.metrics,
-            ),
-            Err((seq, e)) => {
-                let ev = StreamEvent::Error {
-                    seq,
-                    error: state.count(e),
-                };
-                if ev_tx.send(ev).await.is_err() {
-                    break;
-                }
-            }
-        }
-    }
-    drop(ev_tx);
-    let _ = forward.await;
-    if let Some(h) = &bound {
-        audit::event(
-            Action::CloseStream,
-            "ok",
-            peer,
-            Some(owner.name()),
-            Some(&h.id),
-            "grpc",
-        );
     }
 }

@@ -30,14 +30,15 @@ use tokio::io::{AsyncRead, AsyncWrite, AsyncWriteExt};
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 
-use super::audit::{self, Action, Peer};
+use super::audit::Peer;
 use super::auth::Owner;
 use super::codec::Incoming;
 use super::connections::{ConnectionLimiter, ConnectionLimits};
 use super::error::ApiError;
 use super::service::AppState;
+use super::stream_frames::{admit_frame, next_message, submit_frame, Next, OpenStream};
 use super::upload::SceneUpload;
-use super::worker::{Completed, Job, Reply, SessionHandle, StreamEvent, StreamSink};
+use super::worker::{Completed, SessionHandle, StreamEvent, StreamSink};
 use crate::openigtlink::conventions::{
     DEFORMED_LIVER_DEVICE, LIVER_TO_REFERENCE_DEVICE, METADATA_FRAME, METADATA_SESSION,
     METADATA_UNITS, TARGETS_DEVICE, UNITS_MM,
@@ -168,11 +169,10 @@ pub async fn serve(
     }
 }
 
-/// One device's session on a connection.
+/// One device's session on a connection, and where its results go.
 struct DeviceSession {
     handle: Arc<SessionHandle>,
-    events: mpsc::Sender<StreamEvent>,
-    skipped: Arc<AtomicU64>,
+    results: StreamSink,
 }
 
 /// What the connection's writer sends: encoded messages.
@@ -188,83 +188,131 @@ pub async fn serve_connection<S>(
 ) where
     S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
 {
-    let _guard = state.stream_guard();
-    let owner = Owner(Arc::from(IGTL_OWNER));
-    let peer = Peer(Some(addr));
-    let (mut reader, mut writer) = tokio::io::split(io);
-    let (out_tx, mut out_rx) = mpsc::channel::<Outgoing>(CONNECTION_BUFFER);
-    let write_task = tokio::spawn(async move {
-        while let Some(bytes) = out_rx.recv().await {
-            if writer.write_all(&bytes).await.is_err() {
-                return;
-            }
-            if writer.flush().await.is_err() {
-                return;
-            }
+    let stream = OpenStream::new(&state, Peer(Some(addr)), IGTL_OWNER);
+    let (reader, writer) = tokio::io::split(io);
+    let (out_tx, out_rx) = mpsc::channel::<Outgoing>(CONNECTION_BUFFER);
+    let write_task = tokio::spawn(write_messages(writer, out_rx));
+    stream.audit_open(None, "openigtlink");
+    let mut connection = Connection {
+        state: &state,
+        scenes: &scenes,
+        stream: &stream,
+        addr,
+        owner: Owner(Arc::from(IGTL_OWNER)),
+        out: out_tx,
+        // The header version of the client's latest message (replies use it).
+        version: Arc::new(AtomicU8::new(HeaderVersion::V1 as u8)),
+        sessions: HashMap::new(),
+        forwarders: Vec::new(),
+        counter: 0,
+    };
+    connection.read_messages(reader).await;
+    connection.end_sessions().await;
+    drop(connection);
+    let _ = write_task.await;
+    stream.close(None, "openigtlink");
+}
+
+/// The connection's writer: each queued message, flushed, until every sender is gone.
+async fn write_messages<W: AsyncWrite + Unpin>(mut writer: W, mut out: mpsc::Receiver<Outgoing>) {
+    while let Some(bytes) = out.recv().await {
+        if writer.write_all(&bytes).await.is_err() {
+            return;
         }
-        let _ = writer.shutdown().await;
-    });
-    // The header version of the client's latest message (replies use it).
-    let version = Arc::new(AtomicU8::new(HeaderVersion::V1 as u8));
-    audit::event(
-        Action::OpenStream,
-        "ok",
-        peer,
-        Some(IGTL_OWNER),
-        None,
-        "openigtlink",
-    );
-    let limits = state.config.limits.clone();
-    let idle = Duration::from_secs_f64(limits.stream_idle_timeout_s);
-    let max_body = limits.max_body_bytes as u64;
-    let mut shutdown = state.shutdown.clone();
-    let mut sessions: HashMap<String, DeviceSession> = HashMap::new();
-    let mut forwarders = Vec::new();
-    let mut counter = 0u64;
-    loop {
-        let read = tokio::select! {
-            r = tokio::time::timeout(idle, read_decoded(&mut reader, max_body)) => r,
-            _ = shutdown.wait_for(|s| *s) => break,
-        };
-        let received = Instant::now();
-        let msg = match read {
-            Err(_) => {
-                let s = status(
-                    status_code::TIME_OUT,
-                    "idle",
-                    format!("nothing received for {} s", limits.stream_idle_timeout_s),
-                );
-                send(&out_tx, &version, "", s, 0).await;
-                break;
-            }
-            Ok(Ok(None)) => break,
-            Ok(Err(e)) => {
-                state
-                    .metrics
-                    .inc("livereg_igtl_messages_total", "refused", 1);
-                let device = match &e {
-                    IgtlError::UnsupportedMessageType { device_name, .. } => device_name.clone(),
-                    _ => String::new(),
-                };
-                send(&out_tx, &version, &device, e.to_status(), 0).await;
-                if e.keeps_stream_in_sync() {
-                    continue;
+        if writer.flush().await.is_err() {
+            return;
+        }
+    }
+    let _ = writer.shutdown().await;
+}
+
+/// One OpenIGTLink connection's state: a session per device, created on its first cloud.
+struct Connection<'a> {
+    state: &'a Arc<AppState>,
+    scenes: &'a IgtlScenes,
+    stream: &'a OpenStream,
+    addr: SocketAddr,
+    owner: Owner,
+    out: mpsc::Sender<Outgoing>,
+    version: Arc<AtomicU8>,
+    sessions: HashMap<String, DeviceSession>,
+    forwarders: Vec<tokio::task::JoinHandle<()>>,
+    /// Clouds received, the sequence number of a cloud that carries none.
+    counter: u64,
+}
+
+impl Connection<'_> {
+    /// Reads messages until the client closes, the stream cannot be trusted, it stays idle
+    /// or the server shuts down; each cloud goes to its device's session.
+    async fn read_messages<R: AsyncRead + Unpin>(&mut self, mut reader: R) {
+        let limits = self.state.config.limits.clone();
+        let idle = Duration::from_secs_f64(limits.stream_idle_timeout_s);
+        let max_body = limits.max_body_bytes as u64;
+        let mut shutdown = self.state.shutdown.clone();
+        loop {
+            let read = match next_message(read_decoded(&mut reader, max_body), &mut shutdown, idle)
+                .await
+            {
+                Next::Message(r) => r,
+                Next::ShuttingDown => break,
+                Next::Idle => {
+                    let s = status(
+                        status_code::TIME_OUT,
+                        "idle",
+                        format!("nothing received for {} s", limits.stream_idle_timeout_s),
+                    );
+                    self.send("", s, 0).await;
+                    break;
                 }
-                tracing::info!(%addr, error = %e, "OpenIGTLink connection closed: the stream cannot be trusted");
-                break;
-            }
-            Ok(Ok(Some(m))) => m,
+            };
+            let received = Instant::now();
+            let msg = match read {
+                Ok(None) => break,
+                Ok(Some(m)) => m,
+                Err(e) => {
+                    if self.refuse_unreadable(e).await {
+                        continue;
+                    }
+                    break;
+                }
+            };
+            self.version
+                .store(m_version(&msg.version), Ordering::Relaxed);
+            let Some(points) = self.cloud_of(&msg.message).await else {
+                continue;
+            };
+            self.take_cloud(msg.message, points, received).await;
+        }
+    }
+
+    /// Answers a message that could not be read with a STATUS; whether the stream is still
+    /// in step (true: read on; false: the connection closes).
+    async fn refuse_unreadable(&self, e: IgtlError) -> bool {
+        self.state
+            .metrics
+            .inc("livereg_igtl_messages_total", "refused", 1);
+        let device = match &e {
+            IgtlError::UnsupportedMessageType { device_name, .. } => device_name.clone(),
+            _ => String::new(),
         };
-        version.store(m_version(&msg.version), Ordering::Relaxed);
-        let message = msg.message;
-        let device = message.device_name.clone();
-        let points = match &message.content {
-            Content::PolyData(p) => p.to_point_cloud(),
-            Content::Point(p) => p.positions(),
+        self.send(&device, e.to_status(), 0).await;
+        if e.keeps_stream_in_sync() {
+            return true;
+        }
+        tracing::info!(addr = %self.addr, error = %e, "OpenIGTLink connection closed: the stream cannot be trusted");
+        false
+    }
+
+    /// The cloud a message carries (POLYDATA, POINT), in the client's millimetres; `None`
+    /// for an acknowledgement (STATUS, not answered) or a TRANSFORM (answered with a STATUS).
+    async fn cloud_of(&self, message: &Message) -> Option<Vec<Point3<f64>>> {
+        match &message.content {
+            Content::PolyData(p) => Some(p.to_point_cloud()),
+            Content::Point(p) => Some(p.positions()),
             // Acknowledgements a client may send; nothing to answer.
-            Content::Status(_) => continue,
+            Content::Status(_) => None,
             Content::Transform(_) => {
-                state
+                self.state
                     .metrics
                     .inc("livereg_igtl_messages_total", "refused", 1);
                 let s = status(
@@ -272,12 +320,20 @@ pub async fn serve_connection<S>(
                     "unexpected",
                     "livereg takes clouds as POLYDATA or POINT; a TRANSFORM is not an input",
                 );
-                send(&out_tx, &version, &device, s, message.message_id).await;
-                continue;
+                self.send(&message.device_name, s, message.message_id).await;
+                None
             }
-        };
+        }
+    }
+
+    /// One cloud of `message`'s device: its sequence number (the `livereg.frame` metadata,
+    /// else the message id, else the connection's count), the device's session, and the
+    /// shared admission ([`admit_frame`]) and submission; a refusal is answered with a STATUS.
+    async fn take_cloud(&mut self, message: Message, points: Vec<Point3<f64>>, received: Instant) {
+        let state = self.state;
         state.metrics.inc("livereg_igtl_messages_total", "cloud", 1);
-        counter += 1;
+        self.counter += 1;
+        let device = message.device_name.clone();
         let seq = message
             .metadata
             .get(METADATA_FRAME)
@@ -285,115 +341,94 @@ pub async fn serve_connection<S>(
             .unwrap_or(if message.message_id != 0 {
                 u64::from(message.message_id)
             } else {
-                counter
+                self.counter
             });
-        // A session retired meanwhile (idle timeout, watchdog) is replaced by a new one.
-        if let Some(ds) = sessions.get(&device) {
-            if state.registry.get(&owner, &ds.handle.id).is_err() {
-                sessions.remove(&device);
-            }
+        if !self.has_session(&device, message.message_id).await {
+            return;
         }
-        // The device's session, created on its first cloud.
-        if !sessions.contains_key(&device) {
-            match open_session(&state, &owner, &scenes, &device).await {
-                Ok(h) => {
-                    audit::event(
-                        Action::OpenStream,
-                        "ok",
-                        peer,
-                        Some(IGTL_OWNER),
-                        Some(&h.id),
-                        &format!("openigtlink device {device:?}"),
-                    );
-                    let (tx, rx) = mpsc::channel::<StreamEvent>(CONNECTION_BUFFER);
-                    forwarders.push(tokio::spawn(forward_results(
-                        rx,
-                        h.clone(),
-                        device.clone(),
-                        out_tx.clone(),
-                        version.clone(),
-                        scenes.ras,
-                    )));
-                    sessions.insert(
-                        device.clone(),
-                        DeviceSession {
-                            handle: h,
-                            events: tx,
-                            skipped: Arc::new(AtomicU64::new(0)),
-                        },
-                    );
-                }
-                Err(e) => {
-                    let e = state.count(e);
-                    send(
-                        &out_tx,
-                        &version,
-                        &device,
-                        api_status(&e),
-                        message.message_id,
-                    )
-                    .await;
-                    continue;
-                }
-            }
-        }
-        let ds = &sessions[&device];
+        let ds = &self.sessions[&device];
         let scale_to_scene = 1e-3 / ds.handle.info.length_scale;
-        let admitted = state.admit_rate(&ds.handle).and_then(|()| {
-            let incoming = Incoming {
+        let ras = self.scenes.ras;
+        let frame = async {
+            Ok(Incoming {
                 seq,
                 frame: Frame {
                     source: format!("igtl-{device}-{seq}"),
                     points: points
                         .iter()
-                        .map(|p| flip(p, scenes.ras) * scale_to_scene)
+                        .map(|p| flip(p, ras) * scale_to_scene)
                         .collect(),
                     camera: None,
                 },
-            };
-            state
-                .admit_decoded(&ds.handle, &incoming)
-                .map(|()| incoming)
-        });
-        match admitted {
-            Ok(incoming) => ds.handle.submit(
-                Job {
-                    incoming,
-                    received,
-                    reply: Reply::Stream(StreamSink {
-                        tx: ds.events.clone(),
-                        skipped: ds.skipped.clone(),
-                    }),
-                },
-                &state.metrics,
-            ),
-            Err(e) => {
+            })
+        };
+        match admit_frame(state, &ds.handle, seq, frame).await {
+            Ok(incoming) => submit_frame(state, &ds.handle, incoming, received, &ds.results),
+            Err((_, e)) => {
                 let e = state.count(e);
-                send(&out_tx, &version, &device, api_status(&e), seq as u32).await;
+                self.send(&device, api_status(&e), seq as u32).await;
             }
         }
     }
-    // Frames in flight finish and are sent; then the sessions close.
-    let ended: Vec<Arc<SessionHandle>> = sessions.values().map(|d| d.handle.clone()).collect();
-    drop(sessions);
-    for f in forwarders {
-        let _ = f.await;
-    }
-    for h in ended {
-        if let Ok(h) = state.registry.remove(&owner, &h.id) {
-            state.retire(&h, "client");
+
+    /// Whether `device` has a session: the one it has (unless it was retired meanwhile, by
+    /// the idle timeout or the watchdog), or a new one with its result forwarder (audited);
+    /// when none can be made, the cause is answered with a STATUS of message `id`.
+    async fn has_session(&mut self, device: &str, id: u32) -> bool {
+        if let Some(ds) = self.sessions.get(device) {
+            if self.state.registry.get(&self.owner, &ds.handle.id).is_ok() {
+                return true;
+            }
+            self.sessions.remove(device);
+        }
+        match open_session(self.state, &self.owner, self.scenes, device).await {
+            Ok(h) => {
+                self.stream
+                    .audit_open(Some(&h.id), &format!("openigtlink device {device:?}"));
+                let (tx, rx) = mpsc::channel::<StreamEvent>(CONNECTION_BUFFER);
+                self.forwarders.push(tokio::spawn(forward_results(
+                    rx,
+                    h.clone(),
+                    device.to_string(),
+                    self.out.clone(),
+                    self.version.clone(),
+                    self.scenes.ras,
+                )));
+                let results = StreamSink {
+                    tx,
+                    skipped: Arc::new(AtomicU64::new(0)),
+                };
+                self.sessions
+                    .insert(device.to_string(), DeviceSession { handle: h, results });
+                true
+            }
+            Err(e) => {
+                let e = self.state.count(e);
+                self.send(device, api_status(&e), id).await;
+                false
+            }
         }
     }
-    drop(out_tx);
-    let _ = write_task.await;
-    audit::event(
-        Action::CloseStream,
-        "ok",
-        peer,
-        Some(IGTL_OWNER),
-        None,
-        "openigtlink",
-    );
+
+    /// Frames in flight finish and are sent; then the device sessions close.
+    async fn end_sessions(&mut self) {
+        let ended: Vec<Arc<SessionHandle>> =
+            self.sessions.values().map(|d| d.handle.clone()).collect();
+        self.sessions.clear();
+        for f in self.forwarders.drain(..) {
+            let _ = f.await;
+        }
+        for h in ended {
+            if let Ok(h) = self.state.registry.remove(&self.owner, &h.id) {
+                self.state.retire(&h, "client");
+            }
+        }
+    }
+
+    /// Queues a STATUS for the writer (see [`send`]).
+    async fn send(&self, device: &str, s: StatusMessage, id: u32) {
+        send(&self.out, &self.version, device, s, id).await;
+    }
 }
 
 /// Reads one message; a body over [`super::service::INLINE_DECODE_BYTES`] is decoded on the

@@ -30,6 +30,7 @@ pub mod registry;
 pub mod result_codec;
 pub mod service;
 pub mod slots;
+pub mod stream_frames;
 pub mod tls;
 pub mod upload;
 pub mod worker;

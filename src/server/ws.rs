@@ -14,23 +14,26 @@
 use std::sync::atomic::AtomicU64;
 use std::sync::Arc;
 use std::sync::OnceLock;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{Path, RawQuery, State};
 use axum::response::{IntoResponse, Response};
 use axum::Extension;
+use futures_util::stream::{SplitSink, SplitStream};
 use futures_util::{SinkExt, StreamExt};
 use serde::Serialize;
 use tokio::sync::mpsc;
 
-use super::audit::{self, Action, Peer};
+use super::audit::Peer;
 use super::auth::Owner;
 use super::codec::{peek_binary_seq, ResultMessage};
+use super::config::LimitsConfig;
 use super::error::{ApiError, ErrorBody};
 use super::result_codec::{encode_binary_result, ResultFormat};
 use super::service::AppState;
-use super::worker::{Job, Reply, SessionHandle, StreamEvent, StreamSink};
+use super::stream_frames::{admit_frame, next_message, submit_frame, Next, OpenStream};
+use super::worker::{SessionHandle, StreamEvent, StreamSink};
 
 /// A server → client message.
 #[derive(Debug, Serialize)]
@@ -171,6 +174,9 @@ fn encode(ev: &StreamEvent, length_scale: f64, format: ResultFormat) -> Message 
     Message::Text(text.unwrap_or_else(error_text).into())
 }
 
+/// One WebSocket stream of `handle`'s frames: the writer sends results (and pings) while
+/// the reader takes frames in, until the client closes, the session goes away, the stream
+/// stays idle or the server shuts down.
 async fn run(
     socket: WebSocket,
     state: Arc<AppState>,
@@ -179,72 +185,105 @@ async fn run(
     handle: Arc<SessionHandle>,
     format: ResultFormat,
 ) {
-    let _guard = state.stream_guard();
-    let (mut sink, mut incoming) = socket.split();
-    let (tx, mut rx) = mpsc::channel::<StreamEvent>(STREAM_BUFFER);
-    let skipped = Arc::new(AtomicU64::new(0));
-    let scale = handle.info.length_scale;
-    let mut shutdown = state.shutdown.clone();
+    let stream = OpenStream::new(&state, peer, owner.name());
+    let (sink, incoming) = socket.split();
+    let (tx, rx) = mpsc::channel::<StreamEvent>(STREAM_BUFFER);
+    let results = StreamSink {
+        tx,
+        skipped: Arc::new(AtomicU64::new(0)),
+    };
     // Set once, by the reader, when it is the server that ends the stream.
     let close_why = Arc::new(OnceLock::<CloseWhy>::new());
-    let cw = close_why.clone();
-    let limits = state.config.limits.clone();
-    let idle = std::time::Duration::from_secs_f64(limits.stream_idle_timeout_s);
-    let writer = tokio::spawn(async move {
-        // Pings every third of the idle timeout: a live client's pongs keep the stream open
-        // (and NAT tables warm) while it sends no frame.
-        let mut ping = tokio::time::interval_at(tokio::time::Instant::now() + idle / 3, idle / 3);
-        loop {
-            let out = tokio::select! {
-                ev = rx.recv() => match ev {
-                    Some(ev) => encode(&ev, scale, format),
-                    None => break,
-                },
-                _ = ping.tick() => Message::Ping(axum::body::Bytes::new()),
-            };
-            if sink.send(out).await.is_err() {
-                return;
-            }
-        }
-        let (code, reason) = cw.get().copied().unwrap_or_default().frame(&limits);
-        let _ = sink
-            .send(Message::Close(Some(CloseFrame {
-                code,
-                reason: reason.into(),
-            })))
-            .await;
-    });
-    audit::event(
-        Action::OpenStream,
-        "ok",
-        peer,
-        Some(owner.name()),
-        Some(&handle.id),
-        "websocket",
-    );
-    let id = handle.id.clone();
-    let mut last_seen = Instant::now();
+    let writer = tokio::spawn(write_results(
+        sink,
+        rx,
+        close_why.clone(),
+        handle.info.length_scale,
+        format,
+        state.config.limits.clone(),
+    ));
+    stream.audit_open(Some(&handle.id), "websocket");
+    read_frames(incoming, &state, &owner, &handle, &results, &close_why).await;
+    // Frames in flight still hold senders: the writer ends after their results.
+    drop(results);
+    let _ = writer.await;
+    let (code, _) = close_why
+        .get()
+        .copied()
+        .unwrap_or_default()
+        .frame(&state.config.limits);
+    stream.close(Some(&handle.id), &format!("websocket, close code {code}"));
+}
+
+/// The stream's writer: each result or error as it comes (encoded in `format`, lengths in
+/// scene units of `length_scale`), a ping every third of the idle timeout (a live client's
+/// pongs keep the stream open, and NAT tables warm, while it sends no frame), and once every
+/// sender is gone the close frame `close_why` names.
+async fn write_results(
+    mut sink: SplitSink<WebSocket, Message>,
+    mut rx: mpsc::Receiver<StreamEvent>,
+    close_why: Arc<OnceLock<CloseWhy>>,
+    length_scale: f64,
+    format: ResultFormat,
+    limits: LimitsConfig,
+) {
+    let idle = Duration::from_secs_f64(limits.stream_idle_timeout_s);
+    let mut ping = tokio::time::interval_at(tokio::time::Instant::now() + idle / 3, idle / 3);
     loop {
-        let msg = tokio::select! {
-            m = incoming.next() => m,
-            _ = shutdown.wait_for(|s| *s) => {
+        let out = tokio::select! {
+            ev = rx.recv() => match ev {
+                Some(ev) => encode(&ev, length_scale, format),
+                None => break,
+            },
+            _ = ping.tick() => Message::Ping(axum::body::Bytes::new()),
+        };
+        if sink.send(out).await.is_err() {
+            return;
+        }
+    }
+    let (code, reason) = close_why.get().copied().unwrap_or_default().frame(&limits);
+    let _ = sink
+        .send(Message::Close(Some(CloseFrame {
+            code,
+            reason: reason.into(),
+        })))
+        .await;
+}
+
+/// The stream's reader: each frame message through the shared admission
+/// ([`admit_frame`]: the rate first, then the decode, off the network threads when large,
+/// then the frame's content) to the session, a refusal answered on the stream. Returns when
+/// the client closes, the session is gone, or `close_why` is set (the server ends it).
+async fn read_frames(
+    mut incoming: SplitStream<WebSocket>,
+    state: &Arc<AppState>,
+    owner: &Owner,
+    handle: &Arc<SessionHandle>,
+    results: &StreamSink,
+    close_why: &OnceLock<CloseWhy>,
+) {
+    let mut shutdown = state.shutdown.clone();
+    let idle = Duration::from_secs_f64(state.config.limits.stream_idle_timeout_s);
+    loop {
+        let msg = match next_message(incoming.next(), &mut shutdown, idle).await {
+            Next::Message(m) => m,
+            Next::ShuttingDown => {
                 let _ = close_why.set(CloseWhy::ShuttingDown);
                 break;
             }
-            _ = tokio::time::sleep_until((last_seen + idle).into()) => {
+            Next::Idle => {
                 let _ = close_why.set(CloseWhy::Idle);
                 break;
             }
         };
         let received = Instant::now();
-        last_seen = received;
-        let decoded = match msg {
+        let (bytes, binary) = match msg {
             None | Some(Ok(Message::Close(_))) => break,
             Some(Err(e)) => {
                 if is_too_big(&e) {
                     let _ = close_why.set(CloseWhy::TooBig);
                     state.reject(
-                        &handle,
+                        handle,
                         &ApiError::too_large("payload_too_large", e.to_string()),
                     );
                     tracing::info!(session = %handle.id, error = %e, "stream closed: message too big");
@@ -255,70 +294,28 @@ async fn run(
             Some(Ok(Message::Text(t))) => (axum::body::Bytes::from(t), false),
             Some(Ok(Message::Binary(b))) => (b, true),
         };
-        if state.registry.get(&owner, &id).is_err() {
-            let _ = tx
+        if state.registry.get(owner, &handle.id).is_err() {
+            let _ = results
+                .tx
                 .send(StreamEvent::Error {
                     seq: 0,
-                    error: state.count(ApiError::unknown_session(&id)),
+                    error: state.count(ApiError::unknown_session(&handle.id)),
                 })
                 .await;
             break;
         }
-        // The rate first (a flood costs a counter, not a decode), then the decode (large
-        // frames off the network threads), then the frame's content.
-        let (bytes, binary) = decoded;
-        let refused = match state.admit_rate(&handle) {
-            Err(e) => Err((if binary { peek_binary_seq(&bytes) } else { 0 }, e)),
-            Ok(()) => match state.decode(&handle, bytes, binary).await {
-                Err(e) => Err((0, e)),
-                Ok(f) => match state.admit_decoded(&handle, &f) {
-                    Ok(()) => Ok(f),
-                    Err(e) => Err((f.seq, e)),
-                },
-            },
-        };
-        let incoming_frame = match refused {
-            Ok(f) => f,
+        let seq = if binary { peek_binary_seq(&bytes) } else { 0 };
+        match admit_frame(state, handle, seq, state.decode(handle, bytes, binary)).await {
+            Ok(frame) => submit_frame(state, handle, frame, received, results),
             Err((seq, e)) => {
                 let ev = StreamEvent::Error {
                     seq,
                     error: state.count(e),
                 };
-                if tx.send(ev).await.is_err() {
+                if results.tx.send(ev).await.is_err() {
                     break;
                 }
-                continue;
             }
-        };
-        handle.submit(
-            Job {
-                incoming: incoming_frame,
-                received,
-                reply: Reply::Stream(StreamSink {
-                    tx: tx.clone(),
-                    skipped: skipped.clone(),
-                }),
-            },
-            &state.metrics,
-        );
+        }
     }
-    // Frames in flight still hold senders: the writer ends after their results.
-    drop(tx);
-    let _ = writer.await;
-    audit::event(
-        Action::CloseStream,
-        "ok",
-        peer,
-        Some(owner.name()),
-        Some(&handle.id),
-        &format!(
-            "websocket, close code {}",
-            close_why
-                .get()
-                .copied()
-                .unwrap_or_default()
-                .frame(&state.config.limits)
-                .0
-        ),
-    );
 }
