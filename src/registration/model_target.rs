@@ -56,114 +56,12 @@ impl ModelTarget {
     /// Errors: `spacing` not finite and positive; a surface with no triangles, a triangle index
     /// out of range, or a non-finite vertex; more than [`MAX_SAMPLES`] samples.
     pub fn new(surface: &TriSurface, spacing: f64) -> Result<ModelTarget, IcpError> {
-        if !(spacing.is_finite() && spacing > 0.0) {
-            return Err(IcpError::InvalidSetting(format!(
-                "model sample spacing must be finite and > 0 metres, got {spacing}"
-            )));
-        }
-        if surface.triangles.is_empty() {
-            return Err(IcpError::InvalidModel(
-                "the model surface has no triangles".into(),
-            ));
-        }
-        if let Some(i) = crate::mesh::first_non_finite_point(&surface.vertices) {
-            return Err(IcpError::InvalidModel(format!(
-                "model vertex {i} has a non-finite coordinate: {:?}",
-                surface.vertices[i].coords.as_slice()
-            )));
-        }
-        let nv = surface.vertices.len();
-        if let Some(t) = surface
-            .triangles
-            .iter()
-            .position(|t| t.iter().any(|&v| v >= nv))
-        {
-            return Err(IcpError::InvalidModel(format!(
-                "model triangle {t} indexes vertex {:?} but there are only {nv} vertices",
-                surface.triangles[t]
-            )));
-        }
-        if surface.triangles.len() >= NO_TRIANGLE as usize {
-            return Err(IcpError::InvalidModel("too many triangles".into()));
-        }
-
+        check_surface(surface, spacing)?;
         let triangles: Vec<[Point3<f64>; 3]> = (0..surface.triangles.len())
             .map(|t| surface.corners(t))
             .collect();
-        // Lattice subdivisions per triangle: the longest edge divided into steps ≤ spacing.
-        let subdivisions: Vec<usize> = triangles
-            .iter()
-            .map(|[a, b, c]| {
-                let longest = (b - a).norm().max((c - b).norm()).max((a - c).norm());
-                (longest / spacing).ceil().max(1.0)
-            })
-            .map(|n| {
-                if n > MAX_SAMPLES as f64 {
-                    usize::MAX
-                } else {
-                    n as usize
-                }
-            })
-            .collect();
-        let lattice_points: f64 = subdivisions
-            .iter()
-            .map(|&n| (n as f64 + 1.0) * (n as f64 + 2.0) / 2.0)
-            .sum();
-        if lattice_points + nv as f64 > MAX_SAMPLES as f64 {
-            return Err(IcpError::InvalidSetting(format!(
-                "model sample spacing {spacing} m would need ~{lattice_points:.0} samples \
-                 (more than {MAX_SAMPLES}); use a coarser spacing"
-            )));
-        }
-
-        let mut samples = Vec::new();
-        let mut sample_triangle = Vec::new();
-        // Vertices first, each with one incident triangle.
-        let mut vertex_triangle = vec![NO_TRIANGLE; nv];
-        for (t, tri) in surface.triangles.iter().enumerate() {
-            for &v in tri {
-                if vertex_triangle[v] == NO_TRIANGLE {
-                    vertex_triangle[v] = t as u32;
-                }
-            }
-        }
-        samples.extend_from_slice(&surface.vertices);
-        sample_triangle.extend_from_slice(&vertex_triangle);
-        // Lattice points strictly inside each triangle, plus those on an edge (u → v) only from
-        // the triangle where u < v, so the shared edge of a closed surface is sampled once (by
-        // either neighbour's lattice, both fine enough).
-        for (t, (tri, &n)) in surface.triangles.iter().zip(&subdivisions).enumerate() {
-            let [a, b, c] = triangles[t];
-            let nf = n as f64;
-            for i in 0..=n {
-                for j in 0..=(n - i) {
-                    let k = n - i - j;
-                    let zeros = (i == 0) as u8 + (j == 0) as u8 + (k == 0) as u8;
-                    if zeros >= 2 {
-                        continue; // a corner: already a vertex sample
-                    }
-                    if zeros == 1 {
-                        // On the edge opposite the zero weight: (b,c) if i = 0, (c,a) if j = 0,
-                        // (a,b) if k = 0 (the triangle's own orientation).
-                        let (u, v) = if i == 0 {
-                            (tri[1], tri[2])
-                        } else if j == 0 {
-                            (tri[2], tri[0])
-                        } else {
-                            (tri[0], tri[1])
-                        };
-                        if u > v {
-                            continue;
-                        }
-                    }
-                    let p = Point3::from(
-                        (i as f64 * a.coords + j as f64 * b.coords + k as f64 * c.coords) / nf,
-                    );
-                    samples.push(p);
-                    sample_triangle.push(t as u32);
-                }
-            }
-        }
+        let subdivisions = lattice_subdivisions(&triangles, spacing, surface.vertices.len())?;
+        let (samples, sample_triangle) = surface_samples(surface, &triangles, &subdivisions);
         let coords: Vec<[f64; 3]> = samples.iter().map(|p| [p.x, p.y, p.z]).collect();
         let tree = ImmutableKdTree::new_from_slice(&coords).map_err(|e| {
             IcpError::InvalidModel(format!("could not build the model k-d tree: {e:?}"))
@@ -319,6 +217,136 @@ fn edge_neighbours(triangles: &[[usize; 3]]) -> Vec<[u32; 3]> {
         start = end;
     }
     out
+}
+
+/// The checks [`ModelTarget::new`] makes before sampling: `spacing` finite and positive; the
+/// surface with triangles, finite vertices, triangle indices in range and fewer triangles
+/// than [`NO_TRIANGLE`].
+fn check_surface(surface: &TriSurface, spacing: f64) -> Result<(), IcpError> {
+    if !(spacing.is_finite() && spacing > 0.0) {
+        return Err(IcpError::InvalidSetting(format!(
+            "model sample spacing must be finite and > 0 metres, got {spacing}"
+        )));
+    }
+    if surface.triangles.is_empty() {
+        return Err(IcpError::InvalidModel(
+            "the model surface has no triangles".into(),
+        ));
+    }
+    if let Some(i) = crate::mesh::first_non_finite_point(&surface.vertices) {
+        return Err(IcpError::InvalidModel(format!(
+            "model vertex {i} has a non-finite coordinate: {:?}",
+            surface.vertices[i].coords.as_slice()
+        )));
+    }
+    let nv = surface.vertices.len();
+    if let Some(t) = surface
+        .triangles
+        .iter()
+        .position(|t| t.iter().any(|&v| v >= nv))
+    {
+        return Err(IcpError::InvalidModel(format!(
+            "model triangle {t} indexes vertex {:?} but there are only {nv} vertices",
+            surface.triangles[t]
+        )));
+    }
+    if surface.triangles.len() >= NO_TRIANGLE as usize {
+        return Err(IcpError::InvalidModel("too many triangles".into()));
+    }
+    Ok(())
+}
+
+/// Lattice subdivisions per triangle: its longest edge divided into steps of at most
+/// `spacing` (m). Errors when the lattices and the `vertices` together would need more than
+/// [`MAX_SAMPLES`] samples.
+fn lattice_subdivisions(
+    triangles: &[[Point3<f64>; 3]],
+    spacing: f64,
+    vertices: usize,
+) -> Result<Vec<usize>, IcpError> {
+    let subdivisions: Vec<usize> = triangles
+        .iter()
+        .map(|[a, b, c]| {
+            let longest = (b - a).norm().max((c - b).norm()).max((a - c).norm());
+            (longest / spacing).ceil().max(1.0)
+        })
+        .map(|n| {
+            if n > MAX_SAMPLES as f64 {
+                usize::MAX
+            } else {
+                n as usize
+            }
+        })
+        .collect();
+    let lattice_points: f64 = subdivisions
+        .iter()
+        .map(|&n| (n as f64 + 1.0) * (n as f64 + 2.0) / 2.0)
+        .sum();
+    if lattice_points + vertices as f64 > MAX_SAMPLES as f64 {
+        return Err(IcpError::InvalidSetting(format!(
+            "model sample spacing {spacing} m would need ~{lattice_points:.0} samples \
+             (more than {MAX_SAMPLES}); use a coarser spacing"
+        )));
+    }
+    Ok(subdivisions)
+}
+
+/// The surface's samples and the triangle each lies on: the vertices first (each with one
+/// incident triangle), then each triangle's lattice of `subdivisions` steps, its points
+/// strictly inside and those on an edge (u → v) only from the triangle where u < v, so the
+/// shared edge of a closed surface is sampled once (by either neighbour's lattice, both fine
+/// enough).
+fn surface_samples(
+    surface: &TriSurface,
+    triangles: &[[Point3<f64>; 3]],
+    subdivisions: &[usize],
+) -> (Vec<Point3<f64>>, Vec<u32>) {
+    let nv = surface.vertices.len();
+    let mut samples = Vec::new();
+    let mut sample_triangle = Vec::new();
+    let mut vertex_triangle = vec![NO_TRIANGLE; nv];
+    for (t, tri) in surface.triangles.iter().enumerate() {
+        for &v in tri {
+            if vertex_triangle[v] == NO_TRIANGLE {
+                vertex_triangle[v] = t as u32;
+            }
+        }
+    }
+    samples.extend_from_slice(&surface.vertices);
+    sample_triangle.extend_from_slice(&vertex_triangle);
+    for (t, (tri, &n)) in surface.triangles.iter().zip(subdivisions).enumerate() {
+        let [a, b, c] = triangles[t];
+        let nf = n as f64;
+        for i in 0..=n {
+            for j in 0..=(n - i) {
+                let k = n - i - j;
+                let zeros = (i == 0) as u8 + (j == 0) as u8 + (k == 0) as u8;
+                if zeros >= 2 {
+                    continue; // a corner: already a vertex sample
+                }
+                if zeros == 1 {
+                    // On the edge opposite the zero weight: (b,c) if i = 0, (c,a) if j = 0,
+                    // (a,b) if k = 0 (the triangle's own orientation).
+                    let (u, v) = if i == 0 {
+                        (tri[1], tri[2])
+                    } else if j == 0 {
+                        (tri[2], tri[0])
+                    } else {
+                        (tri[0], tri[1])
+                    };
+                    if u > v {
+                        continue;
+                    }
+                }
+                let p = Point3::from(
+                    (i as f64 * a.coords + j as f64 * b.coords + k as f64 * c.coords) / nf,
+                );
+                samples.push(p);
+                sample_triangle.push(t as u32);
+            }
+        }
+    }
+    (samples, sample_triangle)
 }
 
 #[cfg(test)]

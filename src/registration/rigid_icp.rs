@@ -194,6 +194,24 @@ struct Workspace {
     dst: Vec<Point3<f64>>,
 }
 
+/// The state [`RigidIcp::register`] carries from one iteration to the next.
+struct Iterate {
+    /// The current cloud → model estimate.
+    estimate: RigidTransform,
+    /// Anderson acceleration of the point-to-point fixed-point iteration.
+    accel: Anderson,
+    /// The last iteration's inlier mean squared distance, m².
+    previous_mse: Option<f64>,
+    /// The plain ICP step behind an accelerated estimate, to fall back to.
+    plain_step: Option<RigidTransform>,
+    /// The last update moved the pose by less than the pose tolerances.
+    pose_converged: bool,
+    /// The estimate before the last point-to-plane update, for backtracking.
+    previous_estimate: Option<RigidTransform>,
+    /// Iterations done.
+    iterations: usize,
+}
+
 impl RigidIcp {
     /// Checks the settings' ranges.
     pub fn validate(&self) -> Result<(), IcpError> {
@@ -247,6 +265,65 @@ impl RigidIcp {
         cloud: &[Point3<f64>],
         initial: Option<RigidTransform>,
     ) -> Result<IcpResult, IcpError> {
+        let start = self.checked_start(model, cloud, initial)?;
+        let needed = self.min_inliers.max(3);
+        let mut ws = Workspace {
+            pairs: Vec::with_capacity(cloud.len()),
+            keep: Vec::with_capacity(cloud.len()),
+            prev_keep: Vec::with_capacity(cloud.len()),
+            src: Vec::with_capacity(cloud.len()),
+            dst: Vec::with_capacity(cloud.len()),
+        };
+        let mut it = Iterate {
+            estimate: start,
+            accel: Anderson::new(cloud, &start),
+            previous_mse: None,
+            plain_step: None,
+            pose_converged: false,
+            previous_estimate: None,
+            iterations: 0,
+        };
+        loop {
+            let mse = self.pair_at_estimate(model, cloud, &mut it, &mut ws);
+            let inliers = ws.keep.len();
+            if inliers < needed {
+                return Err(IcpError::TooFewInliers {
+                    iteration: it.iterations,
+                    inliers,
+                    needed,
+                    total: cloud.len(),
+                });
+            }
+            let converged = it.pose_converged
+                || it
+                    .previous_mse
+                    .is_some_and(|prev| (prev - mse).abs() <= self.relative_tolerance * prev);
+            if converged || it.iterations >= self.max_iterations {
+                let cloud_to_model = it.estimate;
+                return Ok(IcpResult {
+                    cloud_to_model,
+                    model_to_cloud: cloud_to_model.inverse(),
+                    iterations: it.iterations,
+                    rms: mse.sqrt(),
+                    inlier_fraction: inliers as f64 / cloud.len() as f64,
+                    converged,
+                    covariance: pose_covariance(cloud, &it.estimate, &ws),
+                });
+            }
+            let step = self.plain_step(cloud, &it.estimate, &mut ws, it.iterations)?;
+            self.advance(&mut it, step, &mut ws);
+            it.previous_mse = Some(mse);
+        }
+    }
+
+    /// The settings, the cloud (not empty, finite), the start (`initial`, or the identity;
+    /// finite) and the model (not empty) checked: the start's cloud → model motion.
+    fn checked_start(
+        &self,
+        model: &ModelTarget,
+        cloud: &[Point3<f64>],
+        initial: Option<RigidTransform>,
+    ) -> Result<RigidTransform, IcpError> {
         self.validate()?;
         if cloud.is_empty() {
             return Err(IcpError::EmptyCloud);
@@ -258,7 +335,7 @@ impl RigidIcp {
                 point: [p.x, p.y, p.z],
             });
         }
-        let mut estimate = initial.unwrap_or_default();
+        let estimate = initial.unwrap_or_default();
         if !estimate.is_finite() {
             return Err(IcpError::NonFiniteInitial);
         }
@@ -267,117 +344,105 @@ impl RigidIcp {
                 "the model target has no samples".into(),
             ));
         }
-        let needed = self.min_inliers.max(3);
-        let mut ws = Workspace {
-            pairs: Vec::with_capacity(cloud.len()),
-            keep: Vec::with_capacity(cloud.len()),
-            prev_keep: Vec::with_capacity(cloud.len()),
-            src: Vec::with_capacity(cloud.len()),
-            dst: Vec::with_capacity(cloud.len()),
-        };
-        let mut accel = Anderson::new(cloud, &estimate);
-        let mut previous_mse: Option<f64> = None;
-        // The plain ICP step behind an accelerated estimate, to fall back to.
-        let mut plain_step: Option<RigidTransform> = None;
-        // The last update moved the pose by less than the pose tolerances.
-        let mut pose_converged = false;
-        // The estimate before the last point-to-plane update, for backtracking.
-        let mut previous_estimate: Option<RigidTransform> = None;
-        let mut iterations = 0;
-        loop {
-            let mut mse = self.match_and_select(model, cloud, &estimate, &mut ws);
-            if let (Some(plain), Some(prev)) = (plain_step, previous_mse) {
-                if mse.is_nan() || mse > prev {
-                    // The extrapolation made things worse: take the plain step instead.
-                    estimate = plain;
-                    accel.reset(&estimate);
-                    mse = self.match_and_select(model, cloud, &estimate, &mut ws);
-                }
+        Ok(estimate)
+    }
+
+    /// Pairs the cloud at the current estimate ([`RigidIcp::match_and_select`]) and returns
+    /// the inliers' mean squared distance (m²), after two safeguards: an extrapolated
+    /// estimate that made the fit worse is replaced by the plain step behind it, and a
+    /// point-to-plane step that moved the last inliers farther from the surface is halved
+    /// (up to [`MAX_HALVINGS`] times).
+    fn pair_at_estimate(
+        &self,
+        model: &ModelTarget,
+        cloud: &[Point3<f64>],
+        it: &mut Iterate,
+        ws: &mut Workspace,
+    ) -> f64 {
+        let mut mse = self.match_and_select(model, cloud, &it.estimate, ws);
+        if let (Some(plain), Some(prev)) = (it.plain_step, it.previous_mse) {
+            if mse.is_nan() || mse > prev {
+                // The extrapolation made things worse: take the plain step instead.
+                it.estimate = plain;
+                it.accel.reset(&it.estimate);
+                mse = self.match_and_select(model, cloud, &it.estimate, ws);
             }
-            if let (Some(before), Some(prev)) = (previous_estimate, previous_mse) {
-                // Point-to-plane line search: the Gauss–Newton step can overshoot across the
-                // facet edges of the model (a 2-cycle that never meets the tolerances); halve it
-                // while the previous iteration's inliers got farther from the surface.
-                for _ in 0..MAX_HALVINGS {
-                    let same_set = ws.prev_keep.iter().map(|&i| ws.pairs[i].1).sum::<f64>()
-                        / ws.prev_keep.len() as f64;
-                    if same_set <= prev {
-                        break;
-                    }
-                    estimate = accel.interpolate(&before, &estimate, 0.5);
-                    mse = self.match_and_select(model, cloud, &estimate, &mut ws);
-                }
-            }
-            let inliers = ws.keep.len();
-            if inliers < needed {
-                return Err(IcpError::TooFewInliers {
-                    iteration: iterations,
-                    inliers,
-                    needed,
-                    total: cloud.len(),
-                });
-            }
-            let converged = pose_converged
-                || previous_mse
-                    .is_some_and(|prev| (prev - mse).abs() <= self.relative_tolerance * prev);
-            if converged || iterations >= self.max_iterations {
-                let cloud_to_model = estimate;
-                return Ok(IcpResult {
-                    cloud_to_model,
-                    model_to_cloud: cloud_to_model.inverse(),
-                    iterations,
-                    rms: mse.sqrt(),
-                    inlier_fraction: inliers as f64 / cloud.len() as f64,
-                    converged,
-                    covariance: pose_covariance(cloud, &estimate, &ws),
-                });
-            }
-            let plane_step = match self.metric {
-                IcpMetric::PointToPlane => point_to_plane_step(cloud, &estimate, &ws),
-                IcpMetric::PointToPoint => None,
-            };
-            let step = match plane_step {
-                Some(step) => step,
-                None => {
-                    ws.src.clear();
-                    ws.dst.clear();
-                    for &i in &ws.keep {
-                        ws.src.push(cloud[i]);
-                        ws.dst.push(ws.pairs[i].0);
-                    }
-                    kabsch(&ws.src, &ws.dst, None).ok_or(IcpError::Degenerate {
-                        iteration: iterations,
-                        inliers,
-                    })?
-                }
-            };
-            // The fixed-point residual of the plain step decides convergence (an extrapolated
-            // estimate is then not needed).
-            let (rotation, shift) = accel.pose_change(&estimate, &step);
-            pose_converged =
-                rotation < self.rotation_tolerance && shift < self.translation_tolerance;
-            previous_estimate = None;
-            if self.metric == IcpMetric::PointToPlane {
-                previous_estimate = Some(estimate);
-                ws.prev_keep.clone_from(&ws.keep);
-            }
-            let accelerated = match self.metric {
-                IcpMetric::PointToPoint if !pose_converged => accel.next(&estimate, &step),
-                _ => None,
-            };
-            match accelerated {
-                Some(extrapolated) => {
-                    estimate = extrapolated;
-                    plain_step = Some(step);
-                }
-                None => {
-                    estimate = step;
-                    plain_step = None;
-                }
-            }
-            iterations += 1;
-            previous_mse = Some(mse);
         }
+        if let (Some(before), Some(prev)) = (it.previous_estimate, it.previous_mse) {
+            // Point-to-plane line search: the Gauss–Newton step can overshoot across the
+            // facet edges of the model (a 2-cycle that never meets the tolerances); halve it
+            // while the previous iteration's inliers got farther from the surface.
+            for _ in 0..MAX_HALVINGS {
+                let same_set = ws.prev_keep.iter().map(|&i| ws.pairs[i].1).sum::<f64>()
+                    / ws.prev_keep.len() as f64;
+                if same_set <= prev {
+                    break;
+                }
+                it.estimate = it.accel.interpolate(&before, &it.estimate, 0.5);
+                mse = self.match_and_select(model, cloud, &it.estimate, ws);
+            }
+        }
+        mse
+    }
+
+    /// The plain ICP step from `estimate` over the kept pairs: point-to-plane Gauss–Newton,
+    /// or (point-to-point, or a degenerate plane system) the Kabsch fit of the pairs.
+    fn plain_step(
+        &self,
+        cloud: &[Point3<f64>],
+        estimate: &RigidTransform,
+        ws: &mut Workspace,
+        iteration: usize,
+    ) -> Result<RigidTransform, IcpError> {
+        let plane_step = match self.metric {
+            IcpMetric::PointToPlane => point_to_plane_step(cloud, estimate, ws),
+            IcpMetric::PointToPoint => None,
+        };
+        if let Some(step) = plane_step {
+            return Ok(step);
+        }
+        ws.src.clear();
+        ws.dst.clear();
+        for &i in &ws.keep {
+            ws.src.push(cloud[i]);
+            ws.dst.push(ws.pairs[i].0);
+        }
+        kabsch(&ws.src, &ws.dst, None).ok_or(IcpError::Degenerate {
+            iteration,
+            inliers: ws.keep.len(),
+        })
+    }
+
+    /// Takes the plain `step`: decides pose convergence on its fixed-point residual, keeps the
+    /// estimate before it for the point-to-plane line search, and (point-to-point, not yet
+    /// converged) extrapolates it with Anderson acceleration, keeping the plain step to fall
+    /// back to.
+    fn advance(&self, it: &mut Iterate, step: RigidTransform, ws: &mut Workspace) {
+        // The fixed-point residual of the plain step decides convergence (an extrapolated
+        // estimate is then not needed).
+        let (rotation, shift) = it.accel.pose_change(&it.estimate, &step);
+        it.pose_converged =
+            rotation < self.rotation_tolerance && shift < self.translation_tolerance;
+        it.previous_estimate = None;
+        if self.metric == IcpMetric::PointToPlane {
+            it.previous_estimate = Some(it.estimate);
+            ws.prev_keep.clone_from(&ws.keep);
+        }
+        let accelerated = match self.metric {
+            IcpMetric::PointToPoint if !it.pose_converged => it.accel.next(&it.estimate, &step),
+            _ => None,
+        };
+        match accelerated {
+            Some(extrapolated) => {
+                it.estimate = extrapolated;
+                it.plain_step = Some(step);
+            }
+            None => {
+                it.estimate = step;
+                it.plain_step = None;
+            }
+        }
+        it.iterations += 1;
     }
 
     /// Pairs every cloud point (moved by `estimate`) with its closest model point, fills

@@ -417,6 +417,15 @@ impl ServerConfig {
     /// Checks the configuration: values in range, tokens long enough and unique, no
     /// unauthenticated mode off loopback.
     pub fn validate(&self) -> Result<(), String> {
+        self.validate_access()?;
+        self.validate_igtl()?;
+        self.validate_limits()?;
+        self.validate_logs_and_recordings()
+    }
+
+    /// The tokens (at least 16 characters, no token or name listed twice, no empty name) and
+    /// the access mode: tokens, or loopback-only development.
+    fn validate_access(&self) -> Result<(), String> {
         let tokens = self.all_tokens()?;
         for t in &tokens {
             if t.token.chars().count() < 16 {
@@ -451,6 +460,12 @@ impl ServerConfig {
         } else if tokens.is_empty() {
             return Err("no bearer tokens configured: set `tokens` in the configuration, LIVEREG_TOKENS or LIVEREG_TOKEN_FILE (or --insecure-loopback-dev for loopback-only development)".into());
         }
+        Ok(())
+    }
+
+    /// The OpenIGTLink listener: a scene for its sessions, and TLS (or an explicit consent)
+    /// when it listens beyond loopback.
+    fn validate_igtl(&self) -> Result<(), String> {
         if let Some(a) = self.igtl_bind {
             if self.igtl_scene.is_none() && self.igtl_device_scenes.is_empty() {
                 return Err(format!(
@@ -465,6 +480,11 @@ impl ServerConfig {
                 ));
             }
         }
+        Ok(())
+    }
+
+    /// Thread counts and limits within their ranges; the first one out names itself.
+    fn validate_limits(&self) -> Result<(), String> {
         let l = &self.limits;
         let checks: [(bool, &str); 13] = [
             (self.worker_threads >= 1, "worker_threads must be >= 1"),
@@ -516,6 +536,11 @@ impl ServerConfig {
         if let Some((_, m)) = checks.iter().find(|(ok, _)| !ok) {
             return Err((*m).to_string());
         }
+        Ok(())
+    }
+
+    /// The log format and the recordings' age limit and directory.
+    fn validate_logs_and_recordings(&self) -> Result<(), String> {
         if !matches!(self.log_format.as_str(), "text" | "json") {
             return Err(format!(
                 "log_format must be \"text\" or \"json\", got {:?}",

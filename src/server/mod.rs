@@ -144,13 +144,7 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
     config.validate()?;
     let tokens = config.all_tokens()?;
     let tls = config.tls.as_ref().map(tls::TlsFiles::load).transpose()?;
-    std::fs::create_dir_all(config.data_dir.join("sessions"))
-        .map_err(|e| format!("data_dir {}: cannot create: {e}", config.data_dir.display()))?;
-    if config.record {
-        let rec = config.recordings_path();
-        std::fs::create_dir_all(&rec)
-            .map_err(|e| format!("recordings_dir {}: cannot create: {e}", rec.display()))?;
-    }
+    create_data_dirs(&config)?;
     let (tx, rx) = watch::channel(false);
     let auth = auth::Authenticator::new(&tokens, config.insecure_loopback_dev);
     let state = Arc::new(AppState::new(config.clone(), auth, rx.clone()));
@@ -220,29 +214,15 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
             serve_http(l, grpc_app, grpc_tls, conn_limits, m, sig).await
         }));
     }
-    let mut igtl_addr = None;
-    if let Some(addr) = config.igtl_bind {
-        let scenes = igtl::IgtlScenes::load(
-            config.igtl_scene.as_deref(),
-            &config.igtl_device_scenes,
-            config.igtl_coordinates,
-        )?;
-        let l = tokio::net::TcpListener::bind(addr)
-            .await
-            .map_err(|e| format!("cannot listen on {addr} (igtl_bind): {e}"))?;
-        igtl_addr = Some(l.local_addr().map_err(|e| format!("bound address: {e}"))?);
-        // The HTTP certificate, without ALPN (OpenIGTLink over a TLS tunnel names none).
-        let acceptor = tls.as_ref().map(|t| {
-            let mut c = (*t.server_config).clone();
-            c.alpn_protocols.clear();
-            tokio_rustls::TlsAcceptor::from(Arc::new(c))
-        });
-        let st = state.clone();
-        let rx = rx.clone();
-        tasks.push(tokio::spawn(async move {
-            igtl::serve(l, st, Arc::new(scenes), acceptor, conn_limits, rx).await
-        }));
-    }
+    let igtl_addr = match config.igtl_bind {
+        Some(addr) => {
+            let (bound, task) =
+                start_igtl(addr, &config, &state, tls.as_ref(), conn_limits, rx.clone()).await?;
+            tasks.push(task);
+            Some(bound)
+        }
+        None => None,
+    };
     let policy = config.recordings_retention();
     if config.record && policy.is_active() {
         tokio::spawn(keep_recordings_within(
@@ -254,21 +234,7 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
     }
     let idle = config.limits.session_idle_timeout_s;
     if idle > 0 {
-        let st = state.clone();
-        let mut rx = rx.clone();
-        tokio::spawn(async move {
-            let mut tick = tokio::time::interval(Duration::from_secs(idle.clamp(1, 30)));
-            loop {
-                tokio::select! {
-                    _ = tick.tick() => {
-                        for h in st.registry.take_idle(idle as f64) {
-                            st.retire(&h, "idle");
-                        }
-                    }
-                    _ = rx.wait_for(|s| *s) => break,
-                }
-            }
-        });
+        tokio::spawn(retire_idle_sessions(state.clone(), idle, rx.clone()));
     }
     tracing::info!(%http_addr, grpc_addr = ?grpc_addr, igtl_addr = ?igtl_addr, tls = tls.is_some(), "listening");
     Ok(RunningServer {
@@ -279,6 +245,71 @@ pub async fn start(config: ServerConfig) -> Result<RunningServer, String> {
         state,
         tasks,
     })
+}
+
+/// Creates the data directory's `sessions` folder and, when recording, the recordings
+/// directory; an error names the key and the path.
+fn create_data_dirs(config: &ServerConfig) -> Result<(), String> {
+    std::fs::create_dir_all(config.data_dir.join("sessions"))
+        .map_err(|e| format!("data_dir {}: cannot create: {e}", config.data_dir.display()))?;
+    if config.record {
+        let rec = config.recordings_path();
+        std::fs::create_dir_all(&rec)
+            .map_err(|e| format!("recordings_dir {}: cannot create: {e}", rec.display()))?;
+    }
+    Ok(())
+}
+
+/// Starts the OpenIGTLink listener on `addr` with the scenes `config` names (TLS with the
+/// HTTP certificate, without ALPN: OpenIGTLink over a TLS tunnel names none): its bound
+/// address and its task.
+async fn start_igtl(
+    addr: SocketAddr,
+    config: &ServerConfig,
+    state: &Arc<AppState>,
+    tls: Option<&tls::TlsFiles>,
+    conn_limits: connections::ConnectionLimits,
+    shutdown: watch::Receiver<bool>,
+) -> Result<(SocketAddr, JoinHandle<Result<(), String>>), String> {
+    let scenes = igtl::IgtlScenes::load(
+        config.igtl_scene.as_deref(),
+        &config.igtl_device_scenes,
+        config.igtl_coordinates,
+    )?;
+    let l = tokio::net::TcpListener::bind(addr)
+        .await
+        .map_err(|e| format!("cannot listen on {addr} (igtl_bind): {e}"))?;
+    let bound = l.local_addr().map_err(|e| format!("bound address: {e}"))?;
+    let acceptor = tls.map(|t| {
+        let mut c = (*t.server_config).clone();
+        c.alpn_protocols.clear();
+        tokio_rustls::TlsAcceptor::from(Arc::new(c))
+    });
+    let st = state.clone();
+    let task = tokio::spawn(async move {
+        igtl::serve(l, st, Arc::new(scenes), acceptor, conn_limits, shutdown).await
+    });
+    Ok((bound, task))
+}
+
+/// Retires the sessions idle for `idle` seconds, checking every `idle` seconds (1–30 s),
+/// until shutdown.
+async fn retire_idle_sessions(
+    state: Arc<AppState>,
+    idle: u64,
+    mut shutdown: watch::Receiver<bool>,
+) {
+    let mut tick = tokio::time::interval(Duration::from_secs(idle.clamp(1, 30)));
+    loop {
+        tokio::select! {
+            _ = tick.tick() => {
+                for h in state.registry.take_idle(idle as f64) {
+                    state.retire(&h, "idle");
+                }
+            }
+            _ = shutdown.wait_for(|s| *s) => break,
+        }
+    }
 }
 
 /// How often the recordings directory is checked against its retention policy.

@@ -27,6 +27,66 @@ use super::worker::{
 /// them (a few hundred µs at most); larger ones on the blocking pool.
 pub const INLINE_DECODE_BYTES: usize = 64 * 1024;
 
+/// Builds the session of `upload` in `dir` on the blocking pool (a panic while building is
+/// an internal error, never a lost server): the loaded scene, the session, the upload and
+/// the model's memory estimate (bytes).
+async fn build_session(
+    upload: SceneUpload,
+    dir: std::path::PathBuf,
+    limits: super::config::LimitsConfig,
+) -> Result<
+    (
+        crate::scene::LoadedScene,
+        crate::session::Session,
+        SceneUpload,
+        u64,
+    ),
+    ApiError,
+> {
+    tokio::task::spawn_blocking(move || {
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            let (loaded, session) = prepare_session(&upload, &dir, &limits)?;
+            let estimate = session.memory_estimate_bytes().map_err(|e| {
+                ApiError::internal(format!("the model's memory cannot be estimated: {e}"))
+            })?;
+            Ok::<_, ApiError>((loaded, session, upload, estimate))
+        }))
+        .unwrap_or_else(|_| {
+            Err(ApiError::internal(
+                "building the model failed unexpectedly (please report this scene)",
+            ))
+        })
+    })
+    .await
+    .map_err(|e| ApiError::internal(format!("session build task: {e}")))
+    .and_then(|r| r)
+}
+
+/// What a session's clients are told about its model (`recorder`: where it records, if it
+/// does; `estimate`: its memory, bytes).
+fn model_info(
+    loaded: &crate::scene::LoadedScene,
+    session: &crate::session::Session,
+    recorder: Option<&Recorder>,
+    estimate: u64,
+) -> ModelInfo {
+    ModelInfo {
+        recording: recorder.map(|r| r.path().to_path_buf()),
+        units: loaded.scene.units.as_str().to_string(),
+        length_scale: loaded.length_scale(),
+        surface_vertices: session.model.surface.vertices.len(),
+        surface_triangles: session.model.surface.triangles.len(),
+        structures: session
+            .model
+            .structures
+            .iter()
+            .map(|s| s.name.clone())
+            .collect(),
+        meshes: Arc::new(crate::server::worker::ModelMeshes::of(&session.model)),
+        memory_estimate_bytes: estimate,
+    }
+}
+
 /// Opens the recording of session `id` (scene `loaded`, uploaded as `upload`) at `path`.
 /// The recording's notes name the session and its owner (the token's name, never the token).
 fn open_recording(
@@ -216,23 +276,7 @@ impl AppState {
             std::time::Duration::from_millis(self.config.recordings_fsync_ms),
         );
         let (sid, metrics) = (id.clone(), self.metrics.clone());
-        let built = tokio::task::spawn_blocking(move || {
-            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                let (loaded, session) = prepare_session(&upload, &d, &limits)?;
-                let estimate = session.memory_estimate_bytes().map_err(|e| {
-                    ApiError::internal(format!("the model's memory cannot be estimated: {e}"))
-                })?;
-                Ok::<_, ApiError>((loaded, session, upload, estimate))
-            }))
-            .unwrap_or_else(|_| {
-                Err(ApiError::internal(
-                    "building the model failed unexpectedly (please report this scene)",
-                ))
-            })
-        })
-        .await
-        .map_err(|e| ApiError::internal(format!("session build task: {e}")))
-        .and_then(|r| r);
+        let built = build_session(upload, d, limits).await;
         // The memory budget is claimed before anything lasting (a recording) is made.
         let (loaded, session, upload, estimate) =
             match built.and_then(|b| reservation.claim_memory(b.3).map(|_| b)) {
@@ -251,21 +295,7 @@ impl AppState {
                     })
                     .ok()
             });
-            let info = ModelInfo {
-                recording: recorder.as_ref().map(|r| r.path().to_path_buf()),
-                units: loaded.scene.units.as_str().to_string(),
-                length_scale: loaded.length_scale(),
-                surface_vertices: session.model.surface.vertices.len(),
-                surface_triangles: session.model.surface.triangles.len(),
-                structures: session
-                    .model
-                    .structures
-                    .iter()
-                    .map(|s| s.name.clone())
-                    .collect(),
-                meshes: Arc::new(crate::server::worker::ModelMeshes::of(&session.model)),
-                memory_estimate_bytes: estimate,
-            };
+            let info = model_info(&loaded, &session, recorder.as_ref(), estimate);
             (session, recorder, info)
         })
         .await;
@@ -286,6 +316,24 @@ impl AppState {
             dir,
             self.config.limits.max_frames_per_second,
         ));
+        self.spawn_worker(&handle, session, recorder);
+        reservation.commit(handle.clone());
+        self.metrics.sessions.fetch_add(1, Ordering::Relaxed);
+        self.metrics
+            .sessions_created
+            .fetch_add(1, Ordering::Relaxed);
+        tracing::info!(session = %handle.id, owner = owner.name(), build_ms = t.elapsed().as_secs_f64() * 1e3, "session created");
+        Ok(SessionInfo::of(&handle))
+    }
+
+    /// Starts the worker that registers `handle`'s frames with `session` (and records them
+    /// to `recorder`), under the watchdog; a worker that fails removes its session.
+    fn spawn_worker(
+        self: &Arc<Self>,
+        handle: &Arc<SessionHandle>,
+        session: crate::session::Session,
+        recorder: Option<Recorder>,
+    ) {
         self.live_workers.enter();
         let guard = WorkerGuard(self.clone());
         let state = Arc::downgrade(self);
@@ -314,13 +362,6 @@ impl AppState {
             let _guard = guard;
             worker.await
         });
-        reservation.commit(handle.clone());
-        self.metrics.sessions.fetch_add(1, Ordering::Relaxed);
-        self.metrics
-            .sessions_created
-            .fetch_add(1, Ordering::Relaxed);
-        tracing::info!(session = %handle.id, owner = owner.name(), build_ms = t.elapsed().as_secs_f64() * 1e3, "session created");
-        Ok(SessionInfo::of(&handle))
     }
 
     /// The session `id` of `owner` (404 otherwise).

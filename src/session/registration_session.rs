@@ -334,6 +334,10 @@ impl Session {
         )
     }
 
+    /// The result of frame `source` (`received` points, started at `start`, with its stage
+    /// `times` and `flags`) from its `outcome`: a success becomes the session's good state
+    /// ([`Session::accept`]); a failure leaves the state as it was, flagged `failed` with its
+    /// cause. Either way the result carries the good state's positions.
     fn finish(
         &mut self,
         source: &str,
@@ -373,67 +377,87 @@ impl Session {
             expected_error: self.good.expected_error.map(|e| scaled_estimate(&e, scale)),
         };
         match outcome {
-            Ok(done) => {
-                // An ambiguous pose stays ambiguous for as long as it is held; a pose fitted
-                // anew without ambiguity clears it.
-                let searched_ambiguous = result.flags.contains(&FrameFlag::PoseAmbiguous);
-                let held = self.good.registered && done.model_to_cloud == self.good.model_to_cloud;
-                let pose_ambiguous = searched_ambiguous || (held && self.good.pose_ambiguous);
-                if pose_ambiguous && !searched_ambiguous {
-                    result.flags.push(FrameFlag::PoseAmbiguous);
-                }
-                // Likewise the pose's uncertainty: that of its fit, for as long as it is held.
-                let fitted = self.fitted_pose_uncertainty.take();
-                let pose_uncertainty = if held {
-                    self.good.pose_uncertainty
-                } else {
-                    fitted
-                };
-                if pose_uncertainty.is_some_and(|v| v > self.settings.max_pose_uncertainty) {
-                    result.flags.push(FrameFlag::PoseUncertain);
-                }
-                result.pose_uncertainty = pose_uncertainty.map(|v| v / scale);
-                let estimate = self.error_estimate(&done, pose_uncertainty);
-                if estimate.expected > self.settings.max_expected_error {
-                    result.flags.push(FrameFlag::ExpectedErrorHigh);
-                }
-                result.expected_error = Some(scaled_estimate(&estimate, scale));
-                if let Some(surface) = done.surface {
-                    self.good_surface = std::sync::OnceLock::from(Some(surface));
-                } else if done.u != self.good.u {
-                    self.good_surface = std::sync::OnceLock::new();
-                }
-                self.good = GoodState {
-                    u: done.u,
-                    model_to_cloud: done.model_to_cloud,
-                    registered: true,
-                    cloud: Some(done.cloud),
-                    contact_force: done.contact_force,
-                    pose_ambiguous,
-                    pose_uncertainty,
-                    expected_error: Some(estimate),
-                };
-                self.still = done.still;
-                result.model_to_cloud = done.model_to_cloud;
-                result.converged = done.converged;
-                result.rigid_iterations = done.rigid_iterations;
-                result.icp_iterations = done.icp_iterations;
-                result.newton_iterations = done.newton_iterations;
-                result.factorizations = done.factorizations;
-                result.surface_rms = done.surface_rms / scale;
-                result.cloud_points.1 = done.used_points;
-                result.sources = done.sources;
-                result.warnings = done.warnings;
-                if !done.converged && !result.flags.contains(&FrameFlag::TimeBudget) {
-                    result.flags.push(FrameFlag::IcpNotConverged);
-                }
-            }
+            Ok(done) => self.accept(done, &mut result),
             Err(e) => {
                 result.flags.push(FrameFlag::Failed);
                 result.error = Some(e);
             }
         }
-        // Positions of the (new or kept) good state, in the cloud frame and scene units.
+        self.write_positions(&mut result);
+        result.times.output_ms = ms(t);
+        result.wall_ms = ms(start);
+        result
+    }
+
+    /// A frame that succeeded: its pose flags and uncertainty, its expected error, and its
+    /// state as the session's new good state, written into `result`.
+    fn accept(&mut self, done: Done, result: &mut FrameResult) {
+        let scale = self.model.length_scale;
+        let held = self.good.registered && done.model_to_cloud == self.good.model_to_cloud;
+        let (pose_ambiguous, pose_uncertainty) = self.pose_flags(held, result);
+        let estimate = self.error_estimate(&done, pose_uncertainty);
+        if estimate.expected > self.settings.max_expected_error {
+            result.flags.push(FrameFlag::ExpectedErrorHigh);
+        }
+        result.expected_error = Some(scaled_estimate(&estimate, scale));
+        if let Some(surface) = done.surface {
+            self.good_surface = std::sync::OnceLock::from(Some(surface));
+        } else if done.u != self.good.u {
+            self.good_surface = std::sync::OnceLock::new();
+        }
+        self.good = GoodState {
+            u: done.u,
+            model_to_cloud: done.model_to_cloud,
+            registered: true,
+            cloud: Some(done.cloud),
+            contact_force: done.contact_force,
+            pose_ambiguous,
+            pose_uncertainty,
+            expected_error: Some(estimate),
+        };
+        self.still = done.still;
+        result.model_to_cloud = done.model_to_cloud;
+        result.converged = done.converged;
+        result.rigid_iterations = done.rigid_iterations;
+        result.icp_iterations = done.icp_iterations;
+        result.newton_iterations = done.newton_iterations;
+        result.factorizations = done.factorizations;
+        result.surface_rms = done.surface_rms / scale;
+        result.cloud_points.1 = done.used_points;
+        result.sources = done.sources;
+        result.warnings = done.warnings;
+        if !done.converged && !result.flags.contains(&FrameFlag::TimeBudget) {
+            result.flags.push(FrameFlag::IcpNotConverged);
+        }
+    }
+
+    /// Whether the frame's pose is ambiguous and how uncertain it is (m), flagged in
+    /// `result` (`pose_ambiguous`, `pose_uncertain`) with the uncertainty in scene units. A
+    /// `held` pose keeps both from the frame that fitted it; a pose fitted anew without
+    /// ambiguity clears them.
+    fn pose_flags(&mut self, held: bool, result: &mut FrameResult) -> (bool, Option<f64>) {
+        let searched_ambiguous = result.flags.contains(&FrameFlag::PoseAmbiguous);
+        let pose_ambiguous = searched_ambiguous || (held && self.good.pose_ambiguous);
+        if pose_ambiguous && !searched_ambiguous {
+            result.flags.push(FrameFlag::PoseAmbiguous);
+        }
+        let fitted = self.fitted_pose_uncertainty.take();
+        let pose_uncertainty = if held {
+            self.good.pose_uncertainty
+        } else {
+            fitted
+        };
+        if pose_uncertainty.is_some_and(|v| v > self.settings.max_pose_uncertainty) {
+            result.flags.push(FrameFlag::PoseUncertain);
+        }
+        result.pose_uncertainty = pose_uncertainty.map(|v| v / self.model.length_scale);
+        (pose_ambiguous, pose_uncertainty)
+    }
+
+    /// The good state's (new or kept) surface, structures and contact force into `result`,
+    /// in the cloud frame and scene units.
+    fn write_positions(&self, result: &mut FrameResult) {
+        let scale = self.model.length_scale;
         let pose = self.good.model_to_cloud;
         let out = |p: &Point3<f64>| pose.apply(p) / scale;
         result.surface = self
@@ -462,9 +486,6 @@ impl Session {
             resultant: pose.apply_vector(&c.resultant),
             centre: out(&c.centre),
         });
-        result.times.output_ms = ms(t);
-        result.wall_ms = ms(start);
-        result
     }
 
     /// The expected error of the frame `done` whose pose has the uncertainty

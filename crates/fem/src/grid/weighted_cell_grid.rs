@@ -140,54 +140,10 @@ impl WeightedCellGrid {
         if let Some(i) = crate::mesh::first_non_finite_point(&surface.vertices) {
             return Err(GridError::NonFiniteVertex(i));
         }
-        let (lo, hi) = surface.bounding_box().ok_or(GridError::EmptySurface)?;
-        let h = options.cell_size;
-        let origin = lo - Vector3::from(options.origin_offset) * h;
-        let mut dims = [0usize; 3];
-        let mut total = 1usize;
-        for d in 0..3 {
-            let n = ((hi[d] - origin[d]) / h - 1e-9).ceil().max(1.0);
-            if n > MAX_BACKGROUND_CELLS as f64 {
-                return Err(GridError::TooManyCells {
-                    cell_size: h,
-                    cells: usize::MAX,
-                });
-            }
-            dims[d] = n as usize;
-            total = total.saturating_mul(dims[d]);
-        }
-        if total > MAX_BACKGROUND_CELLS {
-            return Err(GridError::TooManyCells {
-                cell_size: h,
-                cells: total,
-            });
-        }
-        let grid = RegularGrid {
-            origin,
-            cell_size: h,
-            dims,
-        };
+        let grid = background_grid(surface, options)?;
         let inside = InsideTest::new(&surface.vertices, &surface.triangles);
         let cell_tris = cell_triangle_lists(&grid, surface);
-
-        // Classify uncut cells column by column from their centres.
-        let mut uncut_inside = vec![false; grid.cell_count()];
-        let columns: Vec<Vec<bool>> = (0..dims[0] * dims[1])
-            .into_par_iter()
-            .map(|col| {
-                let (i, j) = (col % dims[0], col / dims[0]);
-                let c = grid.cell_center([i, j, 0]);
-                let zs: Vec<f64> = (0..dims[2]).map(|k| c.z + k as f64 * h).collect();
-                let mut out = Vec::with_capacity(zs.len());
-                inside.classify_line(c.x, c.y, &zs, &mut out);
-                out
-            })
-            .collect();
-        for (col, flags) in columns.iter().enumerate() {
-            for (k, &f) in flags.iter().enumerate() {
-                uncut_inside[grid.cell_index([col % dims[0], col / dims[0], k])] = f;
-            }
-        }
+        let uncut_inside = uncut_cells_inside(&grid, &inside);
 
         // Measure cut cells.
         let levels = options.subdivisions.max(1);
@@ -203,68 +159,11 @@ impl WeightedCellGrid {
             })
             .collect();
 
-        // Active cells in background order.
-        let mut cut_iter = cut.into_iter().peekable();
-        let mut cells = Vec::new();
-        let mut fc_points: Vec<Vec<QuadPoint>> = Vec::new();
-        for (index, &inside_centre) in uncut_inside.iter().enumerate() {
-            let coords = grid.cell_coords(index);
-            if cut_iter.peek().map(|(c, _)| *c) == Some(index) {
-                let (_, m) = cut_iter.next().expect("peeked");
-                if m.fraction <= 1e-12 {
-                    continue;
-                }
-                let full = m.fraction >= 1.0 - 1e-12;
-                cells.push(ActiveCell {
-                    coords,
-                    nodes: [0; 8],
-                    cut: !full,
-                    fraction: m.fraction.min(1.0),
-                    octant_fractions: m.octants.map(|v| v.min(1.0)),
-                });
-                fc_points.push(m.points);
-            } else if inside_centre {
-                cells.push(ActiveCell {
-                    coords,
-                    nodes: [0; 8],
-                    cut: false,
-                    fraction: 1.0,
-                    octant_fractions: [1.0; 8],
-                });
-                fc_points.push(Vec::new());
-            }
-        }
+        let (mut cells, fc_points) = active_cells(&grid, &uncut_inside, cut);
         if cells.is_empty() {
             return Err(GridError::NoActiveCell);
         }
-
-        // Number the nodes of active cells in background node order.
-        let mut node_lookup = vec![u32::MAX; grid.node_count()];
-        for cell in &cells {
-            for n in grid.cell_node_coords(cell.coords) {
-                node_lookup[grid.node_index(n)] = 0;
-            }
-        }
-        let mut node_coords = Vec::new();
-        for k in 0..=dims[2] {
-            for j in 0..=dims[1] {
-                for i in 0..=dims[0] {
-                    let idx = grid.node_index([i, j, k]);
-                    if node_lookup[idx] == 0 {
-                        node_lookup[idx] = node_coords.len() as u32;
-                        node_coords.push([i, j, k]);
-                    }
-                }
-            }
-        }
-        let mut cell_lookup = vec![u32::MAX; grid.cell_count()];
-        for (a, cell) in cells.iter_mut().enumerate() {
-            cell_lookup[grid.cell_index(cell.coords)] = a as u32;
-            let ns = grid.cell_node_coords(cell.coords);
-            for (slot, n) in cell.nodes.iter_mut().zip(ns) {
-                *slot = node_lookup[grid.node_index(n)] as usize;
-            }
-        }
+        let (node_coords, cell_lookup) = number_nodes(&grid, &mut cells);
         let quadrature = build_quadrature(&grid, &cells, &fc_points, options);
         Ok(Self {
             grid,
@@ -615,6 +514,139 @@ fn build_quadrature(
     }
     debug_assert!(gauss.iter().all(|g| g.abs().max() == GAUSS_2));
     q
+}
+
+/// The background grid over `surface`'s bounding box: its origin the box's low corner moved
+/// by `options.origin_offset` cells, cells of `options.cell_size` (the surface's units).
+/// Errors when it would have more than [`MAX_BACKGROUND_CELLS`] cells.
+fn background_grid(surface: &TriSurface, options: &GridOptions) -> Result<RegularGrid, GridError> {
+    let (lo, hi) = surface.bounding_box().ok_or(GridError::EmptySurface)?;
+    let h = options.cell_size;
+    let origin = lo - Vector3::from(options.origin_offset) * h;
+    let mut dims = [0usize; 3];
+    let mut total = 1usize;
+    for d in 0..3 {
+        let n = ((hi[d] - origin[d]) / h - 1e-9).ceil().max(1.0);
+        if n > MAX_BACKGROUND_CELLS as f64 {
+            return Err(GridError::TooManyCells {
+                cell_size: h,
+                cells: usize::MAX,
+            });
+        }
+        dims[d] = n as usize;
+        total = total.saturating_mul(dims[d]);
+    }
+    if total > MAX_BACKGROUND_CELLS {
+        return Err(GridError::TooManyCells {
+            cell_size: h,
+            cells: total,
+        });
+    }
+    Ok(RegularGrid {
+        origin,
+        cell_size: h,
+        dims,
+    })
+}
+
+/// Whether each background cell's centre lies inside the surface, classified column by
+/// column (in parallel); what decides an uncut cell.
+fn uncut_cells_inside(grid: &RegularGrid, inside: &InsideTest) -> Vec<bool> {
+    let dims = grid.dims;
+    let h = grid.cell_size;
+    let mut uncut_inside = vec![false; grid.cell_count()];
+    let columns: Vec<Vec<bool>> = (0..dims[0] * dims[1])
+        .into_par_iter()
+        .map(|col| {
+            let (i, j) = (col % dims[0], col / dims[0]);
+            let c = grid.cell_center([i, j, 0]);
+            let zs: Vec<f64> = (0..dims[2]).map(|k| c.z + k as f64 * h).collect();
+            let mut out = Vec::with_capacity(zs.len());
+            inside.classify_line(c.x, c.y, &zs, &mut out);
+            out
+        })
+        .collect();
+    for (col, flags) in columns.iter().enumerate() {
+        for (k, &f) in flags.iter().enumerate() {
+            uncut_inside[grid.cell_index([col % dims[0], col / dims[0], k])] = f;
+        }
+    }
+    uncut_inside
+}
+
+/// The active cells in background order, with each cut cell's finite-cell points: a cut
+/// cell (`cut`, in background order) with inside volume, or an uncut cell whose centre is
+/// inside. Node numbers are filled in by [`number_nodes`].
+fn active_cells(
+    grid: &RegularGrid,
+    uncut_inside: &[bool],
+    cut: Vec<(usize, CutMeasure)>,
+) -> (Vec<ActiveCell>, Vec<Vec<QuadPoint>>) {
+    let mut cut_iter = cut.into_iter().peekable();
+    let mut cells = Vec::new();
+    let mut fc_points: Vec<Vec<QuadPoint>> = Vec::new();
+    for (index, &inside_centre) in uncut_inside.iter().enumerate() {
+        let coords = grid.cell_coords(index);
+        if cut_iter.peek().map(|(c, _)| *c) == Some(index) {
+            let (_, m) = cut_iter.next().expect("peeked");
+            if m.fraction <= 1e-12 {
+                continue;
+            }
+            let full = m.fraction >= 1.0 - 1e-12;
+            cells.push(ActiveCell {
+                coords,
+                nodes: [0; 8],
+                cut: !full,
+                fraction: m.fraction.min(1.0),
+                octant_fractions: m.octants.map(|v| v.min(1.0)),
+            });
+            fc_points.push(m.points);
+        } else if inside_centre {
+            cells.push(ActiveCell {
+                coords,
+                nodes: [0; 8],
+                cut: false,
+                fraction: 1.0,
+                octant_fractions: [1.0; 8],
+            });
+            fc_points.push(Vec::new());
+        }
+    }
+    (cells, fc_points)
+}
+
+/// Numbers the nodes of the active `cells` in background node order and writes them into
+/// each cell: the active nodes' background coordinates and the background → active cell map
+/// (`u32::MAX` for an inactive cell).
+fn number_nodes(grid: &RegularGrid, cells: &mut [ActiveCell]) -> (Vec<[usize; 3]>, Vec<u32>) {
+    let dims = grid.dims;
+    let mut node_lookup = vec![u32::MAX; grid.node_count()];
+    for cell in cells.iter() {
+        for n in grid.cell_node_coords(cell.coords) {
+            node_lookup[grid.node_index(n)] = 0;
+        }
+    }
+    let mut node_coords = Vec::new();
+    for k in 0..=dims[2] {
+        for j in 0..=dims[1] {
+            for i in 0..=dims[0] {
+                let idx = grid.node_index([i, j, k]);
+                if node_lookup[idx] == 0 {
+                    node_lookup[idx] = node_coords.len() as u32;
+                    node_coords.push([i, j, k]);
+                }
+            }
+        }
+    }
+    let mut cell_lookup = vec![u32::MAX; grid.cell_count()];
+    for (a, cell) in cells.iter_mut().enumerate() {
+        cell_lookup[grid.cell_index(cell.coords)] = a as u32;
+        let ns = grid.cell_node_coords(cell.coords);
+        for (slot, n) in cell.nodes.iter_mut().zip(ns) {
+            *slot = node_lookup[grid.node_index(n)] as usize;
+        }
+    }
+    (node_coords, cell_lookup)
 }
 
 #[cfg(test)]
