@@ -25,6 +25,45 @@
 //! `stored_scalar`, `mesh`, `geometry`, `grid`, `linalg`, `mechanics` and `random` are the
 //! `livereg-fem` crate's (crates/fem), re-exported under the same names. Lower layers never
 //! import higher ones. Inside the mechanics everything is SI (m, N, Pa, J).
+//!
+//! # The core path: scene → model → session → frame → result
+//!
+//! ```
+//! use std::path::Path;
+//!
+//! use livereg::mesh::read_obj;
+//! use livereg::scene::load_scene;
+//! use livereg::session::{Frame, Session};
+//!
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/liver_phantom");
+//! // The scene file names the liver surface, its internal structures, the material and the
+//! // ligament; loading it reads and checks every file it names.
+//! let scene = load_scene(&dir.join("scene.toml"))?;
+//! // The model: the immersed grid, the hyperelastic problem, the structures' embedding.
+//! let mut session = Session::from_scene(&scene)?;
+//! // A camera frame: here every fifth vertex of the liver's own rest surface (scene units,
+//! // mm), a perfect cloud of a liver that has not moved.
+//! let liver = read_obj(&dir.join("liver.obj"))?;
+//! let frame = Frame {
+//!     source: "frame-0".into(),
+//!     points: liver.vertices.iter().step_by(5).copied().collect(),
+//!     camera: None,
+//! };
+//! let result = session.register(&frame);
+//! assert!(result.error.is_none(), "{:?}", result.error);
+//! // Where every structure is now, in the cloud's frame and scene units: a liver that has not
+//! // moved leaves them where they were (the model works in metres inside).
+//! let scale = session.model.length_scale;
+//! for ((name, now), structure) in result.structures.iter().zip(&session.model.structures) {
+//!     for (p, rest) in now.iter().zip(&structure.embedding.rest) {
+//!         let moved_mm = (p - rest / scale).norm();
+//!         assert!(moved_mm < 0.5, "{name} moved by {moved_mm} mm");
+//!     }
+//! }
+//! # Ok(())
+//! # }
+//! ```
 #![warn(missing_docs)]
 
 // The numerics below the registration live in the `livereg-fem` crate (crates/fem); their
