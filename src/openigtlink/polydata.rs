@@ -387,147 +387,12 @@ impl MessageContent for PolyDataMessage {
     /// NPOINTS, attribute names terminated within the content, no trailing bytes.
     fn decode_content(content: &[u8]) -> Result<Self, IgtlError> {
         let mut reader = Reader::new(content);
-        let npoints = reader.u32("POLYDATA header")?;
-        let mut counts = [(0u32, 0u32); 4];
-        for count in counts.iter_mut() {
-            *count = (
-                reader.u32("POLYDATA header")?,
-                reader.u32("POLYDATA header")?,
-            );
-        }
-        let nattributes = reader.u32("POLYDATA header")?;
-
-        let points_size = u64::from(npoints) * 12;
-        if points_size > reader.remaining() as u64 {
-            return Err(IgtlError::Truncated {
-                section: "POLYDATA points",
-                expected: points_size,
-                actual: reader.remaining() as u64,
-            });
-        }
-        let points_bytes = reader.take(points_size as usize, "POLYDATA points")?;
-        let mut points = Vec::with_capacity(npoints as usize);
-        let mut point_reader = Reader::new(points_bytes);
-        for i in 0..npoints as usize {
-            let mut xyz = [0.0; 3];
-            for (axis, value) in xyz.iter_mut().enumerate() {
-                *value = finite(
-                    point_reader.f32("POLYDATA points")?,
-                    "POLYDATA point",
-                    i * 3 + axis,
-                )?;
-            }
-            points.push(Point3::from(xyz));
-        }
-
-        let mut arrays: [Vec<Vec<u32>>; 4] = Default::default();
-        for ((array, &(count, size)), (count_field, size_field)) in
-            arrays.iter_mut().zip(counts.iter()).zip(CELL_FIELDS)
-        {
-            if !size.is_multiple_of(4) {
-                return Err(IgtlError::InvalidField {
-                    field: size_field,
-                    value: u64::from(size),
-                    expected: "a multiple of 4".to_owned(),
-                });
-            }
-            let bytes = reader.take(size as usize, "POLYDATA cell array")?;
-            *array = decode_cells(bytes, count, points.len(), count_field)?;
-        }
-
-        if u64::from(nattributes) * 6 > reader.remaining() as u64 {
-            return Err(IgtlError::Truncated {
-                section: "POLYDATA attribute headers",
-                expected: u64::from(nattributes) * 6,
-                actual: reader.remaining() as u64,
-            });
-        }
-        let mut headers = Vec::with_capacity(nattributes as usize);
-        for _ in 0..nattributes {
-            let type_code = reader.u8("POLYDATA attribute header")?;
-            let ncomponents = reader.u8("POLYDATA attribute header")?;
-            let tuples = reader.u32("POLYDATA attribute header")?;
-            let kind = match type_code & 0x0F {
-                0 if ncomponents > 0 => AttributeKind::Scalars {
-                    components: ncomponents,
-                },
-                1 => AttributeKind::Vectors,
-                2 => AttributeKind::Normals,
-                3 => AttributeKind::Tensors,
-                4 => AttributeKind::Rgba,
-                _ => {
-                    return Err(IgtlError::InvalidField {
-                        field: "POLYDATA attribute type",
-                        value: u64::from(u16::from_be_bytes([type_code, ncomponents])),
-                        expected: "type 0 (with 1–255 components), 1, 2, 3 or 4, optionally | 0x10"
-                            .to_owned(),
-                    })
-                }
-            };
-            if type_code & 0xE0 != 0 {
-                return Err(IgtlError::InvalidField {
-                    field: "POLYDATA attribute type",
-                    value: u64::from(type_code),
-                    expected: "no bits set above 0x10".to_owned(),
-                });
-            }
-            headers.push((kind, type_code & 0x10 != 0, tuples));
-        }
-        let mut names = Vec::with_capacity(headers.len());
-        let mut names_length = 0usize;
-        for _ in 0..headers.len() {
-            let rest = reader.take(reader.remaining(), "POLYDATA attribute name")?;
-            let end = rest
-                .iter()
-                .take(MAX_ATTRIBUTE_NAME + 1)
-                .position(|&b| b == 0)
-                .ok_or_else(|| IgtlError::InvalidName {
-                    field: "POLYDATA attribute name",
-                    reason: format!(
-                        "no NUL terminator within {} bytes",
-                        rest.len().min(MAX_ATTRIBUTE_NAME + 1)
-                    ),
-                })?;
-            let name = std::str::from_utf8(&rest[..end]).map_err(|e| IgtlError::InvalidName {
-                field: "POLYDATA attribute name",
-                reason: format!("invalid UTF-8 at byte {}", e.valid_up_to()),
-            })?;
-            names.push(name.to_owned());
-            names_length += end + 1;
-            // Give back what follows the name.
-            reader = Reader::new(&rest[end + 1..]);
-        }
-        if names_length % 2 == 1 {
-            reader.take(1, "POLYDATA attribute name padding")?;
-        }
-        let mut attributes = Vec::with_capacity(headers.len());
-        for ((kind, cell_data, tuples), name) in headers.into_iter().zip(names) {
-            let values = u64::from(tuples) * kind.components() as u64;
-            if values * 4 > reader.remaining() as u64 {
-                return Err(IgtlError::Truncated {
-                    section: "POLYDATA attribute data",
-                    expected: values * 4,
-                    actual: reader.remaining() as u64,
-                });
-            }
-            let mut data = Vec::with_capacity(values as usize);
-            for i in 0..values as usize {
-                let value = reader.f32("POLYDATA attribute data")?;
-                if !value.is_finite() {
-                    return Err(IgtlError::NonFinite {
-                        field: "POLYDATA attribute",
-                        index: i,
-                    });
-                }
-                data.push(value);
-            }
-            attributes.push(PolyDataAttribute {
-                name,
-                kind,
-                cell_data,
-                data,
-            });
-        }
+        let header = read_header(&mut reader)?;
+        let points = read_points(&mut reader, header.npoints)?;
+        let arrays = read_cell_arrays(&mut reader, &header.cells, points.len())?;
+        let headers = read_attribute_headers(&mut reader, header.nattributes)?;
+        let names = read_attribute_names(&mut reader, headers.len())?;
+        let attributes = read_attribute_data(&mut reader, headers, names)?;
         if reader.remaining() != 0 {
             return Err(IgtlError::ContentSize {
                 type_name: Self::TYPE_NAME,
@@ -549,6 +414,214 @@ impl MessageContent for PolyDataMessage {
             attributes,
         })
     }
+}
+
+/// An attribute's header: its kind, whether it is cell data, and its number of tuples.
+type AttributeHeader = (AttributeKind, bool, u32);
+
+/// The fixed 40-byte header.
+struct Header {
+    /// NPOINTS.
+    npoints: u32,
+    /// (N…, SIZE_…) of the four cell arrays in message order: cell count, byte size.
+    cells: [(u32, u32); 4],
+    /// NATTRIBUTES.
+    nattributes: u32,
+}
+
+/// Reads the fixed header.
+fn read_header(reader: &mut Reader<'_>) -> Result<Header, IgtlError> {
+    let npoints = reader.u32("POLYDATA header")?;
+    let mut cells = [(0u32, 0u32); 4];
+    for count in cells.iter_mut() {
+        *count = (
+            reader.u32("POLYDATA header")?,
+            reader.u32("POLYDATA header")?,
+        );
+    }
+    let nattributes = reader.u32("POLYDATA header")?;
+    Ok(Header {
+        npoints,
+        cells,
+        nattributes,
+    })
+}
+
+/// The `npoints` points (float32 x y z, mm), checked against the bytes left before
+/// allocating, each coordinate finite.
+fn read_points(reader: &mut Reader<'_>, npoints: u32) -> Result<Vec<Point3<f64>>, IgtlError> {
+    let points_size = u64::from(npoints) * 12;
+    if points_size > reader.remaining() as u64 {
+        return Err(IgtlError::Truncated {
+            section: "POLYDATA points",
+            expected: points_size,
+            actual: reader.remaining() as u64,
+        });
+    }
+    let points_bytes = reader.take(points_size as usize, "POLYDATA points")?;
+    let mut points = Vec::with_capacity(npoints as usize);
+    let mut point_reader = Reader::new(points_bytes);
+    for i in 0..npoints as usize {
+        let mut xyz = [0.0; 3];
+        for (axis, value) in xyz.iter_mut().enumerate() {
+            *value = finite(
+                point_reader.f32("POLYDATA points")?,
+                "POLYDATA point",
+                i * 3 + axis,
+            )?;
+        }
+        points.push(Point3::from(xyz));
+    }
+    Ok(points)
+}
+
+/// The four cell arrays (vertices, lines, polygons, triangle strips) of the header's
+/// (count, byte size) `counts`: sizes multiple of 4, indices below `npoints`.
+fn read_cell_arrays(
+    reader: &mut Reader<'_>,
+    counts: &[(u32, u32); 4],
+    npoints: usize,
+) -> Result<[Vec<Vec<u32>>; 4], IgtlError> {
+    let mut arrays: [Vec<Vec<u32>>; 4] = Default::default();
+    for ((array, &(count, size)), (count_field, size_field)) in
+        arrays.iter_mut().zip(counts.iter()).zip(CELL_FIELDS)
+    {
+        if !size.is_multiple_of(4) {
+            return Err(IgtlError::InvalidField {
+                field: size_field,
+                value: u64::from(size),
+                expected: "a multiple of 4".to_owned(),
+            });
+        }
+        let bytes = reader.take(size as usize, "POLYDATA cell array")?;
+        *array = decode_cells(bytes, count, npoints, count_field)?;
+    }
+    Ok(arrays)
+}
+
+/// The `nattributes` 6-byte attribute headers, checked against the bytes left before
+/// allocating.
+fn read_attribute_headers(
+    reader: &mut Reader<'_>,
+    nattributes: u32,
+) -> Result<Vec<AttributeHeader>, IgtlError> {
+    if u64::from(nattributes) * 6 > reader.remaining() as u64 {
+        return Err(IgtlError::Truncated {
+            section: "POLYDATA attribute headers",
+            expected: u64::from(nattributes) * 6,
+            actual: reader.remaining() as u64,
+        });
+    }
+    let mut headers = Vec::with_capacity(nattributes as usize);
+    for _ in 0..nattributes {
+        let type_code = reader.u8("POLYDATA attribute header")?;
+        let ncomponents = reader.u8("POLYDATA attribute header")?;
+        let tuples = reader.u32("POLYDATA attribute header")?;
+        let kind = attribute_kind(type_code, ncomponents)?;
+        headers.push((kind, type_code & 0x10 != 0, tuples));
+    }
+    Ok(headers)
+}
+
+/// The attribute kind of a header's TYPE byte (low nibble; 0x10 marks cell data, no higher
+/// bit may be set) and NCOMPONENTS (used by scalars only).
+fn attribute_kind(type_code: u8, ncomponents: u8) -> Result<AttributeKind, IgtlError> {
+    let kind = match type_code & 0x0F {
+        0 if ncomponents > 0 => AttributeKind::Scalars {
+            components: ncomponents,
+        },
+        1 => AttributeKind::Vectors,
+        2 => AttributeKind::Normals,
+        3 => AttributeKind::Tensors,
+        4 => AttributeKind::Rgba,
+        _ => {
+            return Err(IgtlError::InvalidField {
+                field: "POLYDATA attribute type",
+                value: u64::from(u16::from_be_bytes([type_code, ncomponents])),
+                expected: "type 0 (with 1–255 components), 1, 2, 3 or 4, optionally | 0x10"
+                    .to_owned(),
+            })
+        }
+    };
+    if type_code & 0xE0 != 0 {
+        return Err(IgtlError::InvalidField {
+            field: "POLYDATA attribute type",
+            value: u64::from(type_code),
+            expected: "no bits set above 0x10".to_owned(),
+        });
+    }
+    Ok(kind)
+}
+
+/// `count` NUL-terminated UTF-8 attribute names of at most [`MAX_ATTRIBUTE_NAME`] bytes, then
+/// the padding byte that makes their total length even.
+fn read_attribute_names(reader: &mut Reader<'_>, count: usize) -> Result<Vec<String>, IgtlError> {
+    let mut names = Vec::with_capacity(count);
+    let mut names_length = 0usize;
+    for _ in 0..count {
+        let rest = reader.take(reader.remaining(), "POLYDATA attribute name")?;
+        let end = rest
+            .iter()
+            .take(MAX_ATTRIBUTE_NAME + 1)
+            .position(|&b| b == 0)
+            .ok_or_else(|| IgtlError::InvalidName {
+                field: "POLYDATA attribute name",
+                reason: format!(
+                    "no NUL terminator within {} bytes",
+                    rest.len().min(MAX_ATTRIBUTE_NAME + 1)
+                ),
+            })?;
+        let name = std::str::from_utf8(&rest[..end]).map_err(|e| IgtlError::InvalidName {
+            field: "POLYDATA attribute name",
+            reason: format!("invalid UTF-8 at byte {}", e.valid_up_to()),
+        })?;
+        names.push(name.to_owned());
+        names_length += end + 1;
+        // Give back what follows the name.
+        *reader = Reader::new(&rest[end + 1..]);
+    }
+    if names_length % 2 == 1 {
+        reader.take(1, "POLYDATA attribute name padding")?;
+    }
+    Ok(names)
+}
+
+/// Each attribute's `tuples × components` float32 values (checked against the bytes left
+/// before allocating, each finite), with its header and name.
+fn read_attribute_data(
+    reader: &mut Reader<'_>,
+    headers: Vec<AttributeHeader>,
+    names: Vec<String>,
+) -> Result<Vec<PolyDataAttribute>, IgtlError> {
+    let mut attributes = Vec::with_capacity(headers.len());
+    for ((kind, cell_data, tuples), name) in headers.into_iter().zip(names) {
+        let values = u64::from(tuples) * kind.components() as u64;
+        if values * 4 > reader.remaining() as u64 {
+            return Err(IgtlError::Truncated {
+                section: "POLYDATA attribute data",
+                expected: values * 4,
+                actual: reader.remaining() as u64,
+            });
+        }
+        let mut data = Vec::with_capacity(values as usize);
+        for i in 0..values as usize {
+            let value = reader.f32("POLYDATA attribute data")?;
+            if !value.is_finite() {
+                return Err(IgtlError::NonFinite {
+                    field: "POLYDATA attribute",
+                    index: i,
+                });
+            }
+            data.push(value);
+        }
+        attributes.push(PolyDataAttribute {
+            name,
+            kind,
+            cell_data,
+            data,
+        });
+    }
+    Ok(attributes)
 }
 
 #[cfg(test)]

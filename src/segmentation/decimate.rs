@@ -228,63 +228,121 @@ pub(crate) fn decimate_closed(surface: &TriSurface, params: &Decimation) -> TriS
     if surface.triangles.len() <= target {
         return surface.clone();
     }
-    let n = surface.vertices.len();
-    let mut st = State {
-        pos: surface.vertices.clone(),
-        quadric: vec![[0.0; 10]; n],
-        tris: surface
-            .triangles
-            .iter()
-            .map(|t| t.map(|i| i as u32))
-            .collect(),
-        tri_alive: vec![true; surface.triangles.len()],
-        around: Vec::new(),
-        alive_triangles: surface.triangles.len(),
-        cos_turn: params.max_normal_turn_degrees.to_radians().cos(),
-        min_quality: params.min_quality,
-    };
-    let mut valence = vec![0u32; n];
-    for t in &st.tris {
-        for &i in t {
-            valence[i as usize] += 1;
-        }
+    let mut st = State::new(surface, params);
+    st.collapse_to(target);
+    st.surface()
+}
+
+impl State {
+    /// The decimation state of `surface`: every triangle alive and listed around its corners,
+    /// each vertex with the area-weighted quadrics of its triangles' planes.
+    fn new(surface: &TriSurface, params: &Decimation) -> Self {
+        let n = surface.vertices.len();
+        let mut st = State {
+            pos: surface.vertices.clone(),
+            quadric: vec![[0.0; 10]; n],
+            tris: surface
+                .triangles
+                .iter()
+                .map(|t| t.map(|i| i as u32))
+                .collect(),
+            tri_alive: vec![true; surface.triangles.len()],
+            around: Vec::new(),
+            alive_triangles: surface.triangles.len(),
+            cos_turn: params.max_normal_turn_degrees.to_radians().cos(),
+            min_quality: params.min_quality,
+        };
+        st.reserve_around();
+        st.add_triangles();
+        st
     }
-    st.around = valence
-        .iter()
-        .map(|&c| Vec::with_capacity(c as usize + 2))
-        .collect();
-    for (ti, t) in st.tris.iter().enumerate() {
-        let [a, b, c] = t.map(|i| st.pos[i as usize]);
-        let normal = (b - a).cross(&(c - a));
-        let area2 = normal.norm();
-        if area2 > 0.0 {
-            let unit = normal / area2;
-            let q = plane_quadric(&unit, -unit.dot(&a.coords), area2 / 2.0);
+
+    /// Empty lists of triangles around each vertex, sized for its valence.
+    fn reserve_around(&mut self) {
+        let mut valence = vec![0u32; self.pos.len()];
+        for t in &self.tris {
             for &i in t {
-                add(&mut st.quadric[i as usize], &q);
+                valence[i as usize] += 1;
             }
         }
-        for &i in t {
-            st.around[i as usize].push(ti as u32);
+        self.around = valence
+            .iter()
+            .map(|&c| Vec::with_capacity(c as usize + 2))
+            .collect();
+    }
+
+    /// Adds each triangle's plane quadric, weighted by its area (in squared input units), to
+    /// its corners, and lists the triangle around them.
+    fn add_triangles(&mut self) {
+        for (ti, t) in self.tris.iter().enumerate() {
+            let [a, b, c] = t.map(|i| self.pos[i as usize]);
+            let normal = (b - a).cross(&(c - a));
+            let area2 = normal.norm();
+            if area2 > 0.0 {
+                let unit = normal / area2;
+                let q = plane_quadric(&unit, -unit.dot(&a.coords), area2 / 2.0);
+                for &i in t {
+                    add(&mut self.quadric[i as usize], &q);
+                }
+            }
+            for &i in t {
+                self.around[i as usize].push(ti as u32);
+            }
         }
     }
-    let mut locked = vec![0u32; n];
-    let mut alive_vertices = n;
-    let mut edges: Vec<(f64, u32, u32)> = Vec::new();
-    let (mut nu, mut nv) = (Vec::new(), Vec::new());
-    for round in 1u32.. {
-        if st.alive_triangles <= target {
-            break;
+
+    /// Collapses edges in rounds, cheapest first, until at most `target` triangles remain or a
+    /// round collapses nothing. In a round, at most a [`ROUND_FRACTION`]th of the vertices go,
+    /// and no edge touching the neighbourhood of an earlier collapse of the round is taken.
+    fn collapse_to(&mut self, target: usize) {
+        let n = self.pos.len();
+        let mut locked = vec![0u32; n];
+        let mut alive_vertices = n;
+        let mut edges: Vec<(f64, u32, u32)> = Vec::new();
+        let (mut nu, mut nv) = (Vec::new(), Vec::new());
+        for round in 1u32.. {
+            if self.alive_triangles <= target {
+                break;
+            }
+            self.sorted_edges(&mut edges);
+            let needed = (self.alive_triangles - target).div_ceil(2);
+            let limit = needed.min(alive_vertices / ROUND_FRACTION).max(1);
+            let mut done = 0;
+            for &(_, u, v) in &edges {
+                if done == limit || self.alive_triangles <= target {
+                    break;
+                }
+                if locked[u as usize] == round || locked[v as usize] == round {
+                    continue;
+                }
+                if !self.collapse_if_allowed(u, v, &mut nu, &mut nv) {
+                    continue;
+                }
+                alive_vertices -= 1;
+                done += 1;
+                locked[u as usize] = round;
+                for &w in nu.iter().chain(&nv) {
+                    locked[w as usize] = round;
+                }
+            }
+            if done == 0 {
+                break;
+            }
         }
+    }
+
+    /// Every live edge once (`u < v`) with its collapse cost, into `edges`, sorted by cost
+    /// and then by ends.
+    fn sorted_edges(&self, edges: &mut Vec<(f64, u32, u32)>) {
         edges.clear();
-        for (t, tri) in st.tris.iter().enumerate() {
-            if !st.tri_alive[t] {
+        for (t, tri) in self.tris.iter().enumerate() {
+            if !self.tri_alive[t] {
                 continue;
             }
             for (a, b) in [(tri[0], tri[1]), (tri[1], tri[2]), (tri[2], tri[0])] {
                 // Each edge of a closed oriented surface appears once in each direction.
                 if a < b {
-                    edges.push((st.plan(a, b).1, a, b));
+                    edges.push((self.plan(a, b).1, a, b));
                 }
             }
         }
@@ -292,60 +350,53 @@ pub(crate) fn decimate_closed(surface: &TriSurface, params: &Decimation) -> TriS
             x.0.total_cmp(&y.0)
                 .then_with(|| (x.1, x.2).cmp(&(y.1, y.2)))
         });
-        let needed = (st.alive_triangles - target).div_ceil(2);
-        let limit = needed.min(alive_vertices / ROUND_FRACTION).max(1);
-        let mut done = 0;
-        for &(_, u, v) in &edges {
-            if done == limit || st.alive_triangles <= target {
-                break;
-            }
-            if locked[u as usize] == round || locked[v as usize] == round {
-                continue;
-            }
-            st.neighbours(u, &mut nu);
-            st.neighbours(v, &mut nv);
-            if nu.len() < 3 || nv.len() < 3 || st.alive_triangles <= 4 {
-                continue;
-            }
-            // Link condition: the ends share exactly the two vertices opposite the edge.
-            if nu.iter().filter(|w| nv.contains(w)).count() != 2 {
-                continue;
-            }
-            let (x, _) = st.plan(u, v);
-            if !st.geometry_ok(u, v, &x) {
-                continue;
-            }
-            st.collapse(u, v, x);
-            alive_vertices -= 1;
-            done += 1;
-            locked[u as usize] = round;
-            for &w in &nu {
-                locked[w as usize] = round;
-            }
-            for &w in &nv {
-                locked[w as usize] = round;
-            }
-        }
-        if done == 0 {
-            break;
-        }
     }
 
-    let mut index = vec![usize::MAX; n];
-    let mut vertices = Vec::new();
-    let mut triangles = Vec::with_capacity(st.alive_triangles);
-    for (t, tri) in st.tris.iter().enumerate() {
-        if !st.tri_alive[t] {
-            continue;
+    /// Collapses `u`–`v` at its planned point if the surface stays large enough, the link
+    /// condition holds and the geometry checks pass; whether it did. `nu` and `nv` receive
+    /// the neighbours of `u` and `v` before the collapse.
+    fn collapse_if_allowed(
+        &mut self,
+        u: u32,
+        v: u32,
+        nu: &mut Vec<u32>,
+        nv: &mut Vec<u32>,
+    ) -> bool {
+        self.neighbours(u, nu);
+        self.neighbours(v, nv);
+        if nu.len() < 3 || nv.len() < 3 || self.alive_triangles <= 4 {
+            return false;
         }
-        triangles.push(tri.map(|i| {
-            let i = i as usize;
-            if index[i] == usize::MAX {
-                index[i] = vertices.len();
-                vertices.push(st.pos[i]);
-            }
-            index[i]
-        }));
+        // Link condition: the ends share exactly the two vertices opposite the edge.
+        if nu.iter().filter(|w| nv.contains(w)).count() != 2 {
+            return false;
+        }
+        let (x, _) = self.plan(u, v);
+        if !self.geometry_ok(u, v, &x) {
+            return false;
+        }
+        self.collapse(u, v, x);
+        true
     }
-    TriSurface::new(vertices, triangles)
+
+    /// The live triangles and the vertices they use, renumbered in order of first use.
+    fn surface(&self) -> TriSurface {
+        let mut index = vec![usize::MAX; self.pos.len()];
+        let mut vertices = Vec::new();
+        let mut triangles = Vec::with_capacity(self.alive_triangles);
+        for (t, tri) in self.tris.iter().enumerate() {
+            if !self.tri_alive[t] {
+                continue;
+            }
+            triangles.push(tri.map(|i| {
+                let i = i as usize;
+                if index[i] == usize::MAX {
+                    index[i] = vertices.len();
+                    vertices.push(self.pos[i]);
+                }
+                index[i]
+            }));
+        }
+        TriSurface::new(vertices, triangles)
+    }
 }

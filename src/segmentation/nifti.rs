@@ -71,14 +71,46 @@ pub fn read_nifti_bytes(
 ) -> Result<(Labelmap, NiftiTransform), SegmentationError> {
     refuse_pairs(path)?;
     let name = path.to_string_lossy().to_ascii_lowercase();
-    let file_len = file.len() as u64;
     let gz = name.ends_with(".gz");
     let mut reader: Box<dyn Read + '_> = if gz {
         Box::new(MultiGzDecoder::new(file))
     } else {
         Box::new(file)
     };
+    let h = read_header(path, &mut reader)?;
+    let dims = dims_of(path, &h)?;
+    let ty = sample_type(path, &h)?;
+    let order = match h.endianness {
+        Endianness::Little => ByteOrder::Little,
+        Endianness::Big => ByteOrder::Big,
+    };
+    let bytes = data_size(path, dims, ty)?;
+    let offset = vox_offset(path, &h)?;
+    let data: std::borrow::Cow<[u8]> = if gz {
+        decompress_voxels(path, reader, offset, bytes)?.into()
+    } else {
+        file_voxels(path, file, offset, bytes, dims, ty)?.into()
+    };
+    if data.len() < bytes {
+        return Err(SegmentationError::data(
+            path,
+            format!(
+                "the data end after {} bytes but dim {dims:?} of {ty:?} needs {bytes}",
+                data.len()
+            ),
+        ));
+    }
+    let labels = to_labels(path, &data, ty, order, scaling(&h), dims)?;
+    drop(data);
+    let (lps, transform) = affine_lps_mm(path, &h)?;
+    let map = Labelmap::new(dims, labels, lps)
+        .map_err(|e| SegmentationError::header(path, transform.field(), e.to_string()))?;
+    Ok((map, transform))
+}
 
+/// Reads and parses the 348-byte NIfTI-1 header at the start of `reader`; errors for a short
+/// file, NIfTI-2, another header size, and a magic other than single-file `n+1`.
+fn read_header(path: &Path, reader: &mut dyn Read) -> Result<NiftiHeader, SegmentationError> {
     let mut raw = [0u8; 348];
     reader.read_exact(&mut raw).map_err(|e| {
         if e.kind() == std::io::ErrorKind::UnexpectedEof {
@@ -91,6 +123,25 @@ pub fn read_nifti_bytes(
             SegmentationError::io(path, e)
         }
     })?;
+    check_sizeof_hdr(path, &raw)?;
+    let h = NiftiHeader::from_reader(&raw[..]).map_err(|e| {
+        SegmentationError::header(path, "magic", format!("not a NIfTI-1 header ({e})"))
+    })?;
+    if &h.magic != b"n+1\0" {
+        return Err(SegmentationError::unsupported(
+            path,
+            format!(
+                "magic {:?} announces a separate .img file; only single-file .nii is read",
+                String::from_utf8_lossy(&h.magic)
+            ),
+        ));
+    }
+    Ok(h)
+}
+
+/// Checks `sizeof_hdr` (the first 4 bytes of the header, either byte order) is 348; 540
+/// (NIfTI-2) is refused with an error saying so.
+fn check_sizeof_hdr(path: &Path, raw: &[u8; 348]) -> Result<(), SegmentationError> {
     let sizeof = i32::from_le_bytes(raw[..4].try_into().unwrap());
     if sizeof == 540 || sizeof.swap_bytes() == 540 {
         return Err(SegmentationError::unsupported(
@@ -106,25 +157,11 @@ pub fn read_nifti_bytes(
             format!("{sizeof} (expected 348): not a NIfTI-1 file"),
         ));
     }
-    let h = NiftiHeader::from_reader(&raw[..]).map_err(|e| {
-        SegmentationError::header(path, "magic", format!("not a NIfTI-1 header ({e})"))
-    })?;
-    if &h.magic != b"n+1\0" {
-        return Err(SegmentationError::unsupported(
-            path,
-            format!(
-                "magic {:?} announces a separate .img file; only single-file .nii is read",
-                String::from_utf8_lossy(&h.magic)
-            ),
-        ));
-    }
+    Ok(())
+}
 
-    let dims = dims_of(path, &h)?;
-    let ty = sample_type(path, &h)?;
-    let order = match h.endianness {
-        Endianness::Little => ByteOrder::Little,
-        Endianness::Big => ByteOrder::Big,
-    };
+/// Bytes of voxel data for `dims` samples of type `ty`; errors above [`MAX_VOXELS`] voxels.
+fn data_size(path: &Path, dims: [usize; 3], ty: StoredScalar) -> Result<usize, SegmentationError> {
     let n = voxel_count(dims)
         .filter(|&n| n <= MAX_VOXELS)
         .ok_or_else(|| {
@@ -134,7 +171,12 @@ pub fn read_nifti_bytes(
                 format!("{dims:?} is more than the {MAX_VOXELS} voxels accepted"),
             )
         })?;
-    let bytes = n * ty.size();
+    Ok(n * ty.size())
+}
+
+/// `vox_offset`: where the voxel data start, bytes from the start of the file (a whole
+/// number ≥ 348).
+fn vox_offset(path: &Path, h: &NiftiHeader) -> Result<u64, SegmentationError> {
     let offset = h.vox_offset;
     if !(offset.is_finite() && offset >= 348.0 && offset.fract() == 0.0) {
         return Err(SegmentationError::header(
@@ -143,8 +185,42 @@ pub fn read_nifti_bytes(
             format!("{offset} (must be a whole number ≥ 348)"),
         ));
     }
-    let offset = offset as u64;
-    if !gz && file_len < offset + bytes as u64 {
+    Ok(offset as u64)
+}
+
+/// Up to `bytes` bytes of voxel data from the decompressed stream `reader`, positioned just
+/// after the 348-byte header: the extensions up to `offset` are skipped.
+fn decompress_voxels(
+    path: &Path,
+    mut reader: impl Read,
+    offset: u64,
+    bytes: usize,
+) -> Result<Vec<u8>, SegmentationError> {
+    // Extensions between the header and the data.
+    std::io::copy(&mut (&mut reader).take(offset - 348), &mut std::io::sink())
+        .map_err(|e| SegmentationError::data(path, format!("cannot decompress: {e}")))?;
+    // Grows with the data actually decompressed: a tiny file claiming huge sizes
+    // allocates little before it fails.
+    let mut data = Vec::with_capacity(bytes.min(64 << 20));
+    reader
+        .take(bytes as u64)
+        .read_to_end(&mut data)
+        .map_err(|e| SegmentationError::data(path, format!("cannot decompress: {e}")))?;
+    Ok(data)
+}
+
+/// The `bytes` bytes of voxel data of an uncompressed `file` from `offset`, read straight
+/// from the file's bytes; errors when the file is shorter.
+fn file_voxels<'a>(
+    path: &Path,
+    file: &'a [u8],
+    offset: u64,
+    bytes: usize,
+    dims: [usize; 3],
+    ty: StoredScalar,
+) -> Result<&'a [u8], SegmentationError> {
+    let file_len = file.len() as u64;
+    if file_len < offset + bytes as u64 {
         return Err(SegmentationError::data(
             path,
             format!(
@@ -154,34 +230,15 @@ pub fn read_nifti_bytes(
             ),
         ));
     }
-    let data: std::borrow::Cow<[u8]> = if gz {
-        // Extensions between the header and the data.
-        std::io::copy(&mut (&mut reader).take(offset - 348), &mut std::io::sink())
-            .map_err(|e| SegmentationError::data(path, format!("cannot decompress: {e}")))?;
-        // Grows with the data actually decompressed: a tiny file claiming huge sizes
-        // allocates little before it fails.
-        let mut data = Vec::with_capacity(bytes.min(64 << 20));
-        reader
-            .take(bytes as u64)
-            .read_to_end(&mut data)
-            .map_err(|e| SegmentationError::data(path, format!("cannot decompress: {e}")))?;
-        data.into()
-    } else {
-        // Uncompressed: the voxels are read straight from the file's bytes.
-        let start = (offset as usize).min(file.len());
-        file[start..(start + bytes).min(file.len())].into()
-    };
-    if data.len() < bytes {
-        return Err(SegmentationError::data(
-            path,
-            format!(
-                "the data end after {} bytes but dim {dims:?} of {ty:?} needs {bytes}",
-                data.len()
-            ),
-        ));
-    }
+    let start = (offset as usize).min(file.len());
+    Ok(&file[start..(start + bytes).min(file.len())])
+}
+
+/// The value scaling `scl_slope`/`scl_inter`: none when the slope is 0 or not finite, or the
+/// scaling is the identity; a non-finite intercept counts as 0.
+fn scaling(h: &NiftiHeader) -> Option<Scaling> {
     let slope = h.scl_slope as f64;
-    let scaling = (slope != 0.0 && slope.is_finite())
+    (slope != 0.0 && slope.is_finite())
         .then_some(Scaling {
             slope,
             inter: if h.scl_inter.is_finite() {
@@ -195,10 +252,15 @@ pub fn read_nifti_bytes(
                 slope: 1.0,
                 inter: 0.0,
             }
-        });
-    let labels = to_labels(path, &data, ty, order, scaling, dims)?;
-    drop(data);
-    let (mut ras, transform) = affine_ras(path, &h)?;
+        })
+}
+
+/// The header's index → LPS mm affine (units from `xyzt_units`) and where it came from.
+fn affine_lps_mm(
+    path: &Path,
+    h: &NiftiHeader,
+) -> Result<(Matrix4<f64>, NiftiTransform), SegmentationError> {
+    let (mut ras, transform) = affine_ras(path, h)?;
     // xyzt_units: metres and micrometres are converted; unknown (0) is taken as millimetres.
     let to_mm = match h.xyzt_units & 0x07 {
         1 => 1000.0,
@@ -206,10 +268,7 @@ pub fn read_nifti_bytes(
         _ => 1.0,
     };
     ras.fixed_view_mut::<3, 4>(0, 0).scale_mut(to_mm);
-    let lps = ras_to_lps(&ras);
-    let map = Labelmap::new(dims, labels, lps)
-        .map_err(|e| SegmentationError::header(path, transform.field(), e.to_string()))?;
-    Ok((map, transform))
+    Ok((ras_to_lps(&ras), transform))
 }
 
 impl NiftiTransform {

@@ -67,52 +67,34 @@ pub fn read_nrrd_layers_bytes(
     path: &Path,
     file: &[u8],
 ) -> Result<Vec<Labelmap>, SegmentationError> {
-    let file_len = file.len() as u64;
     let mut reader: &[u8] = file;
     let header = Header::read(path, &mut reader)?;
     let layout = header.layout(path)?;
-    let bytes_needed = layout.count * layout.ty.size();
-
-    let encoding = header
-        .field("encoding")
-        .ok_or_else(|| missing(path, "encoding"))?;
-    let encoding = match encoding.to_ascii_lowercase().as_str() {
-        "raw" => Encoding::Raw,
-        "gzip" | "gz" => Encoding::Gzip,
-        "ascii" | "text" | "txt" => Encoding::Ascii,
-        "bzip2" | "bz2" | "hex" => {
-            return Err(SegmentationError::unsupported(
-                path,
-                format!("encoding '{encoding}' (raw, gzip and ascii are read)"),
-            ))
-        }
-        _ => {
-            return Err(SegmentationError::header(
-                path,
-                "encoding",
-                format!("unknown value '{encoding}'"),
-            ))
-        }
-    };
-    let order = match header
-        .field("endian")
-        .map(str::to_ascii_lowercase)
-        .as_deref()
-    {
-        Some("little") => ByteOrder::Little,
-        Some("big") => ByteOrder::Big,
-        Some(other) => {
-            return Err(SegmentationError::header(
-                path,
-                "endian",
-                format!("'{other}' (expected little or big)"),
-            ))
-        }
-        None if layout.ty.size() == 1 || encoding == Encoding::Ascii => ByteOrder::Little,
-        None => return Err(missing(path, "endian")),
-    };
+    let encoding = header.encoding(path)?;
+    let order = header.byte_order(path, &layout, encoding)?;
     let line_skip = header.integer(path, "line skip", 0)?;
     let byte_skip = header.integer(path, "byte skip", 0)?;
+    skip_lines(path, &mut reader, line_skip)?;
+    let values = match encoding {
+        Encoding::Raw | Encoding::Gzip => {
+            check_byte_skip(path, byte_skip, encoding)?;
+            if encoding == Encoding::Raw {
+                raw_samples(path, file, reader, byte_skip, &layout, order)?
+            } else {
+                gzip_samples(path, reader, byte_skip, &layout, order)?
+            }
+        }
+        Encoding::Ascii => ascii_samples(path, reader, &layout)?,
+    };
+    let segments = header.segments(path)?;
+    check_segment_layers(path, &segments, layout.layers)?;
+    let per_layer = split_layers(values, layout.layers);
+    layer_labelmaps(path, per_layer, &segments, &layout)
+}
+
+/// Skips the `line skip` lines that precede the data, advancing `reader` past them; errors
+/// when the count is negative or the file has fewer lines.
+fn skip_lines(path: &Path, reader: &mut &[u8], line_skip: i64) -> Result<(), SegmentationError> {
     if line_skip < 0 {
         return Err(SegmentationError::header(
             path,
@@ -135,90 +117,125 @@ pub fn read_nrrd_layers_bytes(
             ));
         }
     }
+    Ok(())
+}
 
-    let dims = layout.dims;
-    let values = match encoding {
-        Encoding::Raw | Encoding::Gzip => {
-            if byte_skip < -1 || (byte_skip == -1 && encoding != Encoding::Raw) {
-                return Err(SegmentationError::header(
-                    path,
-                    "byte skip",
-                    format!("{byte_skip} (−1 is only meaningful with raw encoding)"),
-                ));
-            }
-            let all_dims = [dims[0] * layout.layers, dims[1], dims[2]];
-            if encoding == Encoding::Raw {
-                // Raw data is converted straight from the file's bytes, without a copy.
-                let start = if byte_skip == -1 {
-                    // At the very end of the file.
-                    file_len.checked_sub(bytes_needed as u64)
-                } else {
-                    let header_len = (file.len() - reader.len()) as u64;
-                    Some(header_len + byte_skip as u64)
-                };
-                let data = start
-                    .and_then(|s| file.get(s as usize..)?.get(..bytes_needed))
-                    .ok_or_else(|| {
-                        let available = start.map_or(0, |s| file.len().saturating_sub(s as usize));
-                        short(path, available, bytes_needed, &layout)
-                    })?;
-                to_labels(path, data, layout.ty, order, None, all_dims)?
-            } else {
-                let mut data = MultiGzDecoder::new(reader);
-                if byte_skip > 0 {
-                    std::io::copy(
-                        &mut (&mut data).take(byte_skip as u64),
-                        &mut std::io::sink(),
-                    )
-                    .map_err(|e| SegmentationError::data(path, format!("cannot decode: {e}")))?;
-                }
-                let mut bytes = Vec::with_capacity(bytes_needed.min(64 << 20));
-                data.take(bytes_needed as u64)
-                    .read_to_end(&mut bytes)
-                    .map_err(|e| SegmentationError::data(path, format!("cannot decode: {e}")))?;
-                if bytes.len() < bytes_needed {
-                    return Err(short(path, bytes.len(), bytes_needed, &layout));
-                }
-                to_labels(path, &bytes, layout.ty, order, None, all_dims)?
-            }
-        }
-        Encoding::Ascii => {
-            let mut text = String::new();
-            reader
-                .take((layout.count as u64).saturating_mul(24) + 4096)
-                .read_to_string(&mut text)
-                .map_err(|e| SegmentationError::data(path, format!("ASCII data: {e}")))?;
-            ascii_to_labels(
-                path,
-                &text,
-                layout.count,
-                [dims[0] * layout.layers, dims[1], dims[2]],
-            )?
-        }
+/// Checks `byte skip` for binary (raw or gzip) data: ≥ 0, or −1 (data at the end of the file)
+/// with raw encoding only.
+fn check_byte_skip(
+    path: &Path,
+    byte_skip: i64,
+    encoding: Encoding,
+) -> Result<(), SegmentationError> {
+    if byte_skip < -1 || (byte_skip == -1 && encoding != Encoding::Raw) {
+        return Err(SegmentationError::header(
+            path,
+            "byte skip",
+            format!("{byte_skip} (−1 is only meaningful with raw encoding)"),
+        ));
+    }
+    Ok(())
+}
+
+/// The labels of raw data, converted straight from the file's bytes without a copy: `data`
+/// is what follows the header (and skipped lines), `byte_skip` bytes further on, or the last
+/// bytes of the file when `byte_skip` is −1.
+fn raw_samples(
+    path: &Path,
+    file: &[u8],
+    data: &[u8],
+    byte_skip: i64,
+    layout: &Layout,
+    order: ByteOrder,
+) -> Result<Vec<u16>, SegmentationError> {
+    let bytes_needed = layout.bytes_needed();
+    let start = if byte_skip == -1 {
+        // At the very end of the file.
+        (file.len() as u64).checked_sub(bytes_needed as u64)
+    } else {
+        let header_len = (file.len() - data.len()) as u64;
+        Some(header_len + byte_skip as u64)
     };
+    let samples = start
+        .and_then(|s| file.get(s as usize..)?.get(..bytes_needed))
+        .ok_or_else(|| {
+            let available = start.map_or(0, |s| file.len().saturating_sub(s as usize));
+            short(path, available, bytes_needed, layout)
+        })?;
+    to_labels(path, samples, layout.ty, order, None, layout.all_dims())
+}
 
-    let segments = header.segments(path)?;
-    if let Some(s) = segments.iter().find(|s| s.1 >= layout.layers) {
+/// The labels of gzip-compressed `data`, after skipping `byte_skip` decompressed bytes.
+fn gzip_samples(
+    path: &Path,
+    data: &[u8],
+    byte_skip: i64,
+    layout: &Layout,
+    order: ByteOrder,
+) -> Result<Vec<u16>, SegmentationError> {
+    let bytes_needed = layout.bytes_needed();
+    let mut data = MultiGzDecoder::new(data);
+    if byte_skip > 0 {
+        std::io::copy(
+            &mut (&mut data).take(byte_skip as u64),
+            &mut std::io::sink(),
+        )
+        .map_err(|e| SegmentationError::data(path, format!("cannot decode: {e}")))?;
+    }
+    let mut bytes = Vec::with_capacity(bytes_needed.min(64 << 20));
+    data.take(bytes_needed as u64)
+        .read_to_end(&mut bytes)
+        .map_err(|e| SegmentationError::data(path, format!("cannot decode: {e}")))?;
+    if bytes.len() < bytes_needed {
+        return Err(short(path, bytes.len(), bytes_needed, layout));
+    }
+    to_labels(path, &bytes, layout.ty, order, None, layout.all_dims())
+}
+
+/// The labels of ASCII `data` (whitespace-separated numbers).
+fn ascii_samples(path: &Path, data: &[u8], layout: &Layout) -> Result<Vec<u16>, SegmentationError> {
+    let mut text = String::new();
+    data.take((layout.count as u64).saturating_mul(24) + 4096)
+        .read_to_string(&mut text)
+        .map_err(|e| SegmentationError::data(path, format!("ASCII data: {e}")))?;
+    ascii_to_labels(path, &text, layout.count, layout.all_dims())
+}
+
+/// Checks that every segment's `SegmentN_Layer` is one of the file's `layers`.
+fn check_segment_layers(
+    path: &Path,
+    segments: &[(Segment, usize, String)],
+    layers: usize,
+) -> Result<(), SegmentationError> {
+    if let Some(s) = segments.iter().find(|s| s.1 >= layers) {
         return Err(SegmentationError::header(
             path,
             &format!("{}_Layer", s.2),
-            format!("layer {} but the file has {} layer(s)", s.1, layout.layers),
+            format!("layer {} but the file has {} layer(s)", s.1, layers),
         ));
     }
-    let per_layer: Vec<Vec<u16>> = if layout.layers == 1 {
+    Ok(())
+}
+
+/// The labels of each layer, from `values` where the layers are interleaved (the list axis
+/// varies fastest).
+fn split_layers(values: Vec<u16>, layers: usize) -> Vec<Vec<u16>> {
+    if layers == 1 {
         vec![values]
     } else {
-        (0..layout.layers)
-            .map(|layer| {
-                values
-                    .iter()
-                    .skip(layer)
-                    .step_by(layout.layers)
-                    .copied()
-                    .collect()
-            })
+        (0..layers)
+            .map(|layer| values.iter().skip(layer).step_by(layers).copied().collect())
             .collect()
-    };
+    }
+}
+
+/// One [`Labelmap`] per layer, each named with the segments of its layer.
+fn layer_labelmaps(
+    path: &Path,
+    per_layer: Vec<Vec<u16>>,
+    segments: &[(Segment, usize, String)],
+    layout: &Layout,
+) -> Result<Vec<Labelmap>, SegmentationError> {
     let mut out = Vec::with_capacity(layout.layers);
     for (layer, labels) in per_layer.into_iter().enumerate() {
         let names = segments
@@ -226,7 +243,7 @@ pub fn read_nrrd_layers_bytes(
             .filter(|s| s.1 == layer)
             .map(|s| s.0.clone())
             .collect();
-        let map = Labelmap::new(dims, labels, layout.affine)
+        let map = Labelmap::new(layout.dims, labels, layout.affine)
             .map_err(|e| SegmentationError::header(path, "space directions", e.to_string()))?;
         out.push(map.with_segments(names));
     }
@@ -267,6 +284,18 @@ struct Layout {
     layers: usize,
     count: usize,
     affine: Matrix4<f64>,
+}
+
+impl Layout {
+    /// Bytes of binary data that hold every sample of every layer.
+    fn bytes_needed(&self) -> usize {
+        self.count * self.ty.size()
+    }
+
+    /// The grid of samples in file order: the first axis counts the layers too.
+    fn all_dims(&self) -> [usize; 3] {
+        [self.dims[0] * self.layers, self.dims[1], self.dims[2]]
+    }
 }
 
 /// The header: fields (`name: value`, names lower-cased, spaces removed) and key/value pairs
@@ -390,11 +419,97 @@ impl Header {
         }
     }
 
+    /// The `encoding` field: raw, gzip or ascii (other encodings are refused).
+    fn encoding(&self, path: &Path) -> Result<Encoding, SegmentationError> {
+        let encoding = self
+            .field("encoding")
+            .ok_or_else(|| missing(path, "encoding"))?;
+        Ok(match encoding.to_ascii_lowercase().as_str() {
+            "raw" => Encoding::Raw,
+            "gzip" | "gz" => Encoding::Gzip,
+            "ascii" | "text" | "txt" => Encoding::Ascii,
+            "bzip2" | "bz2" | "hex" => {
+                return Err(SegmentationError::unsupported(
+                    path,
+                    format!("encoding '{encoding}' (raw, gzip and ascii are read)"),
+                ))
+            }
+            _ => {
+                return Err(SegmentationError::header(
+                    path,
+                    "encoding",
+                    format!("unknown value '{encoding}'"),
+                ))
+            }
+        })
+    }
+
+    /// The `endian` field; it may be absent for one-byte samples and ASCII data (then
+    /// little-endian, which does not matter).
+    fn byte_order(
+        &self,
+        path: &Path,
+        layout: &Layout,
+        encoding: Encoding,
+    ) -> Result<ByteOrder, SegmentationError> {
+        Ok(
+            match self.field("endian").map(str::to_ascii_lowercase).as_deref() {
+                Some("little") => ByteOrder::Little,
+                Some("big") => ByteOrder::Big,
+                Some(other) => {
+                    return Err(SegmentationError::header(
+                        path,
+                        "endian",
+                        format!("'{other}' (expected little or big)"),
+                    ))
+                }
+                None if layout.ty.size() == 1 || encoding == Encoding::Ascii => ByteOrder::Little,
+                None => return Err(missing(path, "endian")),
+            },
+        )
+    }
+
+    /// The sample type, its sizes, layers and index → LPS mm affine.
     fn layout(&self, path: &Path) -> Result<Layout, SegmentationError> {
+        let ty = self.scalar_type(path)?;
+        let nd = self.dimension(path)?;
+        let (sizes, sizes_text) = self.sizes(path, nd)?;
+        let kinds = self.kinds(path, nd)?;
+        let directions = self.directions(path, nd)?;
+        let spatial_axes = spatial_axes(nd, directions.as_deref(), kinds.as_deref());
+        let layers = layer_count(path, nd, &spatial_axes, &sizes)?;
+        let off = nd - 3;
+        let dims = [sizes[off], sizes[off + 1], sizes[off + 2]];
+        let count = voxel_count(dims)
+            .and_then(|n| n.checked_mul(layers))
+            .filter(|&n| n <= MAX_VOXELS)
+            .ok_or_else(|| {
+                SegmentationError::header(
+                    path,
+                    "sizes",
+                    format!("'{sizes_text}' is more than the {MAX_VOXELS} voxels accepted"),
+                )
+            })?;
+        let affine = self.affine_lps(path, directions.as_deref(), nd)?;
+        Ok(Layout {
+            ty,
+            dims,
+            layers,
+            count,
+            affine,
+        })
+    }
+
+    /// The `type` field as a sample type that can hold labels.
+    fn scalar_type(&self, path: &Path) -> Result<StoredScalar, SegmentationError> {
         let ty_name = self.field("type").ok_or_else(|| missing(path, "type"))?;
-        let ty = sample_type(ty_name).ok_or_else(|| {
+        sample_type(ty_name).ok_or_else(|| {
             SegmentationError::header(path, "type", format!("'{ty_name}' cannot hold labels"))
-        })?;
+        })
+    }
+
+    /// The `dimension` field: 3, or 4 with a list axis of layers.
+    fn dimension(&self, path: &Path) -> Result<usize, SegmentationError> {
         let dimension = self.integer(path, "dimension", -1)?;
         if dimension == -1 && self.field("dimension").is_none() {
             return Err(missing(path, "dimension"));
@@ -406,7 +521,11 @@ impl Header {
                 format!("{dimension}: a labelmap has 3 axes (or 4 with a leading list of layers)"),
             ));
         }
-        let nd = dimension as usize;
+        Ok(dimension as usize)
+    }
+
+    /// The `sizes` field: `nd` positive sample counts, with the field's text.
+    fn sizes(&self, path: &Path, nd: usize) -> Result<(Vec<usize>, &str), SegmentationError> {
         let sizes_text = self.field("sizes").ok_or_else(|| missing(path, "sizes"))?;
         let sizes: Vec<usize> = sizes_text
             .split_ascii_whitespace()
@@ -420,6 +539,11 @@ impl Header {
                     format!("'{sizes_text}' is not {nd} positive integers"),
                 )
             })?;
+        Ok((sizes, sizes_text))
+    }
+
+    /// The `kinds` field, lower-cased: one entry per axis, if present.
+    fn kinds(&self, path: &Path, nd: usize) -> Result<Option<Vec<String>>, SegmentationError> {
         let kinds: Option<Vec<String>> = self.field("kinds").map(|k| {
             k.split_ascii_whitespace()
                 .map(str::to_ascii_lowercase)
@@ -434,55 +558,23 @@ impl Header {
                 ));
             }
         }
-        let directions = self.directions(path, nd)?;
-        // The list (layer) axis: the one without a space direction, or with a non-spatial kind.
-        let spatial = |a: usize| -> bool {
-            let by_dir = directions.as_ref().map(|d| d[a].is_some());
-            let by_kind = kinds.as_ref().map(|k| {
-                matches!(k[a].as_str(), "domain" | "space" | "time")
-                    || (k[a] == "???" && by_dir != Some(false))
-            });
-            by_dir.or(by_kind).unwrap_or(true)
-        };
-        let spatial_axes: Vec<usize> = (0..nd).filter(|&a| spatial(a)).collect();
-        let layers = if nd == 4 {
-            if spatial_axes != [1, 2, 3] {
-                return Err(SegmentationError::unsupported(
-                    path,
-                    format!(
-                        "4-D data whose non-spatial axis is not the first (spatial axes {spatial_axes:?}, from \
-                         'space directions'/'kinds'); only a leading list of layers is read"
-                    ),
-                ));
-            }
-            sizes[0]
-        } else {
-            if spatial_axes.len() != 3 {
-                return Err(SegmentationError::header(
-                    path,
-                    "space directions",
-                    "a 3-D labelmap needs three spatial axes ('none' given)",
-                ));
-            }
-            1
-        };
-        let off = nd - 3;
-        let dims = [sizes[off], sizes[off + 1], sizes[off + 2]];
-        let count = voxel_count(dims)
-            .and_then(|n| n.checked_mul(layers))
-            .filter(|&n| n <= MAX_VOXELS)
-            .ok_or_else(|| {
-                SegmentationError::header(
-                    path,
-                    "sizes",
-                    format!("'{sizes_text}' is more than the {MAX_VOXELS} voxels accepted"),
-                )
-            })?;
+        Ok(kinds)
+    }
 
+    /// The index → LPS mm affine: the spatial axes' `space directions` (or `spacings` on the
+    /// diagonal when there are none) and `space origin`, scaled by `space units` to mm and
+    /// flipped from the file's space to LPS.
+    fn affine_lps(
+        &self,
+        path: &Path,
+        directions: Option<&[Option<Vector3<f64>>]>,
+        nd: usize,
+    ) -> Result<Matrix4<f64>, SegmentationError> {
+        let off = nd - 3;
         // Index → file space, then file space → LPS.
         let (to_lps, unit) = self.space(path)?;
         let mut affine = Matrix4::identity();
-        match &directions {
+        match directions {
             Some(d) => {
                 for a in 0..3 {
                     let v = d[off + a].expect("spatial axis has a direction");
@@ -507,16 +599,10 @@ impl Header {
             affine.fixed_view_mut::<3, 1>(0, 3).copy_from(&v);
         }
         affine.fixed_view_mut::<3, 4>(0, 0).scale_mut(unit);
-        let lps =
+        Ok(
             Matrix4::from_diagonal(&nalgebra::Vector4::new(to_lps.x, to_lps.y, to_lps.z, 1.0))
-                * affine;
-        Ok(Layout {
-            ty,
-            dims,
-            layers,
-            count,
-            affine: lps,
-        })
+                * affine,
+        )
     }
 
     /// `space directions`: one `(x,y,z)` or `none` per axis.
@@ -693,6 +779,64 @@ impl Header {
                 })
             })
             .collect())
+    }
+}
+
+/// Whether axis `a` is spatial: it has a space direction, or (without `space directions`) a
+/// spatial kind; every axis is spatial when neither field is given.
+fn is_spatial(
+    a: usize,
+    directions: Option<&[Option<Vector3<f64>>]>,
+    kinds: Option<&[String]>,
+) -> bool {
+    let by_dir = directions.map(|d| d[a].is_some());
+    let by_kind = kinds.map(|k| {
+        matches!(k[a].as_str(), "domain" | "space" | "time")
+            || (k[a] == "???" && by_dir != Some(false))
+    });
+    by_dir.or(by_kind).unwrap_or(true)
+}
+
+/// The spatial axes among the `nd` axes, in order; the list (layer) axis is the one without a
+/// space direction, or with a non-spatial kind.
+fn spatial_axes(
+    nd: usize,
+    directions: Option<&[Option<Vector3<f64>>]>,
+    kinds: Option<&[String]>,
+) -> Vec<usize> {
+    (0..nd)
+        .filter(|&a| is_spatial(a, directions, kinds))
+        .collect()
+}
+
+/// The number of layers: the size of the leading list axis of 4-D data, 1 for 3-D data.
+/// Errors when the spatial axes are not the last three (4-D) or not three (3-D).
+fn layer_count(
+    path: &Path,
+    nd: usize,
+    spatial_axes: &[usize],
+    sizes: &[usize],
+) -> Result<usize, SegmentationError> {
+    if nd == 4 {
+        if spatial_axes != [1, 2, 3] {
+            return Err(SegmentationError::unsupported(
+                path,
+                format!(
+                    "4-D data whose non-spatial axis is not the first (spatial axes {spatial_axes:?}, from \
+                     'space directions'/'kinds'); only a leading list of layers is read"
+                ),
+            ));
+        }
+        Ok(sizes[0])
+    } else {
+        if spatial_axes.len() != 3 {
+            return Err(SegmentationError::header(
+                path,
+                "space directions",
+                "a 3-D labelmap needs three spatial axes ('none' given)",
+            ));
+        }
+        Ok(1)
     }
 }
 

@@ -168,6 +168,30 @@ fn bad_files_are_named_errors() {
     assert_err(read_vtk(&missing), &missing, &[]);
 }
 
+/// A file that ends inside an element nested in a `<DataArray>` (VTK's `<InformationKey>`
+/// notes) is a named error, not an endless read: the reader runs on a thread and must answer
+/// within 10 s.
+#[test]
+fn a_file_cut_inside_a_nested_element_is_an_error_not_a_hang() {
+    let dir = TempDir::new("vtk-cut");
+    let path = dir.write(
+        "cut.vtp",
+        r#"<?xml version="1.0"?>
+<VTKFile type="PolyData" version="0.1" byte_order="LittleEndian">
+<PolyData><Piece NumberOfPoints="4" NumberOfPolys="1">
+<Points><DataArray type="Float32" NumberOfComponents="3" format="ascii"><InformationKey name="L2_NORM_RANGE">"#,
+    );
+    let (tx, rx) = std::sync::mpsc::channel();
+    let reading = path.clone();
+    std::thread::spawn(move || {
+        let _ = tx.send(read_vtk(&reading).map(|s| s.triangles.len()));
+    });
+    let read = rx
+        .recv_timeout(std::time::Duration::from_secs(10))
+        .expect("the reader answers instead of reading forever");
+    assert_err(read, &path, &[]);
+}
+
 #[test]
 fn corrupted_files_never_panic() {
     let dir = TempDir::new("vtk-fuzz");

@@ -13,7 +13,7 @@ use std::path::Path;
 
 use base64::Engine;
 use nalgebra::Point3;
-use quick_xml::events::{BytesStart, Event};
+use quick_xml::events::{BytesEnd, BytesStart, BytesText, Event};
 use quick_xml::Reader;
 
 use super::super::error::MeshError;
@@ -90,133 +90,13 @@ pub(super) fn parse_xml_polydata(path: &Path, bytes: &[u8]) -> Result<Vec<XmlPie
     let bad = |m: String| MeshError::malformed(path, m);
     // Raw appended data is not XML: cut it off before parsing the rest.
     let (xml, appended) = split_appended(path, bytes)?;
-    let mut reader = Reader::from_reader(xml);
-    reader.config_mut().check_end_names = false;
-    let mut encoding = None;
-    let mut pieces: Vec<(XmlPiece, Vec<(Section, ArrayDecl)>)> = Vec::new();
-    let mut section = Section::Other;
-    let mut current: Option<ArrayDecl> = None;
-    let mut inner = 0usize;
-    let mut buf = Vec::new();
-    loop {
-        let event = reader.read_event_into(&mut buf).map_err(|e| {
-            bad(format!(
-                "XML error near byte {}: {e}",
-                reader.error_position()
-            ))
-        })?;
-        let (start, empty) = match &event {
-            Event::Start(e) => (Some(e.clone()), false),
-            Event::Empty(e) => (Some(e.clone()), true),
-            _ => (None, false),
-        };
-        // Elements nested in a DataArray (VTK's <InformationKey> range notes) are skipped.
-        if current.is_some() {
-            let nested = match &event {
-                Event::Start(_) => {
-                    inner += 1;
-                    true
-                }
-                Event::End(_) if inner > 0 => {
-                    inner -= 1;
-                    true
-                }
-                _ => inner > 0,
-            };
-            if nested {
-                buf.clear();
-                continue;
-            }
-        }
-        if let Some(e) = start {
-            match e.local_name().as_ref() {
-                b"VTKFile" => encoding = Some(file_encoding(path, &e)?),
-                b"Piece" => pieces.push((XmlPiece::default(), Vec::new())),
-                b"Points" if !empty => section = Section::Points,
-                b"Polys" if !empty => section = Section::Polys,
-                b"Strips" if !empty => section = Section::Strips,
-                b"DataArray" => {
-                    let decl = array_decl(path, &e)?;
-                    if empty {
-                        keep(&mut pieces, section, decl);
-                    } else {
-                        current = Some(decl);
-                    }
-                }
-                _ => {}
-            }
-        }
-        match event {
-            Event::Text(t) => {
-                if let Some(decl) = current.as_mut() {
-                    let text = t
-                        .unescape()
-                        .map_err(|e| bad(format!("XML text of {:?}: {e}", decl.name)))?;
-                    decl.text.push_str(&text);
-                }
-            }
-            Event::End(e) => match e.local_name().as_ref() {
-                b"DataArray" => {
-                    if let Some(decl) = current.take() {
-                        keep(&mut pieces, section, decl);
-                    }
-                }
-                b"Points" | b"Polys" | b"Strips" => section = Section::Other,
-                _ => {}
-            },
-            Event::Eof => break,
-            _ => {}
-        }
-        buf.clear();
-    }
-    let encoding =
-        encoding.ok_or_else(|| bad("no <VTKFile> element: not a VTK XML file".into()))?;
-    let mut out = Vec::with_capacity(pieces.len());
-    for (mut piece, arrays) in pieces {
-        let mut conn = [None, None];
-        let mut offs = [None, None];
-        for (section, decl) in arrays {
-            let values = decode(path, &decl, encoding, &appended)?;
-            match section {
-                Section::Points => {
-                    if decl.components != 3 || !values.len().is_multiple_of(3) {
-                        return Err(bad(format!(
-                            "the points array {:?} has {} components and {} values (expected x y z)",
-                            decl.name,
-                            decl.components,
-                            values.len()
-                        )));
-                    }
-                    piece.points = finite_points(path, &values)?;
-                }
-                Section::Polys | Section::Strips => {
-                    let k = usize::from(section == Section::Strips);
-                    match decl.name.as_str() {
-                        "connectivity" => conn[k] = Some(values),
-                        "offsets" => offs[k] = Some(values),
-                        _ => {}
-                    }
-                }
-                Section::Other => {}
-            }
-        }
-        for (k, what) in [(0, "Polys"), (1, "Strips")] {
-            let cells = match (conn[k].take(), offs[k].take()) {
-                (Some(c), Some(o)) => cells(path, what, &c, &o)?,
-                (None, None) => Vec::new(),
-                _ => {
-                    return Err(bad(format!(
-                        "{what} needs both a connectivity and an offsets array"
-                    )))
-                }
-            };
-            if k == 0 {
-                piece.polys = cells;
-            } else {
-                piece.strips = cells;
-            }
-        }
-        out.push(piece);
+    let walk = walk_xml(path, xml)?;
+    let encoding = walk
+        .encoding
+        .ok_or_else(|| bad("no <VTKFile> element: not a VTK XML file".into()))?;
+    let mut out = Vec::with_capacity(walk.pieces.len());
+    for (piece, arrays) in walk.pieces {
+        out.push(decode_piece(path, piece, arrays, encoding, &appended)?);
     }
     if out.is_empty() {
         return Err(bad("no <Piece> element: not a PolyData file".into()));
@@ -224,8 +104,194 @@ pub(super) fn parse_xml_polydata(path: &Path, bytes: &[u8]) -> Result<Vec<XmlPie
     Ok(out)
 }
 
+/// A piece as declared: its (still empty) cells and the arrays of its read sections.
+type DeclaredPiece = (XmlPiece, Vec<(Section, ArrayDecl)>);
+
+/// What the walk through the XML elements has found so far.
+struct Walk {
+    /// The binary encoding of `<VTKFile>`, once seen.
+    encoding: Option<Encoding>,
+    /// The pieces, in file order.
+    pieces: Vec<DeclaredPiece>,
+    /// The section of the current piece.
+    section: Section,
+    /// The `<DataArray>` whose text is being read.
+    current: Option<ArrayDecl>,
+    /// Depth of the elements nested in the current `<DataArray>`.
+    inner: usize,
+}
+
+/// Walks the XML events of `xml`, collecting the file's encoding and each piece's declared
+/// arrays with their inline text.
+fn walk_xml(path: &Path, xml: &[u8]) -> Result<Walk, MeshError> {
+    let mut reader = Reader::from_reader(xml);
+    reader.config_mut().check_end_names = false;
+    let mut walk = Walk {
+        encoding: None,
+        pieces: Vec::new(),
+        section: Section::Other,
+        current: None,
+        inner: 0,
+    };
+    let mut buf = Vec::new();
+    loop {
+        let event = reader.read_event_into(&mut buf).map_err(|e| {
+            MeshError::malformed(
+                path,
+                format!("XML error near byte {}: {e}", reader.error_position()),
+            )
+        })?;
+        if walk.nested(&event) {
+            buf.clear();
+            continue;
+        }
+        match &event {
+            Event::Start(e) => walk.start(path, e, false)?,
+            Event::Empty(e) => walk.start(path, e, true)?,
+            Event::Text(t) => walk.text(path, t)?,
+            Event::End(e) => walk.end(e),
+            Event::Eof => break,
+            _ => {}
+        }
+        buf.clear();
+    }
+    Ok(walk)
+}
+
+impl Walk {
+    /// Whether `event` belongs to an element nested in the current `<DataArray>` (VTK's
+    /// `<InformationKey>` range notes), which is skipped; tracks the nesting depth.
+    fn nested(&mut self, event: &Event<'_>) -> bool {
+        if self.current.is_none() {
+            return false;
+        }
+        match event {
+            Event::Start(_) => {
+                self.inner += 1;
+                true
+            }
+            Event::End(_) if self.inner > 0 => {
+                self.inner -= 1;
+                true
+            }
+            // The end of the file ends the walk, however deep it stops.
+            Event::Eof => false,
+            _ => self.inner > 0,
+        }
+    }
+
+    /// Handles the start tag `e` (`empty` for a self-closing element): the file's encoding, a
+    /// new piece, a section, or a `<DataArray>` declaration.
+    fn start(&mut self, path: &Path, e: &BytesStart<'_>, empty: bool) -> Result<(), MeshError> {
+        match e.local_name().as_ref() {
+            b"VTKFile" => self.encoding = Some(file_encoding(path, e)?),
+            b"Piece" => self.pieces.push((XmlPiece::default(), Vec::new())),
+            b"Points" if !empty => self.section = Section::Points,
+            b"Polys" if !empty => self.section = Section::Polys,
+            b"Strips" if !empty => self.section = Section::Strips,
+            b"DataArray" => {
+                let decl = array_decl(path, e)?;
+                if empty {
+                    keep(&mut self.pieces, self.section, decl);
+                } else {
+                    self.current = Some(decl);
+                }
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    /// Appends text `t`, unescaped, to the current `<DataArray>`'s text, if any.
+    fn text(&mut self, path: &Path, t: &BytesText<'_>) -> Result<(), MeshError> {
+        if let Some(decl) = self.current.as_mut() {
+            let text = t.unescape().map_err(|e| {
+                MeshError::malformed(path, format!("XML text of {:?}: {e}", decl.name))
+            })?;
+            decl.text.push_str(&text);
+        }
+        Ok(())
+    }
+
+    /// Handles the end tag `e`: keeps the finished `<DataArray>`, or leaves a section.
+    fn end(&mut self, e: &BytesEnd<'_>) {
+        match e.local_name().as_ref() {
+            b"DataArray" => {
+                if let Some(decl) = self.current.take() {
+                    keep(&mut self.pieces, self.section, decl);
+                }
+            }
+            b"Points" | b"Polys" | b"Strips" => self.section = Section::Other,
+            _ => {}
+        }
+    }
+}
+
+/// Decodes the declared `arrays` of `piece`: its points, and its polygons and strips from
+/// their connectivity and offsets arrays.
+fn decode_piece(
+    path: &Path,
+    mut piece: XmlPiece,
+    arrays: Vec<(Section, ArrayDecl)>,
+    encoding: Encoding,
+    appended: &Appended<'_>,
+) -> Result<XmlPiece, MeshError> {
+    let mut conn = [None, None];
+    let mut offs = [None, None];
+    for (section, decl) in arrays {
+        let values = decode(path, &decl, encoding, appended)?;
+        match section {
+            Section::Points => piece.points = points_of(path, &decl, &values)?,
+            Section::Polys | Section::Strips => {
+                let k = usize::from(section == Section::Strips);
+                match decl.name.as_str() {
+                    "connectivity" => conn[k] = Some(values),
+                    "offsets" => offs[k] = Some(values),
+                    _ => {}
+                }
+            }
+            Section::Other => {}
+        }
+    }
+    for (k, what) in [(0, "Polys"), (1, "Strips")] {
+        let cells = match (conn[k].take(), offs[k].take()) {
+            (Some(c), Some(o)) => cells(path, what, &c, &o)?,
+            (None, None) => Vec::new(),
+            _ => {
+                return Err(MeshError::malformed(
+                    path,
+                    format!("{what} needs both a connectivity and an offsets array"),
+                ))
+            }
+        };
+        if k == 0 {
+            piece.polys = cells;
+        } else {
+            piece.strips = cells;
+        }
+    }
+    Ok(piece)
+}
+
+/// The points of the points array `decl` with `values` (x y z triples, file units), each
+/// finite.
+fn points_of(path: &Path, decl: &ArrayDecl, values: &[f64]) -> Result<Vec<Point3<f64>>, MeshError> {
+    if decl.components != 3 || !values.len().is_multiple_of(3) {
+        return Err(MeshError::malformed(
+            path,
+            format!(
+                "the points array {:?} has {} components and {} values (expected x y z)",
+                decl.name,
+                decl.components,
+                values.len()
+            ),
+        ));
+    }
+    finite_points(path, values)
+}
+
 /// Keeps `decl` for the current piece when it belongs to a section that is read.
-fn keep(pieces: &mut [(XmlPiece, Vec<(Section, ArrayDecl)>)], section: Section, decl: ArrayDecl) {
+fn keep(pieces: &mut [DeclaredPiece], section: Section, decl: ArrayDecl) {
     if let (Some((_, arrays)), true) = (pieces.last_mut(), section != Section::Other) {
         arrays.push((section, decl));
     }
