@@ -239,68 +239,109 @@ pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
     let s = &scene.scene;
     // The scene's own values of the registration settings the sweep flips.
     let base = ModelConfig::scene_default().resolved(scene);
-    let named = |name: &str| ModelConfig {
+    let mut out = vec![ModelConfig::scene_default()];
+    out.extend(cell_size_configs(quick));
+    if !quick {
+        out.extend(subdivision_configs(s));
+    }
+    out.extend(integration_configs(s));
+    if !quick {
+        out.extend(min_fraction_configs(s));
+    }
+    out.extend(stabilization_configs(s, quick));
+    out.extend(law_configs(s, quick));
+    if !quick {
+        out.extend(solver_and_registration_configs(s, &base));
+    }
+    out
+}
+
+/// A configuration named `name` that changes nothing yet.
+fn named(name: &str) -> ModelConfig {
+    ModelConfig {
         name: name.to_string(),
         ..ModelConfig::default()
-    };
-    let mut out = vec![ModelConfig::scene_default()];
+    }
+}
+
+/// The cell size factors of the sweep (×0.75, ×1.5, ×2; `quick`: ×1.5, ×2).
+fn cell_size_configs(quick: bool) -> Vec<ModelConfig> {
     let cells: &[f64] = if quick {
         &[1.5, 2.0]
     } else {
         &[0.75, 1.5, 2.0]
     };
-    for &f in cells {
-        out.push(ModelConfig {
+    cells
+        .iter()
+        .map(|&f| ModelConfig {
             cell_size_factor: Some(f),
             ..named(&format!("cell x{f}"))
-        });
-    }
-    if !quick {
-        for l in [1, 2, 3, 4] {
-            if l != s.grid.subdivisions {
-                out.push(ModelConfig {
-                    subdivisions: Some(l),
-                    ..named(&format!("subdiv {l}"))
-                });
-            }
-        }
-    }
-    for m in [
+        })
+        .collect()
+}
+
+/// Subdivision levels 1 to 4, but for the scene's own.
+fn subdivision_configs(s: &Scene) -> Vec<ModelConfig> {
+    [1, 2, 3, 4]
+        .into_iter()
+        .filter(|&l| l != s.grid.subdivisions)
+        .map(|l| ModelConfig {
+            subdivisions: Some(l),
+            ..named(&format!("subdiv {l}"))
+        })
+        .collect()
+}
+
+/// The integrations of cut cells (weighted-cell, finite-cell, full-cell), but for the
+/// scene's own.
+fn integration_configs(s: &Scene) -> Vec<ModelConfig> {
+    [
         IntegrationMode::WeightedCell,
         IntegrationMode::FiniteCell,
         IntegrationMode::FullCell,
-    ] {
-        if m != s.grid.integration {
-            out.push(ModelConfig {
-                integration: Some(m),
-                ..named(m.name())
-            });
-        }
-    }
-    if !quick {
-        for a in [1e-4, 1e-3, 1e-2, 3e-2, 1e-1] {
-            if a != s.grid.min_fraction {
-                out.push(ModelConfig {
-                    min_fraction: Some(a),
-                    ..named(&format!("alpha {a:e}"))
-                });
-            }
-        }
-    }
+    ]
+    .into_iter()
+    .filter(|&m| m != s.grid.integration)
+    .map(|m| ModelConfig {
+        integration: Some(m),
+        ..named(m.name())
+    })
+    .collect()
+}
+
+/// Fictitious-domain weights α (10⁻⁴, 10⁻³, 10⁻², 3·10⁻², 10⁻¹), but for the scene's own.
+fn min_fraction_configs(s: &Scene) -> Vec<ModelConfig> {
+    [1e-4, 1e-3, 1e-2, 3e-2, 1e-1]
+        .into_iter()
+        .filter(|&a| a != s.grid.min_fraction)
+        .map(|a| ModelConfig {
+            min_fraction: Some(a),
+            ..named(&format!("alpha {a:e}"))
+        })
+        .collect()
+}
+
+/// Cut-cell step stabilisations γ (0, 10, 30, 100, 300, 1000; `quick`: 0), but for the
+/// scene's own.
+fn stabilization_configs(s: &Scene, quick: bool) -> Vec<ModelConfig> {
     let gammas: &[f64] = if quick {
         &[0.0]
     } else {
         &[0.0, 10.0, 30.0, 100.0, 300.0, 1000.0]
     };
-    for &g in gammas {
-        if g != s.solver.step_stabilization {
-            out.push(ModelConfig {
-                step_stabilization: Some(g),
-                ..named(&format!("stabilization {g}"))
-            });
-        }
-    }
-    // `--quick`: neo-Hookean and corotated, but for the scene's own law.
+    gammas
+        .iter()
+        .filter(|&&g| g != s.solver.step_stabilization)
+        .map(|&g| ModelConfig {
+            step_stabilization: Some(g),
+            ..named(&format!("stabilization {g}"))
+        })
+        .collect()
+}
+
+/// Constitutive laws (neo-Hookean, SVK, linear, corotated, Mooney–Rivlin; `quick`:
+/// neo-Hookean and corotated), but for the scene's own.
+fn law_configs(s: &Scene, quick: bool) -> Vec<ModelConfig> {
     let laws: &[LawKind] = if quick {
         &[LawKind::NeoHookean, LawKind::Corotated]
     } else {
@@ -312,65 +353,70 @@ pub fn sweep_configs(scene: &LoadedScene, quick: bool) -> Vec<ModelConfig> {
             LawKind::MooneyRivlin,
         ]
     };
-    for &l in laws {
-        if l != s.material.law {
+    laws.iter()
+        .filter(|&&l| l != s.material.law)
+        .map(|&l| ModelConfig {
+            law: Some(l),
+            ..named(law_name(l))
+        })
+        .collect()
+}
+
+/// The solver and registration settings, each against the scene's own (`base`): linear
+/// solvers (LDLᵀ, Jacobi-CG), penalty ramps of 1 and 5 steps, the other pair-pruning rule,
+/// the other treatment of isolated cloud points, and — where the scene has them off —
+/// background factorisation, mixed precision and a coarse-to-fine start (cells ×2).
+fn solver_and_registration_configs(s: &Scene, base: &ResolvedConfig) -> Vec<ModelConfig> {
+    let mut out = Vec::new();
+    for k in [SolverKind::Ldlt, SolverKind::JacobiCg] {
+        if k != s.solver.linear_solver {
             out.push(ModelConfig {
-                law: Some(l),
-                ..named(law_name(l))
+                linear_solver: Some(k),
+                ..named(solver_name(k))
             });
         }
     }
-    if !quick {
-        for k in [SolverKind::Ldlt, SolverKind::JacobiCg] {
-            if k != s.solver.linear_solver {
-                out.push(ModelConfig {
-                    linear_solver: Some(k),
-                    ..named(solver_name(k))
-                });
-            }
+    for n in [1, 5] {
+        if n != base.penalty_steps {
+            out.push(ModelConfig {
+                penalty_steps: Some(n),
+                ..named(&format!("ramp {n}"))
+            });
         }
-        for n in [1, 5] {
-            if n != base.penalty_steps {
-                out.push(ModelConfig {
-                    penalty_steps: Some(n),
-                    ..named(&format!("ramp {n}"))
-                });
-            }
-        }
+    }
+    out.push(ModelConfig {
+        robust_pruning: Some(!base.robust_pruning),
+        ..named(if base.robust_pruning {
+            "mean-2sigma pruning"
+        } else {
+            "median-mad pruning"
+        })
+    });
+    out.push(ModelConfig {
+        remove_isolated_points: Some(!base.remove_isolated_points),
+        ..named(if base.remove_isolated_points {
+            "isolated points kept"
+        } else {
+            "isolated points removed"
+        })
+    });
+    if !base.background_factorization {
         out.push(ModelConfig {
-            robust_pruning: Some(!base.robust_pruning),
-            ..named(if base.robust_pruning {
-                "mean-2sigma pruning"
-            } else {
-                "median-mad pruning"
-            })
+            background_factorization: Some(true),
+            ..named("background factorisation")
         });
+    }
+    if !base.mixed_precision {
         out.push(ModelConfig {
-            remove_isolated_points: Some(!base.remove_isolated_points),
-            ..named(if base.remove_isolated_points {
-                "isolated points kept"
-            } else {
-                "isolated points removed"
-            })
+            mixed_precision: Some(true),
+            ..named("mixed precision")
         });
-        if !base.background_factorization {
-            out.push(ModelConfig {
-                background_factorization: Some(true),
-                ..named("background factorisation")
-            });
-        }
-        if !base.mixed_precision {
-            out.push(ModelConfig {
-                mixed_precision: Some(true),
-                ..named("mixed precision")
-            });
-        }
-        if base.coarse_to_fine.is_none() {
-            out.push(ModelConfig {
-                coarse_to_fine: Some(2.0),
-                ..named("coarse-to-fine")
-            });
-        }
+    }
+    if base.coarse_to_fine.is_none() {
+        out.push(ModelConfig {
+            coarse_to_fine: Some(2.0),
+            ..named("coarse-to-fine")
+        });
     }
     out
 }

@@ -406,17 +406,7 @@ pub fn run_indentation_matrix(
     options.validate()?;
     let start = Instant::now();
     let scale = scene.length_scale();
-    let mut truths = Vec::new();
-    let mut selected = Vec::new();
-    for seq in &options.sequences {
-        let t = IndentationTruth::load(dir, seq, &options.truth_law).map_err(|e| e.to_string())?;
-        let k = frame_indices(t.len(), options.stride, options.max_frames);
-        if k.is_empty() {
-            return Err(format!("{seq}/{}: no frame", options.truth_law));
-        }
-        truths.push(t.select_frames(&k).map_err(|e| e.to_string())?);
-        selected.push((seq.clone(), t.len(), k));
-    }
+    let (truths, selected) = load_truths(dir, options)?;
     // One session per variant for the cells that change only the data (reset per sequence,
     // as `run_scene` does).
     let mut base: Vec<Option<Result<Session, String>>> =
@@ -430,34 +420,9 @@ pub fn run_indentation_matrix(
                 axis.label(value),
                 variant.name()
             ));
-            let mut cell = IndentationStabilityCell {
-                axis,
-                value,
-                label: axis.label(value),
-                variant: variant.name().into(),
-                metrics: None,
-                sequences: Vec::new(),
-                error: None,
-                crashed: false,
-                failed_at: Vec::new(),
-                worse_at: Vec::new(),
-            };
-            let run = catch_unwind(AssertUnwindSafe(|| match model_config(axis, value) {
-                Some(config) => {
-                    let applied = config.apply(&scene_for(scene, variant))?;
-                    let mut session = Session::from_scene(&applied).map_err(|e| e.to_string())?;
-                    run_cell(&mut session, &truths, axis, value, variant, scale)
-                }
-                None if axis.changes_data() => {
-                    let session = base[vi].get_or_insert_with(|| {
-                        Session::from_scene(&scene_for(scene, variant)).map_err(|e| e.to_string())
-                    });
-                    match session {
-                        Ok(s) => run_cell(s, &truths, axis, value, variant, scale),
-                        Err(e) => Err(e.clone()),
-                    }
-                }
-                None => Err(format!("{}: not an axis of this class", axis.name())),
+            let mut cell = empty_cell(axis, value, variant);
+            let run = catch_unwind(AssertUnwindSafe(|| {
+                run_condition(scene, &mut base[vi], &truths, axis, value, variant, scale)
             }));
             match run {
                 Err(p) => {
@@ -465,54 +430,154 @@ pub fn run_indentation_matrix(
                     cell.error = Some(format!("panic: {}", panic_text(&p)));
                 }
                 Ok(Err(e)) => cell.error = Some(e),
-                Ok(Ok(parts)) => {
-                    cell.metrics = Some(IndentationCellMetrics::pool(&parts));
-                    for ((m, samples), (seq, _, indices)) in parts.iter().zip(&selected) {
-                        for ((f, s), k) in m.frames.iter().zip(samples).zip(indices) {
-                            if f.failed {
-                                let causes: Vec<&str> = s
-                                    .causes
-                                    .iter()
-                                    .filter(|c| c.is_failure())
-                                    .map(|c| c.name())
-                                    .collect();
-                                cell.failed_at
-                                    .push(format!("{seq}#{k} ({})", causes.join(", ")));
-                            }
-                            if f.mean_mm > WORSE_THAN_NONE_FACTOR * f.none_mean_mm {
-                                cell.worse_at.push(format!(
-                                    "{seq}#{k} ({:.2} against {:.2} mm)",
-                                    f.mean_mm, f.none_mean_mm
-                                ));
-                            }
-                        }
-                    }
-                    cell.sequences = parts
-                        .into_iter()
-                        .map(|(mut m, _)| {
-                            m.frames.clear();
-                            m
-                        })
-                        .collect();
-                }
+                Ok(Ok(parts)) => fill_cell(&mut cell, parts, &selected),
             }
             cells.push(cell);
         }
     }
+    Ok(matrix_report(options, selected, cells, start))
+}
+
+/// Each sequence's numbers with its frames' samples, in the order of the truths.
+type SequenceParts = Vec<(IndentationMetrics, Vec<FrameSample>)>;
+
+/// A sequence of the options: its name, its number of frames, and the frames registered.
+type SelectedSequence = (String, usize, Vec<usize>);
+
+/// The truths of the options' sequences in `dir`, cut to the frames registered (see
+/// [`frame_indices`]), and which frames those are. An error when a truth cannot be read or
+/// no frame is left.
+fn load_truths(
+    dir: &Path,
+    options: &IndentationStabilityOptions,
+) -> Result<(Vec<IndentationTruth>, Vec<SelectedSequence>), String> {
+    let mut truths = Vec::new();
+    let mut selected = Vec::new();
+    for seq in &options.sequences {
+        let t = IndentationTruth::load(dir, seq, &options.truth_law).map_err(|e| e.to_string())?;
+        let k = frame_indices(t.len(), options.stride, options.max_frames);
+        if k.is_empty() {
+            return Err(format!("{seq}/{}: no frame", options.truth_law));
+        }
+        truths.push(t.select_frames(&k).map_err(|e| e.to_string())?);
+        selected.push((seq.clone(), t.len(), k));
+    }
+    Ok((truths, selected))
+}
+
+/// A cell of `variant` at `value` on `axis` with no numbers yet.
+fn empty_cell(axis: Axis, value: f64, variant: IndentationVariant) -> IndentationStabilityCell {
+    IndentationStabilityCell {
+        axis,
+        value,
+        label: axis.label(value),
+        variant: variant.name().into(),
+        metrics: None,
+        sequences: Vec::new(),
+        error: None,
+        crashed: false,
+        failed_at: Vec::new(),
+        worse_at: Vec::new(),
+    }
+}
+
+/// Registers every truth with `variant`'s clouds at `value` on `axis`: with a session of its
+/// own for an axis that changes the model, else with the variant's shared session `base`
+/// (built on first use, its error kept). `scale`: metres per scene unit.
+fn run_condition(
+    scene: &LoadedScene,
+    base: &mut Option<Result<Session, String>>,
+    truths: &[IndentationTruth],
+    axis: Axis,
+    value: f64,
+    variant: IndentationVariant,
+    scale: f64,
+) -> Result<SequenceParts, String> {
+    match model_config(axis, value) {
+        Some(config) => {
+            let applied = config.apply(&scene_for(scene, variant))?;
+            let mut session = Session::from_scene(&applied).map_err(|e| e.to_string())?;
+            run_cell(&mut session, truths, axis, value, variant, scale)
+        }
+        None if axis.changes_data() => {
+            let session = base.get_or_insert_with(|| {
+                Session::from_scene(&scene_for(scene, variant)).map_err(|e| e.to_string())
+            });
+            match session {
+                Ok(s) => run_cell(s, truths, axis, value, variant, scale),
+                Err(e) => Err(e.clone()),
+            }
+        }
+        None => Err(format!("{}: not an axis of this class", axis.name())),
+    }
+}
+
+/// Fills `cell` with the numbers of a run: the pooled metrics, the failed frames and those
+/// worse than no registration (numbered as in their sequence, from `selected`), and each
+/// sequence's metrics without the per-frame lists.
+fn fill_cell(
+    cell: &mut IndentationStabilityCell,
+    parts: SequenceParts,
+    selected: &[SelectedSequence],
+) {
+    cell.metrics = Some(IndentationCellMetrics::pool(&parts));
+    for ((m, samples), (seq, _, indices)) in parts.iter().zip(selected) {
+        for ((f, s), k) in m.frames.iter().zip(samples).zip(indices) {
+            if f.failed {
+                let causes: Vec<&str> = s
+                    .causes
+                    .iter()
+                    .filter(|c| c.is_failure())
+                    .map(|c| c.name())
+                    .collect();
+                cell.failed_at
+                    .push(format!("{seq}#{k} ({})", causes.join(", ")));
+            }
+            if f.mean_mm > WORSE_THAN_NONE_FACTOR * f.none_mean_mm {
+                cell.worse_at.push(format!(
+                    "{seq}#{k} ({:.2} against {:.2} mm)",
+                    f.mean_mm, f.none_mean_mm
+                ));
+            }
+        }
+    }
+    cell.sequences = parts
+        .into_iter()
+        .map(|(mut m, _)| {
+            m.frames.clear();
+            m
+        })
+        .collect();
+}
+
+/// The clouds' defaults as the report states them: points, visible share (%), noise (mm)
+/// and outlier share (%).
+fn cloud_defaults() -> String {
     let d = IndentationCloudSpec::default();
-    Ok(IndentationStabilityReport {
+    format!(
+        "{} points on {:.0} % of the surface, {} mm noise, {:.0} % outliers",
+        d.points,
+        100.0 * d.visible_fraction,
+        d.noise_sigma * 1e3,
+        100.0 * d.outlier_fraction
+    )
+}
+
+/// The report of `cells`, with the crash and non-finite frame counts and the wall time
+/// since `start` (s).
+fn matrix_report(
+    options: &IndentationStabilityOptions,
+    selected: Vec<SelectedSequence>,
+    cells: Vec<IndentationStabilityCell>,
+    start: Instant,
+) -> IndentationStabilityReport {
+    IndentationStabilityReport {
         machine: MachineInfo::current(),
         truth_law: options.truth_law.clone(),
         sequences: selected,
         stride: options.stride,
         reduced: options.reduced,
-        cloud_defaults: format!(
-            "{} points on {:.0} % of the surface, {} mm noise, {:.0} % outliers",
-            d.points,
-            100.0 * d.visible_fraction,
-            d.noise_sigma * 1e3,
-            100.0 * d.outlier_fraction
-        ),
+        cloud_defaults: cloud_defaults(),
         crashes: cells.iter().filter(|c| c.crashed).count(),
         non_finite_frames: cells
             .iter()
@@ -521,7 +586,7 @@ pub fn run_indentation_matrix(
             .sum(),
         cells,
         wall_s: start.elapsed().as_secs_f64(),
-    })
+    }
 }
 
 /// One cell: the clouds of `(axis, value)` for every truth, each registered from the rest

@@ -350,58 +350,12 @@ pub fn run_matrix(
     progress: &mut dyn FnMut(&str),
 ) -> StabilityReport {
     let start = Instant::now();
-    let scale = scene.length_scale();
-    let mut base_spec = SequenceSpec::phantom_default(options.scenario);
-    base_spec.frames = options.frames.max(1);
-    if let Some(law) = options.truth_law {
-        base_spec.truth.law = law;
-    }
-    let sequence = |spec: &SequenceSpec| -> Result<Workload, String> {
-        catch_unwind(AssertUnwindSafe(|| generate_sequence(scene, spec)))
-            .map_err(|p| format!("panic while simulating the truth: {}", panic_text(&p)))?
-            .map(|s| Workload::from_sequence(&s, scale))
-            .map_err(|e| format!("truth: {e}"))
-    };
-    let base = sequence(&base_spec);
-    let base_disp = base
-        .as_ref()
-        .ok()
-        .and_then(|w| w.max_displacement_mm)
-        .filter(|d| *d > 0.0);
+    let matrix = Matrix::new(scene, options);
     let mut cells = Vec::new();
     for axis in Axis::ALL {
         for value in axis.values(options.reduced) {
-            let data: Result<Workload, String> = if axis.changes_data() {
-                let mut spec = base_spec.clone();
-                match axis {
-                    Axis::Noise => spec.cloud.noise_sigma = value * 1e-3,
-                    Axis::Outliers => spec.cloud.outlier_fraction = value,
-                    Axis::Visible => spec.cloud.visible_fraction = (value < 1.0).then_some(value),
-                    _ => {
-                        // Deformation: scale the load by the wanted over the default
-                        // displacement (the response is not linear: the table shows what
-                        // was reached).
-                        if let Some(d) = base_disp {
-                            spec.magnitude *= value * 10.0 / d;
-                        }
-                    }
-                }
-                if axis == Axis::Deformation && base_disp.is_none() {
-                    Err("the default sequence could not be simulated".into())
-                } else {
-                    sequence(&spec)
-                }
-            } else {
-                base.clone()
-            };
-            let rigid = data.as_ref().ok().and_then(|w| {
-                catch_unwind(AssertUnwindSafe(|| {
-                    run_scene(scene, std::slice::from_ref(w), true).ok()
-                }))
-                .ok()
-                .flatten()
-                .map(|(s, b)| Metrics::of(&s.concat(), &b).tre_mean_mm)
-            });
+            let data = matrix.workload(axis, value);
+            let rigid = matrix.rigid_tre(&data);
             for method in &options.methods {
                 progress(&format!(
                     "{} {} {}",
@@ -409,67 +363,188 @@ pub fn run_matrix(
                     axis.label(value),
                     method.name
                 ));
-                let config = match axis {
-                    Axis::GridOffset => ModelConfig {
-                        origin_offset: Some([value; 3]),
-                        ..method.clone()
-                    },
-                    Axis::Poisson => ModelConfig {
-                        poisson_ratio: Some(value),
-                        ..method.clone()
-                    },
-                    Axis::Penalty => ModelConfig {
-                        penalty_factor: Some(value),
-                        ..method.clone()
-                    },
-                    _ => method.clone(),
-                };
-                let mut cell = StabilityCell {
-                    axis,
-                    value,
-                    label: axis.label(value),
-                    method: method.name.clone(),
-                    max_displacement_mm: data.as_ref().ok().and_then(|w| w.max_displacement_mm),
-                    metrics: None,
-                    tre_rigid_mm: rigid,
-                    error: None,
-                    crashed: false,
-                };
-                match &data {
-                    Err(e) => cell.error = Some(e.clone()),
-                    Ok(w) => {
-                        let run = catch_unwind(AssertUnwindSafe(|| {
-                            let applied = config.apply(scene)?;
-                            run_scene(&applied, std::slice::from_ref(w), false)
-                        }));
-                        match run {
-                            Err(p) => {
-                                cell.crashed = true;
-                                cell.error = Some(format!("panic: {}", panic_text(&p)));
-                            }
-                            Ok(Err(e)) => cell.error = Some(e),
-                            Ok(Ok((s, b))) => cell.metrics = Some(Metrics::of(&s.concat(), &b)),
-                        }
-                    }
-                }
-                cells.push(cell);
+                cells.push(matrix.cell(axis, value, method, &data, rigid));
             }
         }
     }
-    StabilityReport {
-        machine: MachineInfo::current(),
-        scenario: options.scenario.name().into(),
-        frames: base_spec.frames,
-        truth_law: super::config::law_name(base_spec.truth.law).into(),
-        reduced: options.reduced,
-        crashes: cells.iter().filter(|c| c.crashed).count(),
-        non_finite_frames: cells
-            .iter()
-            .filter_map(|c| c.metrics.as_ref())
-            .map(|m| m.causes.get(&Cause::NonFinite).copied().unwrap_or(0))
-            .sum(),
-        cells,
-        wall_s: start.elapsed().as_secs_f64(),
+    matrix.report(options, cells, start)
+}
+
+/// What every cell of the matrix shares: the scene, its length scale, and the default
+/// sequence the data axes disturb.
+struct Matrix<'a> {
+    /// The scene registered.
+    scene: &'a LoadedScene,
+    /// Metres per scene unit.
+    scale: f64,
+    /// The scenario's default sequence, with the options' frames and truth law.
+    base_spec: SequenceSpec,
+    /// The default sequence's workload (or why it could not be simulated).
+    base: Result<Workload, String>,
+    /// The default sequence's largest surface displacement, mm (`None`: not simulated, or
+    /// no motion).
+    base_disp: Option<f64>,
+}
+
+impl<'a> Matrix<'a> {
+    /// Simulates the default sequence of `options` on `scene`.
+    fn new(scene: &'a LoadedScene, options: &StabilityOptions) -> Self {
+        let scale = scene.length_scale();
+        let mut base_spec = SequenceSpec::phantom_default(options.scenario);
+        base_spec.frames = options.frames.max(1);
+        if let Some(law) = options.truth_law {
+            base_spec.truth.law = law;
+        }
+        let base = simulate(scene, &base_spec, scale);
+        let base_disp = base
+            .as_ref()
+            .ok()
+            .and_then(|w| w.max_displacement_mm)
+            .filter(|d| *d > 0.0);
+        Matrix {
+            scene,
+            scale,
+            base_spec,
+            base,
+            base_disp,
+        }
+    }
+
+    /// The data of the cells at `value` on `axis`: a new sequence for an axis that changes
+    /// the data (noise in mm, outlier and visible fractions, deformation in cm), else the
+    /// default one.
+    fn workload(&self, axis: Axis, value: f64) -> Result<Workload, String> {
+        if !axis.changes_data() {
+            return self.base.clone();
+        }
+        let mut spec = self.base_spec.clone();
+        match axis {
+            Axis::Noise => spec.cloud.noise_sigma = value * 1e-3,
+            Axis::Outliers => spec.cloud.outlier_fraction = value,
+            Axis::Visible => spec.cloud.visible_fraction = (value < 1.0).then_some(value),
+            _ => {
+                // Deformation: scale the load by the wanted over the default
+                // displacement (the response is not linear: the table shows what
+                // was reached).
+                if let Some(d) = self.base_disp {
+                    spec.magnitude *= value * 10.0 / d;
+                }
+            }
+        }
+        if axis == Axis::Deformation && self.base_disp.is_none() {
+            Err("the default sequence could not be simulated".into())
+        } else {
+            simulate(self.scene, &spec, self.scale)
+        }
+    }
+
+    /// Mean TRE after rigid registration only of `data`, mm (`None`: no data, the
+    /// registration failed, or it panicked).
+    fn rigid_tre(&self, data: &Result<Workload, String>) -> Option<f64> {
+        data.as_ref().ok().and_then(|w| {
+            catch_unwind(AssertUnwindSafe(|| {
+                run_scene(self.scene, std::slice::from_ref(w), true).ok()
+            }))
+            .ok()
+            .flatten()
+            .map(|(s, b)| Metrics::of(&s.concat(), &b).tre_mean_mm)
+        })
+    }
+
+    /// One cell: `method` at `value` on `axis` registering `data` (`rigid`: the rigid-only
+    /// TRE of the same data, mm). A panic is caught and reported as a crash.
+    fn cell(
+        &self,
+        axis: Axis,
+        value: f64,
+        method: &ModelConfig,
+        data: &Result<Workload, String>,
+        rigid: Option<f64>,
+    ) -> StabilityCell {
+        let config = method_config(method, axis, value);
+        let mut cell = StabilityCell {
+            axis,
+            value,
+            label: axis.label(value),
+            method: method.name.clone(),
+            max_displacement_mm: data.as_ref().ok().and_then(|w| w.max_displacement_mm),
+            metrics: None,
+            tre_rigid_mm: rigid,
+            error: None,
+            crashed: false,
+        };
+        match data {
+            Err(e) => cell.error = Some(e.clone()),
+            Ok(w) => {
+                let run = catch_unwind(AssertUnwindSafe(|| {
+                    let applied = config.apply(self.scene)?;
+                    run_scene(&applied, std::slice::from_ref(w), false)
+                }));
+                match run {
+                    Err(p) => {
+                        cell.crashed = true;
+                        cell.error = Some(format!("panic: {}", panic_text(&p)));
+                    }
+                    Ok(Err(e)) => cell.error = Some(e),
+                    Ok(Ok((s, b))) => cell.metrics = Some(Metrics::of(&s.concat(), &b)),
+                }
+            }
+        }
+        cell
+    }
+
+    /// The report of `cells`, with the crash and non-finite frame counts and the wall time
+    /// since `start` (s).
+    fn report(
+        &self,
+        options: &StabilityOptions,
+        cells: Vec<StabilityCell>,
+        start: Instant,
+    ) -> StabilityReport {
+        StabilityReport {
+            machine: MachineInfo::current(),
+            scenario: options.scenario.name().into(),
+            frames: self.base_spec.frames,
+            truth_law: super::config::law_name(self.base_spec.truth.law).into(),
+            reduced: options.reduced,
+            crashes: cells.iter().filter(|c| c.crashed).count(),
+            non_finite_frames: cells
+                .iter()
+                .filter_map(|c| c.metrics.as_ref())
+                .map(|m| m.causes.get(&Cause::NonFinite).copied().unwrap_or(0))
+                .sum(),
+            cells,
+            wall_s: start.elapsed().as_secs_f64(),
+        }
+    }
+}
+
+/// The workload of the sequence `spec` simulated on `scene` (`scale`: metres per scene
+/// unit); a panic while simulating becomes an error.
+fn simulate(scene: &LoadedScene, spec: &SequenceSpec, scale: f64) -> Result<Workload, String> {
+    catch_unwind(AssertUnwindSafe(|| generate_sequence(scene, spec)))
+        .map_err(|p| format!("panic while simulating the truth: {}", panic_text(&p)))?
+        .map(|s| Workload::from_sequence(&s, scale))
+        .map_err(|e| format!("truth: {e}"))
+}
+
+/// `method` with the model axis `axis` set to `value` (grid offset in cells, Poisson's
+/// ratio, penalty factor); unchanged for an axis that changes the data.
+fn method_config(method: &ModelConfig, axis: Axis, value: f64) -> ModelConfig {
+    match axis {
+        Axis::GridOffset => ModelConfig {
+            origin_offset: Some([value; 3]),
+            ..method.clone()
+        },
+        Axis::Poisson => ModelConfig {
+            poisson_ratio: Some(value),
+            ..method.clone()
+        },
+        Axis::Penalty => ModelConfig {
+            penalty_factor: Some(value),
+            ..method.clone()
+        },
+        _ => method.clone(),
     }
 }
 

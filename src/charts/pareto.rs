@@ -8,6 +8,7 @@ use std::ops::Range;
 use std::path::Path;
 
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
+use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
@@ -334,6 +335,9 @@ fn render<DB: DrawingBackend>(
     }
 }
 
+/// The chart's coordinates: x time per frame (ms, linear or logarithmic as `X`), y TRE (mm).
+type PlotChart<'a, DB, X> = ChartContext<'a, DB, Cartesian2d<X, RangedCoordf64>>;
+
 /// Draws the caption, axes, markers, front, labels and legend with x coordinates `x_spec`
 /// (linear or logarithmic ms).
 fn draw_plot<DB, XS>(
@@ -353,7 +357,33 @@ where
         .x_label_area_size(56)
         .y_label_area_size(70)
         .build_cartesian_2d(x_spec, plan.y.clone())?;
-    let x_desc = if plan.log_x {
+    draw_mesh(&mut chart, plan.log_x)?;
+    let steps = front_steps(&plan.front);
+    draw_front(&mut chart, &steps)?;
+    draw_markers(&mut chart, &plan.shown)?;
+    let mut layout = Layout::new(&chart, &plan.shown, &steps);
+    draw_front_labels(&mut chart, &plan.front, &mut layout)?;
+    if plan.shown.is_empty() {
+        return Ok(());
+    }
+    draw_legend(&mut chart, area, &layout)
+}
+
+/// A point's chart coordinates: (time per frame in ms, TRE in mm).
+fn at(p: &ChartPoint) -> (f64, f64) {
+    (p.ms_per_frame, p.tre_mm)
+}
+
+/// Draws the axes, their descriptions (x in ms, y in mm), tick labels and grid lines.
+fn draw_mesh<DB, X>(
+    chart: &mut PlotChart<'_, DB, X>,
+    log_x: bool,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>>
+where
+    DB: DrawingBackend,
+    X: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
+    let x_desc = if log_x {
         "time per frame (ms, log scale)"
     } else {
         "time per frame (ms)"
@@ -371,13 +401,12 @@ where
         .bold_line_style(RGBColor(218, 218, 218))
         .light_line_style(RGBColor(242, 242, 242))
         .max_light_lines(4)
-        .draw()?;
+        .draw()
+}
 
-    let at = |p: &ChartPoint| (p.ms_per_frame, p.tre_mm);
-    let front = &plan.front;
-
-    // The front as a staircase: from each point across at its TRE to the next (slower)
-    // point's time, then down to that point's TRE.
+/// The vertices (ms, mm) of the front drawn as a staircase: from each point across at its
+/// TRE to the next (slower) point's time, then down to that point's TRE.
+fn front_steps(front: &[&ChartPoint]) -> Vec<(f64, f64)> {
     let mut steps = Vec::with_capacity(2 * front.len());
     for (k, p) in front.iter().enumerate() {
         if k > 0 {
@@ -385,78 +414,122 @@ where
         }
         steps.push(at(p));
     }
+    steps
+}
+
+/// Draws the front's staircase `steps` (ms, mm) with its legend entry, when there is one.
+fn draw_front<DB, X>(
+    chart: &mut PlotChart<'_, DB, X>,
+    steps: &[(f64, f64)],
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>>
+where
+    DB: DrawingBackend,
+    X: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
     if !steps.is_empty() {
         let line = FRONT_COLOUR.stroke_width(2);
         chart
-            .draw_series(LineSeries::new(steps.clone(), line))?
+            .draw_series(LineSeries::new(steps.to_vec(), line))?
             .label("Pareto front")
             .legend(move |(x, y)| PathElement::new(vec![(x - 8, y), (x + 12, y)], line));
     }
+    Ok(())
+}
 
-    let ordinary = plan.shown.iter().filter(|p| !p.is_default);
-    if plan.shown.iter().any(|p| !p.is_default) {
+/// Draws the markers of the points shown: circles for ordinary configurations, then
+/// triangles for the default one (on top, so that it stays visible where points overlap),
+/// each kind with its legend entry when it occurs.
+fn draw_markers<DB, X>(
+    chart: &mut PlotChart<'_, DB, X>,
+    shown: &[&ChartPoint],
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>>
+where
+    DB: DrawingBackend,
+    X: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
+    let ordinary = shown.iter().filter(|p| !p.is_default);
+    if shown.iter().any(|p| !p.is_default) {
         chart
             .draw_series(ordinary.map(|p| Circle::new(at(p), 5, POINT_COLOUR.filled())))?
             .label("configuration")
             .legend(|(x, y)| Circle::new((x + 2, y), 5, POINT_COLOUR.filled()));
     }
-    // Drawn after the others so that it stays visible where points overlap.
-    if plan.shown.iter().any(|p| p.is_default) {
-        let defaults = plan.shown.iter().filter(|p| p.is_default);
+    if shown.iter().any(|p| p.is_default) {
+        let defaults = shown.iter().filter(|p| p.is_default);
         chart
             .draw_series(defaults.map(|p| TriangleMarker::new(at(p), 9, DEFAULT_COLOUR.filled())))?
             .label("default")
             .legend(|(x, y)| TriangleMarker::new((x + 2, y), 9, DEFAULT_COLOUR.filled()));
     }
+    Ok(())
+}
 
-    // What labels and legend should not cover (pixel boxes [x0, y0, x1, y1]): markers and
-    // the front's line.
-    let mut obstacles: Vec<[i32; 4]> = Vec::new();
-    for p in &plan.shown {
-        let (px, py) = chart.backend_coord(&at(p));
-        obstacles.push([px - 7, py - 7, px + 7, py + 7]);
-    }
-    for w in steps.windows(2) {
-        let ((ax, ay), (bx, by)) = (chart.backend_coord(&w[0]), chart.backend_coord(&w[1]));
-        obstacles.push([
-            ax.min(bx) - 1,
-            ay.min(by) - 1,
-            ax.max(bx) + 1,
-            ay.max(by) + 1,
-        ]);
-    }
-    let (x_pixels, y_pixels) = chart.plotting_area().get_pixel_range();
-    let inside = |r: &[i32; 4]| {
-        r[0] >= x_pixels.start + 2
-            && r[2] <= x_pixels.end - 2
-            && r[1] >= y_pixels.start + 2
-            && r[3] <= y_pixels.end - 2
-    };
-    let overlaps =
-        |a: &[i32; 4], b: &[i32; 4]| a[0] < b[2] && b[0] < a[2] && a[1] < b[3] && b[1] < a[3];
+/// Whether two pixel boxes [x0, y0, x1, y1] overlap (sharing an edge is not overlapping).
+fn overlaps(a: &[i32; 4], b: &[i32; 4]) -> bool {
+    a[0] < b[2] && b[0] < a[2] && a[1] < b[3] && b[1] < a[3]
+}
 
-    // Labels of the front points, one per distinct position, at the first free place
-    // among: below left of the point (nothing else can be there: it would dominate the
-    // point), below right, above right, above left, then further down; else the place
-    // covering the fewest things.
-    let style = TextStyle::from((FAMILY, 14).into_font())
-        .color(&TEXT_COLOUR)
-        .pos(Pos::new(HPos::Left, VPos::Top));
-    let mut k = 0;
-    while k < front.len() {
-        let same = front[k..]
-            .iter()
-            .take_while(|p| at(p) == at(front[k]))
-            .count();
-        let text = front[k..k + same]
-            .iter()
-            .map(|p| p.label.as_str())
-            .collect::<Vec<_>>()
-            .join(", ");
-        let position = at(front[k]);
-        let (px, py) = chart.backend_coord(&position);
-        let (w, h) = chart.plotting_area().estimate_text_size(&text, &style)?;
-        let (w, h) = (w as i32, h as i32);
+/// Where things are on the plot, in pixels: for placing the labels and the legend.
+struct Layout {
+    /// What labels and legend should not cover (pixel boxes [x0, y0, x1, y1]): markers, the
+    /// front's line, and the labels placed so far.
+    obstacles: Vec<[i32; 4]>,
+    /// Horizontal extent of the plotting area (pixels).
+    x_pixels: Range<i32>,
+    /// Vertical extent of the plotting area (pixels).
+    y_pixels: Range<i32>,
+}
+
+impl Layout {
+    /// The plotting area with the markers of `shown` (14 × 14 pixels each) and the segments
+    /// of the front's staircase `steps` (ms, mm; 1 pixel of margin) as obstacles.
+    fn new<DB, X>(chart: &PlotChart<'_, DB, X>, shown: &[&ChartPoint], steps: &[(f64, f64)]) -> Self
+    where
+        DB: DrawingBackend,
+        X: Ranged<ValueType = f64> + ValueFormatter<f64>,
+    {
+        let mut obstacles: Vec<[i32; 4]> = Vec::new();
+        for p in shown {
+            let (px, py) = chart.backend_coord(&at(p));
+            obstacles.push([px - 7, py - 7, px + 7, py + 7]);
+        }
+        for w in steps.windows(2) {
+            let ((ax, ay), (bx, by)) = (chart.backend_coord(&w[0]), chart.backend_coord(&w[1]));
+            obstacles.push([
+                ax.min(bx) - 1,
+                ay.min(by) - 1,
+                ax.max(bx) + 1,
+                ay.max(by) + 1,
+            ]);
+        }
+        let (x_pixels, y_pixels) = chart.plotting_area().get_pixel_range();
+        Layout {
+            obstacles,
+            x_pixels,
+            y_pixels,
+        }
+    }
+
+    /// Whether the pixel box `r` lies inside the plotting area, 2 pixels clear of its edges.
+    fn inside(&self, r: &[i32; 4]) -> bool {
+        r[0] >= self.x_pixels.start + 2
+            && r[2] <= self.x_pixels.end - 2
+            && r[1] >= self.y_pixels.start + 2
+            && r[3] <= self.y_pixels.end - 2
+    }
+
+    /// How many obstacles the pixel box `r` overlaps.
+    fn obstacles_under(&self, r: &[i32; 4]) -> usize {
+        self.obstacles.iter().filter(|o| overlaps(r, o)).count()
+    }
+
+    /// The offset (pixels) of a label of `size` (w, h pixels) from its point at pixel `at`,
+    /// at the first free place among: below left of the point (nothing else can be there:
+    /// it would dominate the point), below right, above right, above left, then further
+    /// down; else the place covering the fewest things (a place outside the plotting area
+    /// counting as 1000). The label's box becomes an obstacle.
+    fn place_label(&mut self, at: (i32, i32), size: (i32, i32)) -> (i32, i32) {
+        let ((px, py), (w, h)) = (at, size);
         let (left, right, below, above) = (-8 - w, 8, 8, -8 - h);
         let mut offsets = vec![(left, below), (right, below), (right, above), (left, above)];
         for row in 1..=4 {
@@ -466,8 +539,8 @@ where
         let boxed = |(dx, dy): (i32, i32)| [px + dx, py + dy, px + dx + w, py + dy + h];
         let covered = |&offset: &(i32, i32)| {
             let r = boxed(offset);
-            let outside = if inside(&r) { 0 } else { 1000 };
-            outside + obstacles.iter().filter(|o| overlaps(&r, o)).count()
+            let outside = if self.inside(&r) { 0 } else { 1000 };
+            outside + self.obstacles_under(&r)
         };
         let offset = offsets
             .iter()
@@ -475,41 +548,91 @@ where
             .find(|o| covered(o) == 0)
             .or_else(|| offsets.iter().copied().min_by_key(covered))
             .unwrap_or((right, below));
-        obstacles.push(boxed(offset));
+        self.obstacles.push(boxed(offset));
+        offset
+    }
+
+    /// The corner of the plot for a legend of `legend_w` × `legend_h` pixels (12 pixels in
+    /// from the edges): the one covering the fewest obstacles, the upper right one on a tie.
+    fn legend_corner(&self, legend_w: i32, legend_h: i32) -> SeriesLabelPosition {
+        let (left, right) = (self.x_pixels.start + 12, self.x_pixels.end - 12 - legend_w);
+        let (top, bottom) = (self.y_pixels.start + 12, self.y_pixels.end - 12 - legend_h);
+        let corners = [
+            (SeriesLabelPosition::UpperRight, right, top),
+            (SeriesLabelPosition::LowerLeft, left, bottom),
+            (SeriesLabelPosition::UpperLeft, left, top),
+            (SeriesLabelPosition::LowerRight, right, bottom),
+        ];
+        let hidden_under =
+            |x: i32, y: i32| self.obstacles_under(&[x, y, x + legend_w, y + legend_h]);
+        corners
+            .into_iter()
+            .min_by_key(|&(_, x, y)| hidden_under(x, y))
+            .map(|(corner, _, _)| corner)
+            .unwrap_or(SeriesLabelPosition::UpperRight)
+    }
+}
+
+/// The label of the first point of `front` and the points after it at the same
+/// coordinates: how many points share it, and their labels joined by ", ".
+fn shared_label(front: &[&ChartPoint]) -> (usize, String) {
+    let same = front.iter().take_while(|p| at(p) == at(front[0])).count();
+    let text = front[..same]
+        .iter()
+        .map(|p| p.label.as_str())
+        .collect::<Vec<_>>()
+        .join(", ");
+    (same, text)
+}
+
+/// Draws the labels of the front points, one per distinct position, each where
+/// [`Layout::place_label`] puts it.
+fn draw_front_labels<DB, X>(
+    chart: &mut PlotChart<'_, DB, X>,
+    front: &[&ChartPoint],
+    layout: &mut Layout,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>>
+where
+    DB: DrawingBackend,
+    X: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
+    let style = TextStyle::from((FAMILY, 14).into_font())
+        .color(&TEXT_COLOUR)
+        .pos(Pos::new(HPos::Left, VPos::Top));
+    let mut k = 0;
+    while k < front.len() {
+        let (same, text) = shared_label(&front[k..]);
+        let position = at(front[k]);
+        let pixel = chart.backend_coord(&position);
+        let (w, h) = chart.plotting_area().estimate_text_size(&text, &style)?;
+        let offset = layout.place_label(pixel, (w as i32, h as i32));
         chart.draw_series(std::iter::once(
             EmptyElement::at(position) + Text::new(text, offset, style.clone()),
         ))?;
         k += same;
     }
+    Ok(())
+}
 
-    // The legend goes in the corner of the plot where it covers the fewest markers,
-    // labels and pieces of the front, the upper right one on a tie.
-    if plan.shown.is_empty() {
-        return Ok(());
-    }
+/// Draws the legend in the corner of the plot where it covers the fewest markers, labels
+/// and pieces of the front (see [`Layout::legend_corner`]); its size (pixels) is estimated
+/// on `area` from the longest entry.
+fn draw_legend<'a, DB, X>(
+    chart: &mut PlotChart<'a, DB, X>,
+    area: &DrawingArea<DB, Shift>,
+    layout: &Layout,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>>
+where
+    DB: DrawingBackend + 'a,
+    X: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
     let legend_style = (FAMILY, 15).into_font().color(&TEXT_COLOUR);
     let mut legend_w = 0;
     for name in ["Pareto front", "configuration", "default"] {
         legend_w = legend_w.max(area.estimate_text_size(name, &legend_style)?.0 as i32);
     }
     let (legend_w, legend_h) = (legend_w + 60, 3 * 20 + 20);
-    let (left, right) = (x_pixels.start + 12, x_pixels.end - 12 - legend_w);
-    let (top, bottom) = (y_pixels.start + 12, y_pixels.end - 12 - legend_h);
-    let corners = [
-        (SeriesLabelPosition::UpperRight, right, top),
-        (SeriesLabelPosition::LowerLeft, left, bottom),
-        (SeriesLabelPosition::UpperLeft, left, top),
-        (SeriesLabelPosition::LowerRight, right, bottom),
-    ];
-    let hidden_under = |x: i32, y: i32| {
-        let r = [x, y, x + legend_w, y + legend_h];
-        obstacles.iter().filter(|o| overlaps(&r, o)).count()
-    };
-    let corner = corners
-        .into_iter()
-        .min_by_key(|&(_, x, y)| hidden_under(x, y))
-        .map(|(corner, _, _)| corner)
-        .unwrap_or(SeriesLabelPosition::UpperRight);
+    let corner = layout.legend_corner(legend_w, legend_h);
     chart
         .configure_series_labels()
         .position(corner)

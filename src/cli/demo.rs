@@ -10,18 +10,23 @@ use serde::Serialize;
 
 use super::register::{
     frame_files, recorder_for, register_files, register_inputs, session_for, summarize, FrameInput,
-    FrameObserver,
+    FrameObserver, RegisterSummary,
 };
 use super::vtk_series::VtkSeriesWriter;
 use super::RerunArgs;
 use crate::benchmark::indentation::{IndentationFrameMetrics, IndentationMetrics};
 use crate::charts::per_frame::{none_rigid_non_rigid, with_expected_error, write_per_frame_chart};
 use crate::charts::surface_view::{write_surface_view, SurfaceView};
-use crate::evaluation::{evaluate, read_truth, DiagnosticsRecord, ResultRecord, RigidRecord};
+use crate::evaluation::{
+    evaluate, read_truth, DiagnosticsRecord, EvalReport, ResultRecord, RigidRecord, TruthRecord,
+};
 use crate::mesh::TriSurface;
 use crate::registration::RigidTransform;
-use crate::scene::load_scene;
-use crate::synthetic::{generate_sequence, write_sequence, ScenarioKind, SequenceSpec};
+use crate::scene::{load_scene, LoadedScene};
+use crate::session::FrameResult;
+use crate::synthetic::{
+    generate_sequence, write_sequence, ScenarioKind, SequenceSpec, SyntheticSequence,
+};
 
 /// One scenario's numbers (lengths in mm, the phantom's units).
 #[derive(Debug, Clone, Serialize)]
@@ -69,6 +74,33 @@ pub fn run_with(
     if frames == 0 {
         return Err("--frames must be >= 1".into());
     }
+    let (kinds, indentation) = selected_scenarios(only)?;
+    let phantom_dir = out.join("phantom");
+    crate::phantom::write_phantom(&phantom_dir).map_err(|e| e.to_string())?;
+    let loaded = load_scene(&phantom_dir.join("scene.toml")).map_err(|e| e.to_string())?;
+    let demo = PhantomDemo {
+        loaded: &loaded,
+        scale: loaded.length_scale(),
+        out,
+        frames,
+        vtk,
+        #[cfg(feature = "rerun")]
+        stream: stream.as_ref(),
+    };
+    let mut summaries = Vec::new();
+    for kind in kinds {
+        summaries.push(demo.run_scenario(kind)?);
+    }
+    if indentation {
+        summaries.extend(run_indentation_demo(out, vtk)?);
+    }
+    write_summaries(out, &summaries)?;
+    Ok(summaries)
+}
+
+/// The phantom scenarios `only` names (all when it is empty; none when it names only the
+/// tool-indentation class), and whether the tool-indentation class runs.
+fn selected_scenarios(only: &[String]) -> Result<(Vec<ScenarioKind>, bool), String> {
     let indentation = only.is_empty() || only.iter().any(|n| n == INDENTATION_SCENARIO);
     let phantom_only: Vec<String> = only
         .iter()
@@ -80,42 +112,117 @@ pub fn run_with(
     } else {
         ScenarioKind::parse_list(&phantom_only)?
     };
-    let phantom_dir = out.join("phantom");
-    crate::phantom::write_phantom(&phantom_dir).map_err(|e| e.to_string())?;
-    let loaded = load_scene(&phantom_dir.join("scene.toml")).map_err(|e| e.to_string())?;
-    let scale = loaded.length_scale();
-    let mut summaries = Vec::new();
-    for kind in kinds {
-        let dir = out.join(kind.name());
+    Ok((kinds, indentation))
+}
+
+/// Prints the table of `summaries`, writes them to `out/summary.json` and names `out`.
+fn write_summaries(out: &Path, summaries: &[ScenarioSummary]) -> Result<(), String> {
+    println!("{}", table(summaries));
+    let json = serde_json::to_string_pretty(summaries).map_err(|e| e.to_string())?;
+    let summary_path: PathBuf = out.join("summary.json");
+    std::fs::write(&summary_path, json).map_err(|e| format!("{}: {e}", summary_path.display()))?;
+    println!("artefacts in {}", out.display());
+    Ok(())
+}
+
+/// What the demo's phantom scenarios share.
+struct PhantomDemo<'a> {
+    /// The bundled phantom's scene.
+    loaded: &'a LoadedScene,
+    /// Metres per scene unit of the phantom.
+    scale: f64,
+    /// The demo's directory (one subdirectory per scenario).
+    out: &'a Path,
+    /// Frames per scenario.
+    frames: usize,
+    /// Directory of the VTK series (one subdirectory per scenario), when asked for.
+    vtk: Option<&'a Path>,
+    /// The rerun stream, when asked for.
+    #[cfg(feature = "rerun")]
+    stream: Option<&'a rerun::RecordingStream>,
+}
+
+/// One scenario's mean target errors against the truth, per frame and overall (mm).
+struct ScenarioErrors {
+    /// With the model left where it is (no registration).
+    none: EvalReport,
+    /// After rigid ICP only.
+    rigid: EvalReport,
+    /// After rigid + non-rigid registration.
+    full: EvalReport,
+}
+
+impl PhantomDemo<'_> {
+    /// One scenario end to end in `DIR/<scenario>/`: simulates the truth, registers it
+    /// rigidly only and with the full pipeline, grades both and no registration, and
+    /// draws the per-frame chart and the last frame's view.
+    fn run_scenario(&self, kind: ScenarioKind) -> Result<ScenarioSummary, String> {
+        let dir = self.out.join(kind.name());
+        let (seq, files, truth) = self.simulate(kind, &dir)?;
+        let mut rigid_session = session_for(self.loaded, None, true)?;
+        let rigid_path = dir.join("results_rigid.jsonl");
+        let rigid = register_files(&mut rigid_session, &files, &rigid_path, "rigid")?;
+        let path = dir.join("results.jsonl");
+        let full = self.register_full(kind, &dir, &files, &path, &truth)?;
+        let errors = self.errors(&seq, &truth, &rigid, &full)?;
+        let s = summarize(&full, &path);
+        write_error_chart(&dir, kind, &errors, &full)?;
+        self.write_last_view(&dir, kind, &seq, &full)?;
+        Ok(self.summary(kind, &seq, &errors, &s))
+    }
+
+    /// Simulates the scenario's ground truth and writes it to `dir`: the sequence, its
+    /// frame files (in order) and its truth records as read back.
+    fn simulate(
+        &self,
+        kind: ScenarioKind,
+        dir: &Path,
+    ) -> Result<(SyntheticSequence, Vec<PathBuf>, Vec<TruthRecord>), String> {
+        let frames = self.frames;
         let mut spec = SequenceSpec::phantom_default(kind);
         spec.frames = frames;
         eprintln!(
             "{}: simulating the ground truth ({frames} frames)…",
             kind.name()
         );
-        let seq = generate_sequence(&loaded, &spec).map_err(|e| e.to_string())?;
-        write_sequence(&seq, &dir, scale).map_err(|e| format!("{}: {e}", dir.display()))?;
+        let seq = generate_sequence(self.loaded, &spec).map_err(|e| e.to_string())?;
+        write_sequence(&seq, dir, self.scale).map_err(|e| format!("{}: {e}", dir.display()))?;
         let files = frame_files(&dir.join(crate::synthetic::sequence::FRAMES_DIR))?.frames;
         let truth = read_truth(dir.join(crate::synthetic::sequence::TRUTH_FILE))
             .map_err(|e| e.to_string())?;
+        Ok((seq, files, truth))
+    }
 
-        let mut rigid_session = session_for(&loaded, None, true)?;
-        let rigid_path = dir.join("results_rigid.jsonl");
-        let rigid = register_files(&mut rigid_session, &files, &rigid_path, "rigid")?;
-        let mut session = session_for(&loaded, None, false)?;
-        let path = dir.join("results.jsonl");
-        let mut recorder = recorder_for(&dir.join("recording.mcap"), &loaded, "demo", None, false)?;
+    /// Registers the frame `files` with the full pipeline (rigid + non-rigid): results to
+    /// `path`, the recording to `dir/recording.mcap`, and the VTK series and rerun entities
+    /// (with the truth `truth`) when asked for.
+    fn register_full(
+        &self,
+        kind: ScenarioKind,
+        dir: &Path,
+        files: &[PathBuf],
+        path: &Path,
+        #[cfg_attr(not(feature = "rerun"), allow(unused_variables))] truth: &[TruthRecord],
+    ) -> Result<Vec<FrameResult>, String> {
+        let mut session = session_for(self.loaded, None, false)?;
+        let mut recorder = recorder_for(
+            &dir.join("recording.mcap"),
+            self.loaded,
+            "demo",
+            None,
+            false,
+        )?;
         #[cfg(feature = "rerun")]
-        let mut visualiser = stream.as_ref().map(|s| {
+        let mut visualiser = self.stream.map(|s| {
             crate::visualisation::Visualiser::new(
                 s.clone(),
                 kind.name(),
                 &session,
-                Some(truth.clone()),
+                Some(truth.to_vec()),
             )
         });
         let inputs: Vec<FrameInput> = files.iter().cloned().map(FrameInput::File).collect();
-        let mut vtk_series = match vtk {
+        let mut vtk_series = match self.vtk {
             Some(v) => Some(VtkSeriesWriter::create(&v.join(kind.name()), &session)?),
             None => None,
         };
@@ -128,16 +235,40 @@ pub fn run_with(
             if let Some(v) = visualiser.as_mut() {
                 observers.push(v);
             }
-            register_inputs(&mut session, &inputs, &path, kind.name(), &mut observers)?
+            register_inputs(&mut session, &inputs, path, kind.name(), &mut observers)?
         };
         recorder.finish().map_err(|e| e.to_string())?;
+        Ok(full)
+    }
 
-        let records = |rs: &[crate::session::FrameResult]| -> Vec<ResultRecord> {
+    /// The target errors with no registration, after the `rigid` results and after the
+    /// `full` ones, against `truth`.
+    fn errors(
+        &self,
+        seq: &SyntheticSequence,
+        truth: &[TruthRecord],
+        rigid: &[FrameResult],
+        full: &[FrameResult],
+    ) -> Result<ScenarioErrors, String> {
+        let records = |rs: &[FrameResult]| -> Vec<ResultRecord> {
             rs.iter()
-                .map(|r| ResultRecord::from_frame(r, scale))
+                .map(|r| ResultRecord::from_frame(r, self.scale))
                 .collect()
         };
-        let none: Vec<ResultRecord> = truth
+        let none = self.rest_records(seq, truth);
+        let eval = |r: &[ResultRecord]| evaluate(r, truth).map_err(|e| e.to_string());
+        Ok(ScenarioErrors {
+            none: eval(&none)?,
+            rigid: eval(&records(rigid))?,
+            full: eval(&records(full))?,
+        })
+    }
+
+    /// "No registration" as results: for each truth frame, the identity pose and the
+    /// structures at rest (scene units).
+    fn rest_records(&self, seq: &SyntheticSequence, truth: &[TruthRecord]) -> Vec<ResultRecord> {
+        let scale = self.scale;
+        truth
             .iter()
             .map(|t| ResultRecord {
                 frame: t.frame,
@@ -161,26 +292,19 @@ pub fn run_with(
                     })
                     .collect(),
             })
-            .collect();
-        let eval = |r: &[ResultRecord]| evaluate(r, &truth).map_err(|e| e.to_string());
-        let e_none = eval(&none)?;
-        let e_rigid = eval(&records(&rigid))?;
-        let e_full = eval(&records(&full))?;
-        let s = summarize(&full, &path);
-        let per_frame = |e: &crate::evaluation::EvalReport| -> Vec<f64> {
-            e.frames.iter().map(|f| f.mean).collect()
-        };
-        write_per_frame_chart(
-            &with_expected_error(
-                none_rigid_non_rigid(per_frame(&e_none), per_frame(&e_rigid), per_frame(&e_full)),
-                full.iter()
-                    .map(|r| r.expected_error.map(|e| e.expected))
-                    .collect(),
-            ),
-            &format!("{}: mean target error per frame", kind.name()),
-            Some(&dir.join("error_per_frame.png")),
-            Some(&dir.join("error_per_frame.svg")),
-        )?;
+            .collect()
+    }
+
+    /// The last frame's registered surface coloured by its distance to the truth (mm),
+    /// beside the truth, in `dir/surface_view.{png,svg}` (nothing without a frame).
+    fn write_last_view(
+        &self,
+        dir: &Path,
+        kind: ScenarioKind,
+        seq: &SyntheticSequence,
+        full: &[FrameResult],
+    ) -> Result<(), String> {
+        let scale = self.scale;
         if let (Some(last), Some(k)) = (full.last(), seq.frames.len().checked_sub(1)) {
             let truth_surface = {
                 let mut t = seq.truth_surface(k);
@@ -195,7 +319,7 @@ pub fn run_with(
                 .map(|(a, b)| (a - b).norm() * scale * 1e3)
                 .collect();
             write_view(
-                &dir,
+                dir,
                 kind.name(),
                 &registered,
                 &error,
@@ -203,35 +327,63 @@ pub fn run_with(
                 seq.camera.view_direction().into_inner(),
             )?;
         }
-        let summary = ScenarioSummary {
+        Ok(())
+    }
+
+    /// The scenario's row: largest truth displacement and errors in mm, the full
+    /// pipeline's times per frame in ms (`s`).
+    fn summary(
+        &self,
+        kind: ScenarioKind,
+        seq: &SyntheticSequence,
+        errors: &ScenarioErrors,
+        s: &RegisterSummary,
+    ) -> ScenarioSummary {
+        ScenarioSummary {
             scenario: kind.name().into(),
-            frames,
+            frames: self.frames,
             max_displacement_mm: seq
                 .frames
                 .iter()
                 .map(|f| f.max_displacement)
                 .fold(0.0, f64::max)
-                / scale,
-            tre_none_mm: e_none.overall.mean,
-            tre_rigid_mm: e_rigid.overall.mean,
-            tre_non_rigid_mm: e_full.overall.mean,
-            tre_non_rigid_p95_mm: e_full.overall.p95,
+                / self.scale,
+            tre_none_mm: errors.none.overall.mean,
+            tre_rigid_mm: errors.rigid.overall.mean,
+            tre_non_rigid_mm: errors.full.overall.mean,
+            tre_non_rigid_p95_mm: errors.full.overall.p95,
             ms_p50: s.p50_ms,
             ms_p95: s.p95_ms,
             failed: s.failed,
             truth_ms: seq.truth_ms,
-        };
-        summaries.push(summary);
+        }
     }
-    if indentation {
-        summaries.extend(run_indentation_demo(out, vtk)?);
-    }
-    println!("{}", table(&summaries));
-    let json = serde_json::to_string_pretty(&summaries).map_err(|e| e.to_string())?;
-    let summary_path: PathBuf = out.join("summary.json");
-    std::fs::write(&summary_path, json).map_err(|e| format!("{}: {e}", summary_path.display()))?;
-    println!("artefacts in {}", out.display());
-    Ok(summaries)
+}
+
+/// The mean target error per frame (mm) with no registration, after rigid and after
+/// non-rigid, with the `full` results' expected error, in `dir/error_per_frame.{png,svg}`.
+fn write_error_chart(
+    dir: &Path,
+    kind: ScenarioKind,
+    errors: &ScenarioErrors,
+    full: &[FrameResult],
+) -> Result<(), String> {
+    let per_frame = |e: &EvalReport| -> Vec<f64> { e.frames.iter().map(|f| f.mean).collect() };
+    write_per_frame_chart(
+        &with_expected_error(
+            none_rigid_non_rigid(
+                per_frame(&errors.none),
+                per_frame(&errors.rigid),
+                per_frame(&errors.full),
+            ),
+            full.iter()
+                .map(|r| r.expected_error.map(|e| e.expected))
+                .collect(),
+        ),
+        &format!("{}: mean target error per frame", kind.name()),
+        Some(&dir.join("error_per_frame.png")),
+        Some(&dir.join("error_per_frame.svg")),
+    )
 }
 
 /// Name of the tool-indentation scenario in `demo --scenarios`.

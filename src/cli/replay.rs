@@ -16,9 +16,9 @@ use super::register::session_for;
 use super::register::FrameObserver;
 use super::RerunArgs;
 use crate::evaluation::{JsonlWriter, ResultRecord};
-use crate::recording::{Recording, ResultMessage};
+use crate::recording::{FrameMessage, Recording, ResultMessage};
 use crate::scene::{load_scene, LoadedScene};
-use crate::session::{FrameError, FrameResult};
+use crate::session::{Frame, FrameError, FrameResult, Session};
 
 /// How fast frames are fed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -142,22 +142,45 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayReport, String> {
             args.tolerance
         ));
     }
-    let rec = Recording::open(&args.file).map_err(|e| e.to_string())?;
+    let rec = open_recording(&args.file)?;
+    let (mut session, loaded) = replay_session(args, &rec)?;
+    let scale = loaded.length_scale();
+    let mut outputs = FrameOutputs::create(args, &session)?;
+    let (per_frame, replay_ms) = replay_frames(args, &rec, &mut session, &mut outputs, scale)?;
+    let report = report_of(args, &rec, per_frame, replay_ms);
+    publish(args, &report)?;
+    if !report.within_tolerance {
+        return Err(beyond_tolerance(args, &report, rec.session.budget_ms));
+    }
+    Ok(report)
+}
+
+/// The recording in `file`, with a note on stderr when it was cut short; an error when it
+/// has no frame with a recorded result.
+fn open_recording(file: &Path) -> Result<Recording, String> {
+    let rec = Recording::open(file).map_err(|e| e.to_string())?;
     if !rec.finished {
         eprintln!("livereg: {}", rec.describe());
     }
     if rec.complete_frames() == 0 {
         return Err(format!(
             "{}: no frame with a recorded result to replay",
-            args.file.display()
+            file.display()
         ));
     }
+    Ok(rec)
+}
+
+/// The session to replay with, set up as the recorded one (time budget, rigid only), and its
+/// scene (see [`scene_for`]; a recorded scene is rebuilt in a temporary directory, removed
+/// once the session is built). Notes on stderr when the recording ran with a time budget.
+fn replay_session(args: &ReplayArgs, rec: &Recording) -> Result<(Session, LoadedScene), String> {
     let tmp = std::env::temp_dir().join(format!(
         "livereg-replay-{}-{}",
         std::process::id(),
         crate::recording::now_ns()
     ));
-    let loaded = scene_for(args, &rec, &tmp);
+    let loaded = scene_for(args, rec, &tmp);
     let budget = rec.session.budget_ms;
     if budget.is_some() {
         eprintln!(
@@ -168,23 +191,83 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayReport, String> {
     // The session reads the scene's files while it is built; the temporary copy goes after.
     let session = loaded.and_then(|l| Ok((session_for(&l, budget, rec.session.rigid_only)?, l)));
     let _ = std::fs::remove_dir_all(&tmp);
-    let (mut session, loaded) = session?;
-    let scale = loaded.length_scale();
-    let mm = scale * 1e3;
-    let mut writer = match &args.out {
-        Some(dir) => {
-            std::fs::create_dir_all(dir)
-                .map_err(|e| format!("{}: cannot create: {e}", dir.display()))?;
-            Some(JsonlWriter::create(dir.join("results.jsonl")).map_err(|e| e.to_string())?)
+    session
+}
+
+/// Where each replayed frame goes besides the comparison: `--out`'s `results.jsonl`, the
+/// rerun visualiser and the VTK series, each when asked for.
+struct FrameOutputs {
+    /// `results.jsonl` in `--out`.
+    writer: Option<JsonlWriter>,
+    /// The rerun visualiser (never present without the `rerun` feature).
+    #[cfg_attr(not(feature = "rerun"), allow(dead_code))]
+    visualiser: Option<super::Visualiser>,
+    /// The VTK series in `--vtk`.
+    vtk: Option<super::vtk_series::VtkSeriesWriter>,
+}
+
+impl FrameOutputs {
+    /// Creates the outputs `args` asks for (the `--out` directory included) for `session`.
+    fn create(args: &ReplayArgs, session: &Session) -> Result<Self, String> {
+        let writer = match &args.out {
+            Some(dir) => {
+                std::fs::create_dir_all(dir)
+                    .map_err(|e| format!("{}: cannot create: {e}", dir.display()))?;
+                Some(JsonlWriter::create(dir.join("results.jsonl")).map_err(|e| e.to_string())?)
+            }
+            None => None,
+        };
+        let visualiser = args.rerun.visualiser(session, "replay")?;
+        let vtk = match &args.vtk {
+            Some(dir) => Some(super::vtk_series::VtkSeriesWriter::create(dir, session)?),
+            None => None,
+        };
+        Ok(FrameOutputs {
+            writer,
+            visualiser,
+            vtk,
+        })
+    }
+
+    /// Hands replayed frame `k` (`fm` as recorded, `frame` as registered, `r` its result)
+    /// to the visualiser, the VTK series and `results.jsonl` (`scale`: metres per scene
+    /// unit).
+    #[cfg_attr(not(feature = "rerun"), allow(unused_variables))]
+    fn frame_done(
+        &mut self,
+        k: usize,
+        fm: &FrameMessage,
+        frame: Option<&Frame>,
+        r: &FrameResult,
+        scale: f64,
+    ) -> Result<(), String> {
+        #[cfg(feature = "rerun")]
+        if let Some(v) = self.visualiser.as_mut() {
+            v.frame_done(k, frame, fm.timestamp_ns, r)?;
         }
-        None => None,
-    };
-    #[allow(unused_mut, unused_variables)]
-    let mut visualiser = args.rerun.visualiser(&session, "replay")?;
-    let mut vtk = match &args.vtk {
-        Some(dir) => Some(super::vtk_series::VtkSeriesWriter::create(dir, &session)?),
-        None => None,
-    };
+        if let Some(v) = self.vtk.as_mut() {
+            v.write_frame(k, r)?;
+        }
+        if let Some(w) = self.writer.as_mut() {
+            w.write(&ResultRecord::from_frame(r, scale))
+                .map_err(|e| e.to_string())?;
+        }
+        Ok(())
+    }
+}
+
+/// Replays every recorded frame that has a recorded result through `session` (at the
+/// recorded pace with `--speed realtime`), hands each to `outputs` and compares it with the
+/// recorded result (`scale`: metres per scene unit): the comparisons (mm) and the sum of the
+/// replayed wall times (ms).
+fn replay_frames(
+    args: &ReplayArgs,
+    rec: &Recording,
+    session: &mut Session,
+    outputs: &mut FrameOutputs,
+    scale: f64,
+) -> Result<(Vec<FrameDiff>, f64), String> {
+    let mm = scale * 1e3;
     let n = rec.complete_frames();
     let pb = bar(n, "replay");
     let start = Instant::now();
@@ -199,32 +282,46 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayReport, String> {
             }
         }
         let frame = fm.to_frame();
-        let r = match &frame {
-            Some(f) => session.register(f),
-            None => session.reject(
-                &fm.source,
-                FrameError::Input(fm.input_error.clone().unwrap_or_default()),
-            ),
-        };
+        let r = register_recorded(session, fm, frame.as_ref());
         replay_ms += r.wall_ms;
-        #[cfg(feature = "rerun")]
-        if let Some(v) = visualiser.as_mut() {
-            v.frame_done(k, frame.as_ref(), fm.timestamp_ns, &r)?;
-        }
-        let _ = (&mut visualiser, k);
-        if let Some(v) = vtk.as_mut() {
-            v.write_frame(k, &r)?;
-        }
-        if let Some(w) = writer.as_mut() {
-            w.write(&ResultRecord::from_frame(&r, scale))
-                .map_err(|e| e.to_string())?;
-        }
+        outputs.frame_done(k, fm, frame.as_ref(), &r, scale)?;
         let d = compare(&r, recorded, mm);
         pb.set_message(format!("Δ {:.2e} mm", d.max_mm()));
         pb.inc(1);
         per_frame.push(d);
     }
     pb.finish_and_clear();
+    Ok((per_frame, replay_ms))
+}
+
+/// The result of a recorded frame: `frame` registered by `session`, or (no frame: its input
+/// could not be read) rejected with the recorded input error.
+fn register_recorded(
+    session: &mut Session,
+    fm: &FrameMessage,
+    frame: Option<&Frame>,
+) -> FrameResult {
+    match frame {
+        Some(f) => session.register(f),
+        None => session.reject(
+            &fm.source,
+            FrameError::Input(fm.input_error.clone().unwrap_or_default()),
+        ),
+    }
+}
+
+/// The largest difference over `per_frame`, mm (infinite when a frame is not comparable).
+fn worst_mm(per_frame: &[FrameDiff]) -> f64 {
+    per_frame.iter().map(FrameDiff::max_mm).fold(0.0, f64::max)
+}
+
+/// The report of the comparisons `per_frame` (mm) and the replay's wall time `replay_ms`.
+fn report_of(
+    args: &ReplayArgs,
+    rec: &Recording,
+    per_frame: Vec<FrameDiff>,
+    replay_ms: f64,
+) -> ReplayReport {
     let fold = |f: fn(&FrameDiff) -> Option<f64>| {
         per_frame
             .iter()
@@ -235,11 +332,11 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayReport, String> {
     let max_structures_mm = fold(|d| d.structures_mm);
     let status_changes = per_frame.iter().filter(|d| d.status_changed).count();
     let time_budget_frames = per_frame.iter().filter(|d| d.recorded_time_budget).count();
-    let worst = per_frame.iter().map(FrameDiff::max_mm).fold(0.0, f64::max);
-    let report = ReplayReport {
+    let worst = worst_mm(&per_frame);
+    ReplayReport {
         file: args.file.clone(),
         finished: rec.finished,
-        frames: n,
+        frames: rec.complete_frames(),
         max_surface_mm,
         max_structures_mm,
         status_changes,
@@ -250,39 +347,49 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayReport, String> {
         recorded_ms: rec.results.iter().map(|r| r.record.wall_ms).sum(),
         replay_ms,
         per_frame,
-    };
+    }
+}
+
+/// Writes the report to `--out`'s `replay.json` (when given) and prints it: one JSON object
+/// with `--json`, else the table.
+fn publish(args: &ReplayArgs, report: &ReplayReport) -> Result<(), String> {
     if let Some(dir) = &args.out {
         let p = dir.join("replay.json");
-        let text = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
+        let text = serde_json::to_string_pretty(report).map_err(|e| e.to_string())?;
         std::fs::write(&p, text).map_err(|e| format!("{}: {e}", p.display()))?;
     }
     if args.json {
         println!(
             "{}",
-            serde_json::to_string(&report).map_err(|e| e.to_string())?
+            serde_json::to_string(report).map_err(|e| e.to_string())?
         );
     } else {
-        print!("{}", table(&report));
+        print!("{}", table(report));
     }
-    if !report.within_tolerance {
-        let worst_frame = report
-            .per_frame
-            .iter()
-            .max_by(|a, b| a.max_mm().total_cmp(&b.max_mm()));
-        let at = worst_frame.map(|d| d.frame).unwrap_or_default();
-        let why = match (worst_frame, budget) {
-            (Some(d), Some(b)) if d.recorded_time_budget => format!(
-                "; the recorded frame {at} was cut short by the recording's {b:.0} ms time budget, so its result depends on the recording machine's speed"
-            ),
-            _ => String::new(),
-        };
-        return Err(format!(
-            "the replay differs from the recording beyond the tolerance: largest difference {} (frame {at}), tolerance {:e} mm{why}",
-            fmt_mm(Some(worst).filter(|w| w.is_finite())),
-            args.tolerance
-        ));
-    }
-    Ok(report)
+    Ok(())
+}
+
+/// The error of a replay beyond the tolerance: the largest difference (mm) and its frame,
+/// and — when that frame was cut short by the recording's time budget `budget` (ms) — why
+/// it may differ.
+fn beyond_tolerance(args: &ReplayArgs, report: &ReplayReport, budget: Option<f64>) -> String {
+    let worst = worst_mm(&report.per_frame);
+    let worst_frame = report
+        .per_frame
+        .iter()
+        .max_by(|a, b| a.max_mm().total_cmp(&b.max_mm()));
+    let at = worst_frame.map(|d| d.frame).unwrap_or_default();
+    let why = match (worst_frame, budget) {
+        (Some(d), Some(b)) if d.recorded_time_budget => format!(
+            "; the recorded frame {at} was cut short by the recording's {b:.0} ms time budget, so its result depends on the recording machine's speed"
+        ),
+        _ => String::new(),
+    };
+    format!(
+        "the replay differs from the recording beyond the tolerance: largest difference {} (frame {at}), tolerance {:e} mm{why}",
+        fmt_mm(Some(worst).filter(|w| w.is_finite())),
+        args.tolerance
+    )
 }
 
 /// The scene to replay against: `--scene`, or the recorded one (with `--set` changes)
