@@ -13,6 +13,31 @@
 //! Lower modules never import higher ones, and nothing here imports the registration above
 //! it (the `livereg` crate, which re-exports these modules under the same names). Inside the
 //! mechanics everything is SI (m, N, Pa, J).
+//!
+//! # The weighted-cell grid, the discretisation everything above stands on
+//!
+//! A closed surface is immersed in a regular grid of hexahedral cells; each cell the surface
+//! cuts carries the share of its volume that lies inside, measured by subdividing it, so the
+//! grid's cells together hold the body's volume:
+//!
+//! ```
+//! use livereg_fem::grid::{GridOptions, WeightedCellGrid};
+//! use livereg_fem::mesh::primitives::icosphere;
+//! use nalgebra::Point3;
+//!
+//! // A ball of radius 5 cm (metres), in cells of 1 cm.
+//! let ball = icosphere(Point3::origin(), 0.05, 3);
+//! let options = GridOptions {
+//!     cell_size: 0.01,
+//!     ..GridOptions::default()
+//! };
+//! let grid = WeightedCellGrid::build(&ball, &options).expect("a closed surface");
+//! let stats = grid.stats();
+//! let volume = ball.signed_volume();
+//! assert!(stats.cut_cells > 0 && stats.cells > stats.cut_cells);
+//! let error = (stats.volume - volume).abs() / volume;
+//! assert!(error < 1e-3, "{} m³ against {volume} m³", stats.volume);
+//! ```
 #![warn(missing_docs)]
 
 pub mod geometry;
