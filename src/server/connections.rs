@@ -91,7 +91,8 @@ impl ConnectionLimiter {
         })
     }
 
-    /// Open connections (in all, from `ip`).
+    /// Open connections (in all, from `ip`); the unit tests' view of the counts.
+    #[cfg(test)]
     pub fn open(&self, ip: IpAddr) -> (usize, usize) {
         let g = self.open.lock().unwrap_or_else(|p| p.into_inner());
         (g.0, g.1.get(&ip).copied().unwrap_or(0))

@@ -13,28 +13,28 @@
 //! The server uses the session, scene and evaluation layers (and the mesh reader to check
 //! uploaded meshes before building anything); nothing below it imports it.
 
-pub mod audit;
-pub mod auth;
+pub(crate) mod audit;
+pub(crate) mod auth;
 pub mod codec;
 pub mod config;
-pub mod connections;
-pub mod error;
-pub mod grpc;
+pub(crate) mod connections;
+pub(crate) mod error;
+pub(crate) mod grpc;
 pub mod http;
-pub mod igtl;
-pub mod limits;
-pub mod memory_budget;
-pub mod metrics;
-pub mod openapi;
+pub(crate) mod igtl;
+pub(crate) mod limits;
+pub(crate) mod memory_budget;
+pub(crate) mod metrics;
+pub(crate) mod openapi;
 pub mod registry;
 pub mod result_codec;
-pub mod service;
-pub mod slots;
-pub mod stream_frames;
+pub(crate) mod service;
+pub(crate) mod slots;
+pub(crate) mod stream_frames;
 pub mod tls;
-pub mod upload;
-pub mod worker;
-pub mod ws;
+pub(crate) mod upload;
+pub(crate) mod worker;
+pub(crate) mod ws;
 
 /// Generated gRPC messages, server and client of `proto/livereg/v1/registration.proto`.
 #[allow(missing_docs, clippy::all, clippy::pedantic)]
