@@ -466,16 +466,10 @@ struct FrameToGrade<'a> {
 /// three quarters) of the surface vertices nearest the cloud's points, from `rest` to
 /// `truth` (both the surface vertices only, mm), RMS over the surface; 0 when undetermined.
 fn seen_rigid_motion(rest: &[Point3<f64>], truth: &[Point3<f64>], cloud: &[Point3<f64>]) -> f64 {
-    let mut seen: Vec<usize> = cloud
-        .iter()
-        .filter_map(|c| {
-            (0..truth.len()).min_by(|&a, &b| {
-                (truth[a] - c)
-                    .norm_squared()
-                    .total_cmp(&(truth[b] - c).norm_squared())
-            })
-        })
-        .collect();
+    let Some(index) = crate::registration::IndexedPoints::new(truth.to_vec()) else {
+        return 0.0;
+    };
+    let mut seen: Vec<usize> = cloud.iter().map(|c| index.nearest(c).0).collect();
     seen.sort_unstable();
     seen.dedup();
     crate::registration::pose_share::rigid_share_of_deformation(rest, truth, &seen, 0.75)

@@ -8,6 +8,8 @@ use std::fmt;
 
 use serde::{Serialize, Serializer};
 
+use super::registration_session::RUNG_NAMES;
+
 /// One flag of a frame's result.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum FrameFlag {
@@ -45,10 +47,6 @@ pub enum FrameFlag {
     /// `expected_error_high`: the expected error is over `max_expected_error`.
     ExpectedErrorHigh,
 }
-
-/// The rung names [`FrameFlag::parse`] knows for `recovered:<rung>`; another name reads as
-/// `None`.
-const RUNG_NAMES: [&str; 2] = ["smaller-steps", "damped-newton"];
 
 impl FrameFlag {
     /// Every flag without a value, for [`FrameFlag::parse`].

@@ -11,7 +11,7 @@ use change::{CloudNoise, StillData, SAME_VIEW_FIT_RATIO, SAME_VIEW_FIT_SLACK};
 use outcome::Done;
 use recovery::solver_failed;
 pub use recovery::{
-    damped_newton, recovery_ladder, recovery_settings, RecoveryRung, BEFORE_RECOVERY,
+    damped_newton, recovery_ladder, recovery_settings, RecoveryRung, BEFORE_RECOVERY, RUNG_NAMES,
 };
 
 use std::sync::Arc;

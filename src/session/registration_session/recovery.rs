@@ -61,6 +61,13 @@ impl Session {
 /// Prefix of the warnings of a failed attempt that a recovery then rescued.
 pub const BEFORE_RECOVERY: &str = "before recovery: ";
 
+/// Name of the ladder's first rung (flag `recovered:smaller-steps`).
+pub const SMALLER_STEPS: &str = "smaller-steps";
+/// Name of the ladder's second rung (flag `recovered:damped-newton`).
+pub const DAMPED_NEWTON: &str = "damped-newton";
+/// Every rung's name, in the ladder's order.
+pub const RUNG_NAMES: [&str; 2] = [SMALLER_STEPS, DAMPED_NEWTON];
+
 /// Whether the Newton solver reported a failure (diverged, inverted, iteration cap) during
 /// a non-rigid registration.
 pub(super) fn solver_failed(r: &NonRigidReport) -> bool {
@@ -109,12 +116,12 @@ pub fn recovery_ladder(cold: &NonRigidSettings, newton: &NewtonSettings) -> [Rec
     let smaller = recovery_settings(cold);
     [
         RecoveryRung {
-            name: "smaller-steps",
+            name: SMALLER_STEPS,
             settings: smaller,
             newton: *newton,
         },
         RecoveryRung {
-            name: "damped-newton",
+            name: DAMPED_NEWTON,
             settings: NonRigidSettings {
                 penalty_steps: (4 * cold.penalty_steps).max(12),
                 ..smaller
