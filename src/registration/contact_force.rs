@@ -254,7 +254,7 @@ pub struct FittedLoad {
 /// Rest position (m) of the dent's centre: the depth-weighted mean of the points `rest` whose
 /// inward displacement (`−u·n`, or `|u|` without normals) is at least [`CENTRE_SHARE`] of the
 /// largest. `None` when nothing moved inwards.
-fn dent_centre(
+pub(crate) fn dent_centre(
     rest: &[Point3<f64>],
     moved: &[Vector3<f64>],
     normals: Option<&[Vector3<f64>]>,

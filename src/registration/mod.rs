@@ -30,6 +30,7 @@
 pub mod change_evidence;
 pub mod coarse_to_fine;
 pub mod contact_force;
+pub mod contact_refit;
 pub mod correspondences;
 pub mod error_estimate;
 pub mod isolated_points;

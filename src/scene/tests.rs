@@ -767,6 +767,11 @@ fn range_checks() {
             &["registration.penalty_scale", "must be > 0"],
         ),
         (
+            "contact_radius = -3",
+            "registration",
+            &["registration.contact_radius", "-3"],
+        ),
+        (
             "camera = { position = [0, 0, 1], look_at = [0, 0, 1] }",
             "registration",
             &["registration.camera.look_at"],

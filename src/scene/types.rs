@@ -708,6 +708,15 @@ pub struct RegistrationSpec {
     /// (docs/data-term.md#normals-at-the-organs-scale).
     #[serde(default)]
     pub normal_radius: Option<f64>,
+    /// Explain each registered field again by a load at the contact alone, kept when the
+    /// cloud away from the contact still lies on the surface (default true:
+    /// docs/data-term.md#the-contact-refit); the frame is flagged `contact_refit` when kept.
+    #[serde(default = "defaults::contact_refit")]
+    pub contact_refit: bool,
+    /// Radius of the contact region the refit holds, scene units, > 0. Omitted: 35 mm
+    /// (docs/data-term.md#the-contact-refit).
+    #[serde(default)]
+    pub contact_radius: Option<f64>,
 }
 
 impl Default for RegistrationSpec {
@@ -736,6 +745,8 @@ impl Default for RegistrationSpec {
             remove_isolated_points: defaults::remove_isolated_points(),
             data_term: DataTerm::default(),
             normal_radius: None,
+            contact_refit: defaults::contact_refit(),
+            contact_radius: None,
         }
     }
 }
@@ -813,6 +824,10 @@ pub mod defaults {
     }
     /// `registration.remove_isolated_points`.
     pub fn remove_isolated_points() -> bool {
+        true
+    }
+    /// `registration.contact_refit`.
+    pub fn contact_refit() -> bool {
         true
     }
     /// `registration.penalty_scale`.

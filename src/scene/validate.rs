@@ -447,6 +447,9 @@ fn check_registration(c: &mut Checker, r: &RegistrationSpec) {
     if let Some(b) = r.time_budget_ms {
         c.positive("registration.time_budget_ms", b, " ms");
     }
+    if let Some(d) = r.contact_radius {
+        c.positive("registration.contact_radius", d, " scene units");
+    }
     if let Some(d) = r.normal_radius {
         if !(d.is_finite() && d >= 0.0) {
             c.fail(

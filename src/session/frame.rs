@@ -141,6 +141,8 @@ pub struct StageTimes {
     /// The tests of change before the non-rigid stage: the cloud's noise and neighbour lists,
     /// whether the rest shape or the last registered one explains it (rest test, still frames).
     pub change_ms: f64,
+    /// The contact refit (`registration.contact_refit`).
+    pub refit_ms: f64,
     /// The gate on the registered fit (the cloud's distances to the registered surface).
     pub gate_ms: f64,
     /// The contact force estimate.
@@ -152,7 +154,7 @@ pub struct StageTimes {
 impl StageTimes {
     /// Each stage's name (the key of `results.jsonl`'s `timings_ms`) and time, ms, in the
     /// order a frame runs them.
-    pub fn named(&self) -> [(&'static str, f64); 9] {
+    pub fn named(&self) -> [(&'static str, f64); 10] {
         [
             ("prepare", self.prepare_ms),
             ("rigid", self.rigid_ms),
@@ -160,6 +162,7 @@ impl StageTimes {
             ("visibility", self.visibility_ms),
             ("pairing", self.pairing_ms),
             ("newton", self.newton_ms),
+            ("refit", self.refit_ms),
             ("gate", self.gate_ms),
             ("force", self.force_ms),
             ("output", self.output_ms),

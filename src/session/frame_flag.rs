@@ -46,11 +46,14 @@ pub enum FrameFlag {
     PoseReacquired,
     /// `expected_error_high`: the expected error is over `max_expected_error`.
     ExpectedErrorHigh,
+    /// `contact_refit`: the field was explained again by a load at the contact alone
+    /// (`registration.contact_refit`).
+    ContactRefit,
 }
 
 impl FrameFlag {
     /// Every flag without a value, for [`FrameFlag::parse`].
-    const PLAIN: [FrameFlag; 14] = [
+    const PLAIN: [FrameFlag; 15] = [
         FrameFlag::Decimated,
         FrameFlag::IsolatedRemoved,
         FrameFlag::AtRest,
@@ -65,6 +68,7 @@ impl FrameFlag {
         FrameFlag::PoseUncertain,
         FrameFlag::PoseReacquired,
         FrameFlag::ExpectedErrorHigh,
+        FrameFlag::ContactRefit,
     ];
 
     /// The flag's name without its value (`still`, `recovered`, or the whole text).
@@ -86,6 +90,7 @@ impl FrameFlag {
             FrameFlag::PoseUncertain => "pose_uncertain",
             FrameFlag::PoseReacquired => "pose_reacquired",
             FrameFlag::ExpectedErrorHigh => "expected_error_high",
+            FrameFlag::ContactRefit => "contact_refit",
         }
     }
 
@@ -183,10 +188,11 @@ mod tests {
             "pose_uncertain",
             "pose_reacquired",
             "expected_error_high",
+            "contact_refit",
         ] {
             assert!(texts.iter().any(|t| t == expected), "{expected}");
         }
-        assert_eq!(texts.len(), 17);
+        assert_eq!(texts.len(), 18);
     }
 
     /// Unknown texts, a still window without a count and an unknown rung are not flags.

@@ -15,6 +15,7 @@
 //! | the normals' averaging | its own count | samples and vertex–cluster entries (`NormalsAtScale::heap_bytes`, counted, not fitted) |
 //! | the surface's topology for signed distances | its own count | triangles and the triangles around each vertex (`SurfaceTopology::heap_bytes`, counted, not fitted) |
 //! | the rest compliance of the contact force | 8 per factor value, 16 per tangent entry | its own f64 factor and copy of the rest tangent (`RestCompliance`, counted, not fitted; non-rigid sessions) |
+//! | the contact refit's solver | 8 per factor value, 16 per tangent entry | its own f64 factor and tangent (`registration.contact_refit`, counted like the rest compliance, not fitted; non-rigid sessions) |
 //! | the still window's registered points | 800 per point, at the `max_cloud_points` cap | the data term, trees and neighbour lists of a union of clouds (non-rigid sessions with `still_frames` > 1; measured: below) |
 //!
 //! The factor's size comes from the same symbolic analysis the solver makes (fill-reducing
@@ -115,6 +116,12 @@ impl ModelSize {
         (BYTES_PER_REST_FACTOR_VALUE * self.factor_values as f64
             + BYTES_PER_REST_TANGENT_ENTRY * self.tangent_entries as f64)
             .ceil() as u64
+    }
+
+    /// What the contact refit's own Newton solver of this model holds, bytes: an f64 factor
+    /// like the tangent's and its own tangent.
+    pub fn contact_refit_bytes(&self) -> u64 {
+        self.rest_compliance_bytes()
     }
 
     /// The sizes of `model`, whose linear solver is `kind`. Runs the symbolic analysis of the

@@ -6,6 +6,7 @@ mod change;
 mod outcome;
 mod pose;
 mod recovery;
+mod refit;
 
 use change::{CloudNoise, StillData, SAME_VIEW_FIT_RATIO, SAME_VIEW_FIT_SLACK};
 use outcome::Done;
@@ -26,7 +27,7 @@ use super::settings::SessionSettings;
 use super::still_window::StillWindow;
 use crate::geometry::Camera;
 use crate::linalg::SolverKind;
-use crate::mechanics::{NewtonSettings, PenaltySprings};
+use crate::mechanics::{NewtonSettings, NewtonSolver, PenaltySprings};
 use crate::mesh::TriSurface;
 use crate::registration::change_evidence::{cloud_noise_sigma_near, ChangeTest};
 use crate::registration::isolated_points::{
@@ -114,6 +115,9 @@ pub struct Session {
     /// The uncertainty (m) of a pose fitted by this frame's rigid stage; `None` when the
     /// stage held the pose or fitted none.
     fitted_pose_uncertainty: Option<f64>,
+    /// The contact refit's own Newton solver (its factorisation holds the contact region's
+    /// springs, not the data term's).
+    refit_solver: NewtonSolver,
 }
 
 /// The surface of `model` (of `topology`) deformed by `u` (m), for signed distances; `None`
@@ -205,13 +209,19 @@ impl Session {
     /// [`ModelSize::estimated_grid_bytes`] (see [`Session::model_sizes`]). Made before the
     /// first frame, so that a server can refuse a session its memory budget cannot hold.
     /// A non-rigid session adds its rest compliance for the contact force
-    /// ([`ModelSize::rest_compliance_bytes`]) and its still window at its point cap
+    /// ([`ModelSize::rest_compliance_bytes`]), the contact refit's solver when it refits
+    /// ([`ModelSize::contact_refit_bytes`]) and its still window at its point cap
     /// ([`still_window_bytes`]). A rigid-only session (`settings.non_rigid`
     /// false) never factorises: its factors are not counted.
     pub fn memory_estimate_bytes(&self) -> Result<u64, String> {
         let mut sizes = self.model_sizes()?;
         let per_frame = if self.settings.non_rigid {
             sizes[0].rest_compliance_bytes()
+                + if self.settings.contact_refit {
+                    sizes[0].contact_refit_bytes()
+                } else {
+                    0
+                }
                 + still_window_bytes(self.settings.still_frames, self.settings.max_cloud_points)
         } else {
             sizes.iter_mut().for_each(|s| s.factor_values = 0);
@@ -234,6 +244,7 @@ impl Session {
     /// frame brings none.
     pub fn new(model: SceneModel, settings: SessionSettings, camera: Option<Camera>) -> Self {
         let u = vec![0.0; model.problem.dofs()];
+        let model_newton = model.newton;
         // One averaging of the surface normals for every stage (cold, warm, coarse, recovery).
         let normals = settings
             .cold
@@ -272,6 +283,11 @@ impl Session {
             good_surface: std::sync::OnceLock::new(),
             rest_compliance: None,
             fitted_pose_uncertainty: None,
+            refit_solver: NewtonSolver::new(NewtonSettings {
+                step_stabilization: 0.0,
+                mixed_precision: false,
+                ..model_newton
+            }),
         }
     }
 
@@ -412,6 +428,9 @@ impl Session {
             self.non_rigid_warm.invalidate();
             return Err(FrameError::NonFiniteState);
         }
+        let t = Instant::now();
+        let u = self.contact_refit(&data, u, report.data_term.as_ref(), flags);
+        times.refit_ms = ms(t);
         if report.deadline_reached {
             flags.push(FrameFlag::TimeBudget);
         }

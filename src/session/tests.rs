@@ -96,6 +96,17 @@ fn frame(points: Vec<Point3<f64>>, name: &str) -> Frame {
     }
 }
 
+/// Registers the same `cloud` (mm) `times` times (a cold frame, then warm ones) and returns
+/// the last result, which must not have failed.
+fn register_repeatedly(s: &mut Session, cloud: &[Point3<f64>], times: usize) -> FrameResult {
+    let mut r = s.register(&frame(cloud.to_vec(), "0"));
+    for k in 1..times {
+        r = s.register(&frame(cloud.to_vec(), &k.to_string()));
+    }
+    assert!(r.error.is_none(), "{:?}", r.error);
+    r
+}
+
 fn session(path: &std::path::Path) -> Session {
     Session::from_scene(&load_scene(path).unwrap()).unwrap()
 }
@@ -511,11 +522,7 @@ fn contact_force_recovers_a_concentrated_load() {
         .filter(|(_, r)| seen(r))
         .map(|(d, _)| d / scale)
         .collect();
-    let mut r = s.register(&frame(cloud.clone(), "0"));
-    for k in 1..6 {
-        r = s.register(&frame(cloud.clone(), &k.to_string()));
-    }
-    assert!(r.error.is_none(), "{:?}", r.error);
+    let r = register_repeatedly(&mut s, &cloud, 6);
     let f = r
         .contact_force
         .expect("a non-rigid frame estimates the force");
@@ -826,4 +833,129 @@ fn the_pose_uncertainty_is_its_fits_and_is_held_with_the_pose() {
     let r = s.register(&frame(rest.vertices.clone(), "0"));
     assert!(r.error.is_none(), "{:?}", r.error);
     assert_eq!(r.pose_uncertainty, None);
+}
+
+/// The forward solution of the session's own model under `forces` (N) at the rest surface
+/// points `at` (mm): the grid displacements, m.
+fn forward_under(s: &Session, at: &[Point3<f64>], forces: &[Vector3<f64>]) -> Vec<f64> {
+    let scale = s.model.length_scale;
+    let points: Vec<Point3<f64>> = at.iter().map(|p| p * scale).collect();
+    let embedding = crate::grid::Embedding::new(&s.model.problem.grid, &points).unwrap();
+    let mut problem = s.model.problem.clone();
+    problem.external.fill(0.0);
+    embedding.spread_forces(forces, &mut problem.external);
+    let start = vec![0.0; problem.dofs()];
+    let forward =
+        crate::mechanics::NewtonSolver::new(s.model.newton).solve(&mut problem, &[], &start);
+    assert_eq!(forward.outcome, crate::mechanics::Outcome::Converged);
+    forward.u
+}
+
+/// Mean distance (mm) of the surface registered by `s` from the surface the displacements
+/// `truth` (m) give, over every vertex, seen or not.
+fn surface_error(s: &Session, truth: &[f64]) -> f64 {
+    let a = s.model.surface_embedding.positions(s.displacement());
+    let b = s.model.surface_embedding.positions(truth);
+    a.iter().zip(&b).map(|(p, q)| (p - q).norm()).sum::<f64>()
+        / a.len() as f64
+        / s.model.length_scale
+}
+
+/// Registers the upper half (rest z > 0) of the surface the displacements `truth` give, five
+/// warm frames, with the contact refit on or off; returns the mean surface error (mm) and
+/// whether the last frame kept the refit.
+fn registered_upper_half(path: &std::path::Path, truth: &[f64], refit: bool) -> (f64, bool) {
+    let mut s = session(path);
+    s.settings.contact_refit = refit;
+    let scale = s.model.length_scale;
+    let cloud: Vec<Point3<f64>> = s
+        .model
+        .surface_embedding
+        .positions(truth)
+        .iter()
+        .zip(&s.model.surface.vertices)
+        .filter(|(_, r)| r.z > 0.0)
+        .map(|(d, _)| d / scale)
+        .collect();
+    let mut r = s.register(&frame(cloud.clone(), "0"));
+    for k in 1..5 {
+        r = s.register(&frame(cloud.clone(), &k.to_string()));
+    }
+    assert!(r.error.is_none(), "{:?}", r.error);
+    (
+        surface_error(&s, truth),
+        r.flags.contains(&FrameFlag::ContactRefit),
+    )
+}
+
+/// A body held by its bottom cap, pushed at one spot of its top by 0.1 N down and 60 mN
+/// sideways (a cos² patch of radius 12 mm), solved forward on the session's own model: the
+/// manufactured truth. The cloud is the deformed upper half, noise-free. It shows where the
+/// surface is, not how far it slid sideways, and the least-energy field the data term's
+/// springs give puts the sideways load over the whole seen half: the unseen lower half lags.
+/// The refit holds the contact region, frees the rest and finds the slide from the seen
+/// surface away from the contact, as the truth's free surface does. Measured: mean surface
+/// error 0.24 mm without the refit, 0.15 mm with it (kept on the last frame); what is left is
+/// the contact region's own sideways motion, which the refit moves as one.
+#[test]
+fn the_contact_refit_finds_the_sideways_motion_a_cloud_does_not_show() {
+    let (path, rest) = indentation_scene();
+    let s = session(&path);
+    let contact = rest
+        .vertices
+        .iter()
+        .filter(|v| v.z > 0.0)
+        .min_by(|a, b| {
+            let above = Point3::new(10.0, 5.0, 0.0);
+            (*a - above)
+                .xy()
+                .norm()
+                .total_cmp(&(*b - above).xy().norm())
+        })
+        .copied()
+        .unwrap();
+    let radius = 12.0;
+    let (at, weights): (Vec<Point3<f64>>, Vec<f64>) = rest
+        .vertices
+        .iter()
+        .filter_map(|v| {
+            let r = (v - contact).norm();
+            (r < radius).then(|| (*v, (std::f64::consts::FRAC_PI_2 * r / radius).cos().powi(2)))
+        })
+        .unzip();
+    let total: f64 = weights.iter().sum();
+    let applied = Vector3::new(0.06, 0.0, -0.1);
+    let forces: Vec<Vector3<f64>> = weights.iter().map(|w| applied * (w / total)).collect();
+    let truth = forward_under(&s, &at, &forces);
+    let (without, _) = registered_upper_half(&path, &truth, false);
+    let (with, kept) = registered_upper_half(&path, &truth, true);
+    println!("mean surface error: {without:.3} mm without the refit, {with:.3} mm with it");
+    assert!(kept, "the refit is kept for a load at one spot");
+    assert!(
+        with < 0.75 * without,
+        "with the refit {with:.3} mm, without {without:.3} mm"
+    );
+}
+
+/// A body loaded all over its seen half (the same 0.16 N spread evenly over every vertex of
+/// the upper half: a pressure, not a tool) has no explanation by a load at one spot: the refit
+/// is refused and the registration is the data term's alone.
+#[test]
+fn the_contact_refit_is_refused_for_a_load_spread_over_the_liver() {
+    let (path, rest) = indentation_scene();
+    let s = session(&path);
+    let at: Vec<Point3<f64>> = rest
+        .vertices
+        .iter()
+        .filter(|v| v.z > 0.0)
+        .copied()
+        .collect();
+    let applied = Vector3::new(0.06, 0.0, -0.15);
+    let forces = vec![applied / at.len() as f64; at.len()];
+    let truth = forward_under(&s, &at, &forces);
+    let (without, _) = registered_upper_half(&path, &truth, false);
+    let (with, kept) = registered_upper_half(&path, &truth, true);
+    println!("mean surface error: {without:.3} mm without the refit, {with:.3} mm with it");
+    assert!(!kept, "the refit is refused for a spread load");
+    assert_eq!(with.to_bits(), without.to_bits());
 }
