@@ -286,8 +286,6 @@ impl Session {
             refit_solver: NewtonSolver::new(NewtonSettings {
                 step_stabilization: 0.0,
                 mixed_precision: false,
-                residual_tolerance: 1e-5,
-                displacement_tolerance: 1e-5,
                 ..model_newton
             }),
         }
