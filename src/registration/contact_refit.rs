@@ -29,11 +29,10 @@ use std::sync::Arc;
 
 use nalgebra::{Matrix2, Point3, Vector2, Vector3};
 
-use super::correspondences::{rejection_threshold, IndexedPoints};
+use super::correspondences::rejection_threshold;
 use super::surface_distances::{SurfaceDistances, SurfaceTopology};
 use crate::grid::Embedding;
 use crate::mechanics::{NewtonSolver, PenaltySprings, StaticProblem};
-use crate::mesh::TriSurface;
 
 /// How the refit runs.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -66,9 +65,6 @@ pub struct ContactRefit {
     pub outer_rms_full: f64,
     /// The same to the refitted surface (nothing pulled them).
     pub outer_rms: f64,
-    /// The same to the refitted surface before the slide (the contact region held where the
-    /// registration put it).
-    pub outer_rms_unslid: f64,
     /// RMS signed distance (m) of the cloud's points away from the contact to the rest
     /// surface: how far the surface there moved along its normal, what the refit explains.
     pub outer_motion: f64,
@@ -79,8 +75,6 @@ pub struct ContactRefit {
     pub held_vertices: usize,
     /// Cloud points away from the contact the slide was fitted to.
     pub outer_points: usize,
-    /// The springs holding the contact region in the refitted field.
-    pub held: PenaltySprings,
 }
 
 /// Why no refit was made.
@@ -109,8 +103,8 @@ pub const MIN_OUTER_POINTS: usize = 30;
 
 /// What [`refit_at_contact`] works on.
 pub struct RefitInput<'a> {
-    /// The model's surface at rest (its triangles; vertices in the grid's frame, m).
-    pub surface: &'a TriSurface,
+    /// The model's surface at rest, for signed distances.
+    pub rest_surface: &'a SurfaceDistances,
     /// The surface's vertices embedded in the grid.
     pub surface_embedding: &'a Embedding,
     /// The surface's topology, for distances.
@@ -129,7 +123,6 @@ pub struct RefitInput<'a> {
 struct Evaluated {
     u: Vec<f64>,
     distances: Vec<f64>,
-    held: PenaltySprings,
 }
 
 impl Evaluated {
@@ -155,13 +148,14 @@ pub fn refit_at_contact(
 ) -> Result<ContactRefit, RefitSkip> {
     let rest = &input.surface_embedding.rest;
     let x = input.surface_embedding.positions(input.u);
-    let index = IndexedPoints::new(x.clone()).ok_or(RefitSkip::Failed)?;
+    // The registered surface: its vertices' tree, normals and signed distances.
+    let full = SurfaceDistances::new(x.clone(), input.topology.clone()).ok_or(RefitSkip::Failed)?;
     let in_contact = |v: usize| (rest[v] - input.centre).norm() < settings.radius;
     let mut seen = vec![false; x.len()];
     let mut outside = Vec::new();
     let mut inside = Vec::new();
     for p in input.cloud {
-        let v = index.nearest(p).0;
+        let v = full.nearest_vertex(p);
         seen[v] = true;
         if in_contact(v) {
             inside.push(*p);
@@ -175,7 +169,6 @@ pub fn refit_at_contact(
     }
     // The points the slide is fitted to: those the registered surface explains (mean + 2σ of
     // their distances), the same set for every slide tried.
-    let full = SurfaceDistances::new(x.clone(), input.topology.clone()).ok_or(RefitSkip::Failed)?;
     let d_full = full.signed_distances(&outside);
     let limit = rejection_threshold(&d_full.iter().map(|d| d.abs()).collect::<Vec<_>>(), 2.0);
     let keep: Vec<usize> = (0..outside.len())
@@ -197,7 +190,7 @@ pub fn refit_at_contact(
         return Err(RefitSkip::ContactNotReached(inner_rms_full));
     }
 
-    let normals = TriSurface::vertex_normals_at(&x, &input.surface.triangles);
+    let normals = full.vertex_normals();
     let mean_normal = held_ids
         .iter()
         .map(|&v| normals[v])
@@ -245,13 +238,11 @@ pub fn refit_at_contact(
             Ok(Evaluated {
                 distances: surface.signed_distances(&outside),
                 u,
-                held,
             })
         };
 
     let mut slide = Vector2::zeros();
     let mut best = evaluate(&slide, input.u, settings.newton_iterations)?;
-    let outer_rms_unslid = best.rms();
     let mut best_slide = slide;
     // The slide's Jacobian by differences of a tenth of the region's radius, each probe one
     // Newton step from the relaxed state (exact for a linear law: the map is affine), once;
@@ -307,7 +298,6 @@ pub fn refit_at_contact(
     }
     let refit = ContactRefit {
         outer_rms: best.rms(),
-        outer_rms_unslid,
         u: best.u,
         slide: tangent(&best_slide),
         outer_rms_full,
@@ -315,7 +305,6 @@ pub fn refit_at_contact(
         inner_rms_full,
         held_vertices: held_ids.len(),
         outer_points: outside.len(),
-        held: best.held,
     };
     let share = refit.unexplained_share(input.noise);
     if share > settings.max_unexplained_share {

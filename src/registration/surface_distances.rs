@@ -73,6 +73,16 @@ impl SurfaceDistances {
         })
     }
 
+    /// Index of the surface vertex nearest `p` (m).
+    pub fn nearest_vertex(&self, p: &Point3<f64>) -> usize {
+        self.vertices.nearest(p).0
+    }
+
+    /// Unit outward vertex normals of the surface.
+    pub fn vertex_normals(&self) -> &[Vector3<f64>] {
+        &self.normals
+    }
+
     /// RMS distance (m) from `cloud` (m, model frame) to this surface after the mean + 2σ
     /// outlier rule; infinite when no point is kept.
     pub fn fit_rms(&self, cloud: &[Point3<f64>]) -> f64 {

@@ -415,6 +415,21 @@ rigid = "none"
     (dir.join("scene.toml"), s)
 }
 
+/// The vertex of the upper half (z > 0) of `rest` nearest `above` seen from above (mm).
+fn top_vertex_above(rest: &TriSurface, above: Point3<f64>) -> Point3<f64> {
+    rest.vertices
+        .iter()
+        .filter(|v| v.z > 0.0)
+        .min_by(|a, b| {
+            (*a - above)
+                .xy()
+                .norm()
+                .total_cmp(&(*b - above).xy().norm())
+        })
+        .copied()
+        .unwrap()
+}
+
 /// The contact force of a frame made by a known concentrated load: a body held by its bottom
 /// pushed into its top by 0.1 N along −z plus 22 mN sideways, spread as a cos² patch of radius
 /// 12 mm (the estimate spreads its unit loads over one cell, 8 mm, so the shapes differ),
@@ -436,19 +451,7 @@ fn contact_force_recovers_a_concentrated_load() {
     let (path, rest) = indentation_scene();
     let mut s = session(&path);
     let scale = s.model.length_scale;
-    let above = Point3::new(10.0, 5.0, 0.0);
-    let contact = rest
-        .vertices
-        .iter()
-        .filter(|v| v.z > 0.0)
-        .min_by(|a, b| {
-            (*a - above)
-                .xy()
-                .norm()
-                .total_cmp(&(*b - above).xy().norm())
-        })
-        .copied()
-        .unwrap();
+    let contact = top_vertex_above(&rest, Point3::new(10.0, 5.0, 0.0));
     let applied = Vector3::new(0.02, -0.01, -0.1); // N
     let radius = 12.0;
     let patch: Vec<(Point3<f64>, f64)> = rest
@@ -901,19 +904,7 @@ fn registered_upper_half(path: &std::path::Path, truth: &[f64], refit: bool) -> 
 fn the_contact_refit_finds_the_sideways_motion_a_cloud_does_not_show() {
     let (path, rest) = indentation_scene();
     let s = session(&path);
-    let contact = rest
-        .vertices
-        .iter()
-        .filter(|v| v.z > 0.0)
-        .min_by(|a, b| {
-            let above = Point3::new(10.0, 5.0, 0.0);
-            (*a - above)
-                .xy()
-                .norm()
-                .total_cmp(&(*b - above).xy().norm())
-        })
-        .copied()
-        .unwrap();
+    let contact = top_vertex_above(&rest, Point3::new(10.0, 5.0, 0.0));
     let radius = 12.0;
     let (at, weights): (Vec<Point3<f64>>, Vec<f64>) = rest
         .vertices

@@ -60,8 +60,16 @@ impl Session {
             allowance: REFIT_ALLOWANCE_CELLS * h,
             max_unexplained_share: MAX_UNEXPLAINED_SHARE,
         };
+        let rest = vec![0.0; u.len()];
+        let Some(rest_surface) = self
+            .rest_surface
+            .get_or_init(|| deformed_surface(&self.model, &self.surface_topology, &rest))
+            .as_ref()
+        else {
+            return u;
+        };
         let input = RefitInput {
-            surface: &self.model.surface,
+            rest_surface,
             surface_embedding: &self.model.surface_embedding,
             topology: &self.surface_topology,
             u: &u,
