@@ -135,61 +135,90 @@ fn rms(d: &[f64]) -> f64 {
     (d.iter().map(|v| v * v).sum::<f64>() / d.len().max(1) as f64).sqrt()
 }
 
-/// Refits the registered field of `input` with the load at the contact alone (module doc).
-/// `problem` is the model's (its own holds stay), `solver` one kept for this purpose. Refuses
-/// ([`RefitSkip`]) when the registration did not reach the cloud at the contact, or when the
-/// refit leaves more than [`ContactRefitSettings::max_unexplained_share`] of the motion seen
-/// away from it unexplained.
-pub fn refit_at_contact(
-    problem: &mut StaticProblem,
-    solver: &mut NewtonSolver,
-    input: &RefitInput<'_>,
-    settings: &ContactRefitSettings,
-) -> Result<ContactRefit, RefitSkip> {
-    let rest = &input.surface_embedding.rest;
-    let x = input.surface_embedding.positions(input.u);
-    // The registered surface: its vertices' tree, normals and signed distances.
-    let full = SurfaceDistances::new(x.clone(), input.topology.clone()).ok_or(RefitSkip::Failed)?;
-    let in_contact = |v: usize| (rest[v] - input.centre).norm() < settings.radius;
-    let mut seen = vec![false; x.len()];
-    let mut outside = Vec::new();
-    let mut inside = Vec::new();
-    for p in input.cloud {
-        let v = full.nearest_vertex(p);
-        seen[v] = true;
-        if in_contact(v) {
-            inside.push(*p);
-        } else {
-            outside.push(*p);
+/// The cloud split at the contact: the seen vertices held there, the points away from it the
+/// slide is fitted to, and how well the registration explains each part.
+struct ContactSplit {
+    /// Seen surface vertices within the contact radius.
+    held_ids: Vec<usize>,
+    /// Cloud points away from the contact that the registered surface explains (mean + 2σ of
+    /// their distances), m.
+    outside: Vec<Point3<f64>>,
+    /// RMS signed distance (m) of `outside` to the registered surface.
+    outer_rms_full: f64,
+    /// RMS signed distance (m) of the points at the contact to the registered surface.
+    inner_rms_full: f64,
+    /// RMS signed distance (m) of `outside` to the rest surface.
+    outer_motion: f64,
+}
+
+impl ContactSplit {
+    /// Splits the cloud of `input` between the contact region and the rest, against the
+    /// registered surface `full` (vertices `x`, m).
+    fn of(
+        input: &RefitInput<'_>,
+        full: &SurfaceDistances,
+        vertex_count: usize,
+        radius: f64,
+    ) -> Result<Self, RefitSkip> {
+        let rest = &input.surface_embedding.rest;
+        let in_contact = |v: usize| (rest[v] - input.centre).norm() < radius;
+        let mut seen = vec![false; vertex_count];
+        let mut outside = Vec::new();
+        let mut inside = Vec::new();
+        for p in input.cloud {
+            let v = full.nearest_vertex(p);
+            seen[v] = true;
+            if in_contact(v) {
+                inside.push(*p);
+            } else {
+                outside.push(*p);
+            }
         }
-    }
-    let held_ids: Vec<usize> = (0..x.len()).filter(|&v| seen[v] && in_contact(v)).collect();
-    if held_ids.len() < 3 {
-        return Err(RefitSkip::NoContactRegion);
-    }
-    // The points the slide is fitted to: those the registered surface explains (mean + 2σ of
-    // their distances), the same set for every slide tried.
-    let d_full = full.signed_distances(&outside);
-    let limit = rejection_threshold(&d_full.iter().map(|d| d.abs()).collect::<Vec<_>>(), 2.0);
-    let keep: Vec<usize> = (0..outside.len())
-        .filter(|&i| d_full[i].abs() <= limit)
-        .collect();
-    if keep.len() < MIN_OUTER_POINTS {
-        return Err(RefitSkip::TooLittleOutside);
-    }
-    let outside: Vec<Point3<f64>> = keep.iter().map(|&i| outside[i]).collect();
-    let outer_rms_full = rms(&keep.iter().map(|&i| d_full[i]).collect::<Vec<_>>());
-    let inner_rms_full = rms(&full.signed_distances(&inside));
-    let at_rest =
-        SurfaceDistances::new(rest.clone(), input.topology.clone()).ok_or(RefitSkip::Failed)?;
-    let outer_motion = rms(&at_rest.signed_distances(&outside));
-    let beyond_noise = (inner_rms_full.powi(2) - input.noise.powi(2))
-        .max(0.0)
-        .sqrt();
-    if beyond_noise > settings.allowance {
-        return Err(RefitSkip::ContactNotReached(inner_rms_full));
+        let held_ids: Vec<usize> = (0..vertex_count)
+            .filter(|&v| seen[v] && in_contact(v))
+            .collect();
+        if held_ids.len() < 3 {
+            return Err(RefitSkip::NoContactRegion);
+        }
+        // The points the slide is fitted to: those the registered surface explains (mean + 2σ
+        // of their distances), the same set for every slide tried.
+        let d_full = full.signed_distances(&outside);
+        let limit = rejection_threshold(&d_full.iter().map(|d| d.abs()).collect::<Vec<_>>(), 2.0);
+        let keep: Vec<usize> = (0..outside.len())
+            .filter(|&i| d_full[i].abs() <= limit)
+            .collect();
+        if keep.len() < MIN_OUTER_POINTS {
+            return Err(RefitSkip::TooLittleOutside);
+        }
+        let outside: Vec<Point3<f64>> = keep.iter().map(|&i| outside[i]).collect();
+        Ok(Self {
+            held_ids,
+            outer_rms_full: rms(&keep.iter().map(|&i| d_full[i]).collect::<Vec<_>>()),
+            inner_rms_full: rms(&full.signed_distances(&inside)),
+            outer_motion: rms(&input.rest_surface.signed_distances(&outside)),
+            outside,
+        })
     }
 
+    /// Refuses a contact the registration did not reach within the cloud's `noise` (m) and
+    /// the `allowance` (m).
+    fn check_reached(&self, noise: f64, allowance: f64) -> Result<(), RefitSkip> {
+        let beyond_noise = (self.inner_rms_full.powi(2) - noise.powi(2))
+            .max(0.0)
+            .sqrt();
+        if beyond_noise > allowance {
+            return Err(RefitSkip::ContactNotReached(self.inner_rms_full));
+        }
+        Ok(())
+    }
+}
+
+/// Two unit vectors spanning the contact region's mean tangent plane at the registered
+/// surface (normals of `full` averaged over the held vertices).
+fn tangent_plane(
+    full: &SurfaceDistances,
+    held_ids: &[usize],
+) -> Result<[Vector3<f64>; 2], RefitSkip> {
     let normals = full.vertex_normals();
     let mean_normal = held_ids
         .iter()
@@ -201,48 +230,147 @@ pub fn refit_at_contact(
         .cross(&Vector3::x())
         .try_normalize(0.1)
         .unwrap_or_else(|| mean_normal.cross(&Vector3::y()).normalize());
-    let t2 = mean_normal.cross(&t1);
-    let tangent = |d: &Vector2<f64>| t1 * d.x + t2 * d.y;
+    Ok([t1, mean_normal.cross(&t1)])
+}
 
-    let embedding = Embedding {
-        points: held_ids
+/// The model's body with the contact region held: solves it for a slide of the region and
+/// measures the outside points against the result.
+struct HeldBody<'a, 'b> {
+    problem: &'a mut StaticProblem,
+    solver: &'a mut NewtonSolver,
+    input: &'a RefitInput<'b>,
+    hold_stiffness: f64,
+    /// The held vertices' embedding.
+    embedding: Embedding,
+    /// Their registered positions, m.
+    registered: Vec<Point3<f64>>,
+    /// Their rest positions, m.
+    rest: Vec<Point3<f64>>,
+    outside: &'a [Point3<f64>],
+    plane: [Vector3<f64>; 2],
+}
+
+impl HeldBody<'_, '_> {
+    /// The slide (m, model frame) of plane coordinates `d`.
+    fn tangent(&self, d: &Vector2<f64>) -> Vector3<f64> {
+        self.plane[0] * d.x + self.plane[1] * d.y
+    }
+
+    /// The body solved by at most `iterations` Newton iterations from `start` with the
+    /// contact region slid by `slide` (plane coordinates, m).
+    fn evaluate(
+        &mut self,
+        slide: &Vector2<f64>,
+        start: &[f64],
+        iterations: usize,
+    ) -> Result<Evaluated, RefitSkip> {
+        let shift = self.tangent(slide);
+        let held = PenaltySprings {
+            embedding: self.embedding.clone(),
+            target: self
+                .registered
+                .iter()
+                .zip(&self.rest)
+                .map(|(x, r)| x + shift - r)
+                .collect(),
+            stiffness: vec![self.hold_stiffness; self.rest.len()],
+            follows_load: false,
+            normals: None,
+        };
+        let mut u = start.to_vec();
+        self.solver.improve(
+            self.problem,
+            std::slice::from_ref(&held),
+            &mut u,
+            iterations,
+        );
+        if !u.iter().all(|v| v.is_finite()) {
+            return Err(RefitSkip::Failed);
+        }
+        let surface = SurfaceDistances::new(
+            self.input.surface_embedding.positions(&u),
+            self.input.topology.clone(),
+        )
+        .ok_or(RefitSkip::Failed)?;
+        Ok(Evaluated {
+            distances: surface.signed_distances(self.outside),
+            u,
+        })
+    }
+}
+
+/// Refits the registered field of `input` with the load at the contact alone (module doc).
+/// `problem` is the model's (its own holds stay), `solver` one kept for this purpose. Refuses
+/// ([`RefitSkip`]) when the registration did not reach the cloud at the contact, or when the
+/// refit leaves more than [`ContactRefitSettings::max_unexplained_share`] of the motion seen
+/// away from it unexplained.
+pub fn refit_at_contact(
+    problem: &mut StaticProblem,
+    solver: &mut NewtonSolver,
+    input: &RefitInput<'_>,
+    settings: &ContactRefitSettings,
+) -> Result<ContactRefit, RefitSkip> {
+    let x = input.surface_embedding.positions(input.u);
+    // The registered surface: its vertices' tree, normals and signed distances.
+    let full = SurfaceDistances::new(x.clone(), input.topology.clone()).ok_or(RefitSkip::Failed)?;
+    let split = ContactSplit::of(input, &full, x.len(), settings.radius)?;
+    split.check_reached(input.noise, settings.allowance)?;
+    let plane = tangent_plane(&full, &split.held_ids)?;
+    let held_ids = &split.held_ids;
+    let mut body = HeldBody {
+        problem,
+        solver,
+        input,
+        hold_stiffness: settings.hold_stiffness,
+        embedding: Embedding {
+            points: held_ids
+                .iter()
+                .map(|&v| input.surface_embedding.points[v])
+                .collect(),
+            rest: held_ids
+                .iter()
+                .map(|&v| input.surface_embedding.rest[v])
+                .collect(),
+        },
+        registered: held_ids.iter().map(|&v| x[v]).collect(),
+        rest: held_ids
             .iter()
-            .map(|&v| input.surface_embedding.points[v])
+            .map(|&v| input.surface_embedding.rest[v])
             .collect(),
-        rest: held_ids.iter().map(|&v| rest[v]).collect(),
+        outside: &split.outside,
+        plane,
     };
     // One factorisation of the refitted body's tangent serves every solve of this frame: the
     // springs are the same in all of them, only their targets move.
-    solver.invalidate_factorization();
-    solver.set_factor_reuse(REFIT_FACTOR_USES);
-    let mut evaluate =
-        |slide: &Vector2<f64>, start: &[f64], iterations: usize| -> Result<Evaluated, RefitSkip> {
-            let shift = tangent(slide);
-            let held = PenaltySprings {
-                embedding: embedding.clone(),
-                target: held_ids.iter().map(|&v| x[v] + shift - rest[v]).collect(),
-                stiffness: vec![settings.hold_stiffness; held_ids.len()],
-                follows_load: false,
-                normals: None,
-            };
-            let mut u = start.to_vec();
-            solver.improve(problem, std::slice::from_ref(&held), &mut u, iterations);
-            if !u.iter().all(|v| v.is_finite()) {
-                return Err(RefitSkip::Failed);
-            }
-            let surface = SurfaceDistances::new(
-                input.surface_embedding.positions(&u),
-                input.topology.clone(),
-            )
-            .ok_or(RefitSkip::Failed)?;
-            Ok(Evaluated {
-                distances: surface.signed_distances(&outside),
-                u,
-            })
-        };
+    body.solver.invalidate_factorization();
+    body.solver.set_factor_reuse(REFIT_FACTOR_USES);
+    let (best, best_slide) = fit_slide(&mut body, settings)?;
+    let refit = ContactRefit {
+        outer_rms: best.rms(),
+        u: best.u,
+        slide: body.tangent(&best_slide),
+        outer_rms_full: split.outer_rms_full,
+        outer_motion: split.outer_motion,
+        inner_rms_full: split.inner_rms_full,
+        held_vertices: held_ids.len(),
+        outer_points: split.outside.len(),
+    };
+    let share = refit.unexplained_share(input.noise);
+    if share > settings.max_unexplained_share {
+        return Err(RefitSkip::LoadedElsewhere(share));
+    }
+    Ok(refit)
+}
 
+/// The slide that puts the outside points on the refitted surface: Gauss–Newton from no
+/// slide, at most `settings.slide_steps` steps, each kept only when it lowers their RMS.
+/// Returns the best evaluation and its slide (plane coordinates, m).
+fn fit_slide(
+    body: &mut HeldBody<'_, '_>,
+    settings: &ContactRefitSettings,
+) -> Result<(Evaluated, Vector2<f64>), RefitSkip> {
     let mut slide = Vector2::zeros();
-    let mut best = evaluate(&slide, input.u, settings.newton_iterations)?;
+    let mut best = body.evaluate(&slide, body.input.u, settings.newton_iterations)?;
     let mut best_slide = slide;
     // The slide's Jacobian by differences of a tenth of the region's radius, each probe one
     // Newton step from the relaxed state (exact for a linear law: the map is affine), once;
@@ -251,7 +379,7 @@ pub fn refit_at_contact(
     let base = best.u.clone();
     let mut jacobian = Vec::with_capacity(2);
     for axis in 0..2 {
-        let probe = evaluate(&(slide + Vector2::ith(axis, h)), &base, 1)?;
+        let probe = body.evaluate(&(slide + Vector2::ith(axis, h)), &base, 1)?;
         jacobian.push(
             probe
                 .distances
@@ -286,7 +414,7 @@ pub fn refit_at_contact(
         if next.norm() > settings.radius {
             next *= settings.radius / next.norm();
         }
-        let trial = evaluate(&next, &from, settings.newton_iterations)?;
+        let trial = body.evaluate(&next, &from, settings.newton_iterations)?;
         if trial.rms() >= best.rms() {
             break;
         }
@@ -296,21 +424,7 @@ pub fn refit_at_contact(
         best_slide = next;
         best = trial;
     }
-    let refit = ContactRefit {
-        outer_rms: best.rms(),
-        u: best.u,
-        slide: tangent(&best_slide),
-        outer_rms_full,
-        outer_motion,
-        inner_rms_full,
-        held_vertices: held_ids.len(),
-        outer_points: outside.len(),
-    };
-    let share = refit.unexplained_share(input.noise);
-    if share > settings.max_unexplained_share {
-        return Err(RefitSkip::LoadedElsewhere(share));
-    }
-    Ok(refit)
+    Ok((best, best_slide))
 }
 
 impl ContactRefit {
