@@ -71,6 +71,14 @@ pub struct ContactRefit {
     /// RMS signed distance (m) of the cloud's points at the contact to the registered
     /// surface: how well the registration reached the dent the refit holds.
     pub inner_rms_full: f64,
+    /// The force (N, model frame) the held contact region applies to the refitted body: the
+    /// sum of its springs' forces `k (d_j − u_j)`. With no load on the body but the contact and
+    /// its own holds, the body's equilibrium makes this the load the contact applied, through
+    /// the model's own law (not linearised).
+    pub contact_force: Vector3<f64>,
+    /// Where it acts (m, deformed configuration): the held vertices' positions weighted by
+    /// their springs' force magnitudes.
+    pub force_centre: Point3<f64>,
     /// Seen vertices held in the contact region.
     pub held_vertices: usize,
     /// Cloud points away from the contact the slide was fitted to.
@@ -256,6 +264,33 @@ impl HeldBody<'_, '_> {
         self.plane[0] * d.x + self.plane[1] * d.y
     }
 
+    /// The held springs' force on the body (N) for the slide `slide` (plane coordinates, m) at
+    /// grid displacements `u` (m), and where it acts ([`ContactRefit::force_centre`]).
+    fn reaction(&self, slide: &Vector2<f64>, u: &[f64]) -> (Vector3<f64>, Point3<f64>) {
+        let shift = self.tangent(slide);
+        let moved = self.embedding.interpolate(u);
+        let mut force = Vector3::zeros();
+        let mut weighted = Vector3::zeros();
+        let mut weight = 0.0;
+        for ((x, r), d) in self.registered.iter().zip(&self.rest).zip(&moved) {
+            let f = (x + shift - r - d) * self.hold_stiffness;
+            force += f;
+            weighted += (r.coords + d) * f.norm();
+            weight += f.norm();
+        }
+        let centre = if weight > 0.0 {
+            Point3::from(weighted / weight)
+        } else {
+            Point3::from(
+                self.registered
+                    .iter()
+                    .fold(Vector3::zeros(), |a, x| a + x.coords)
+                    / self.registered.len() as f64,
+            )
+        };
+        (force, centre)
+    }
+
     /// The body solved by at most `iterations` Newton iterations from `start` with the
     /// contact region slid by `slide` (plane coordinates, m).
     fn evaluate(
@@ -345,7 +380,10 @@ pub fn refit_at_contact(
     body.solver.invalidate_factorization();
     body.solver.set_factor_reuse(REFIT_FACTOR_USES);
     let (best, best_slide) = fit_slide(&mut body, settings)?;
+    let (contact_force, force_centre) = body.reaction(&best_slide, &best.u);
     let refit = ContactRefit {
+        contact_force,
+        force_centre,
         outer_rms: best.rms(),
         u: best.u,
         slide: body.tangent(&best_slide),

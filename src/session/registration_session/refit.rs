@@ -30,24 +30,26 @@ impl Session {
     /// The registered field `u` (m) of the cloud `data` refitted with the load at the contact
     /// alone, when `registration.contact_refit` is on, a dent is seen in the data term's
     /// `springs`, and the refit keeps the cloud away from the contact on the surface (flag
-    /// `contact_refit`); `u` itself otherwise.
+    /// `contact_refit`) with the contact's reaction force
+    /// ([`ContactRefit::contact_force`](crate::registration::contact_refit::ContactRefit::contact_force));
+    /// `u` itself and no force otherwise.
     pub(super) fn contact_refit(
         &mut self,
         data: &StillData,
         u: Vec<f64>,
         springs: Option<&PenaltySprings>,
         flags: &mut Vec<FrameFlag>,
-    ) -> Vec<f64> {
+    ) -> (Vec<f64>, Option<ContactForce>) {
         if !self.settings.contact_refit {
-            return u;
+            return (u, None);
         }
         let Some(springs) = springs else {
-            return u;
+            return (u, None);
         };
         let moved = springs.embedding.interpolate(&u);
         let Some(centre) = dent_centre(&springs.embedding.rest, &moved, springs.normals.as_deref())
         else {
-            return u;
+            return (u, None);
         };
         let h = self.model.problem.cell_size();
         let settings = ContactRefitSettings {
@@ -66,7 +68,7 @@ impl Session {
             .get_or_init(|| deformed_surface(&self.model, &self.surface_topology, &rest))
             .as_ref()
         else {
-            return u;
+            return (u, None);
         };
         let input = RefitInput {
             rest_surface,
@@ -86,9 +88,13 @@ impl Session {
         match result {
             Ok(refit) => {
                 flags.push(FrameFlag::ContactRefit);
-                refit.u
+                let force = ContactForce {
+                    resultant: refit.contact_force,
+                    centre: refit.force_centre,
+                };
+                (refit.u, Some(force))
             }
-            Err(_) => u,
+            Err(_) => (u, None),
         }
     }
 }

@@ -174,6 +174,12 @@ pub struct Material {
 const VOIGT: [(usize, usize); 6] = [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)];
 
 impl Material {
+    /// Whether the law is small-strain linear elasticity ([`LawKind::Linear`]): forces
+    /// linear in the displacements.
+    pub fn is_linear(&self) -> bool {
+        self.law == LawKind::Linear
+    }
+
     /// Builds a material from Young's modulus `young` (Pa) and Poisson's ratio
     /// `poisson` (dimensionless): `μ = E/(2(1+ν))`, `λ = Eν/((1+ν)(1−2ν))`, both
     /// in Pa.
