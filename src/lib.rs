@@ -7,7 +7,8 @@
 //! - [`grid`]: the immersed weighted-cell grid, its quadrature and the embedding H;
 //! - [`linalg`]: sparse symmetric matrices and linear solvers;
 //! - [`mechanics`]: materials, the hexahedral cell, assembly, loads, penalties, Newton;
-//! - [`scene`]: the scene file; [`simulation`]: a scene turned into a solved model;
+//! - [`scene`]: the scene file; [`simulation`]: a scene turned into a solved model, and the
+//!   scene mapped onto the registration's model, sessions and settings ([`simulation::FromScene`]);
 //! - [`scenarios`]: reference problems from the source texts (tests, benchmarks);
 //! - [`registration`]: rigid ICP and the biomechanical non-rigid ICP;
 //! - [`session`]: a model registered frame after frame (warm start, time budget, recovery);
@@ -34,6 +35,7 @@
 //! use livereg::mesh::read_obj;
 //! use livereg::scene::load_scene;
 //! use livereg::session::{Frame, Session};
+//! use livereg::simulation::FromScene;
 //!
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/liver_phantom");
@@ -69,6 +71,9 @@
 // The numerics below the registration live in the `livereg-fem` crate (crates/fem); their
 // modules keep their paths here.
 pub use livereg_fem::{geometry, grid, linalg, mechanics, mesh, random, stored_scalar};
+// Registration and sessions live in the `livereg-registration` crate (crates/registration);
+// their modules keep their paths here. The scene maps onto them in `simulation`.
+pub use livereg_registration::{registration, session};
 
 pub mod benchmark;
 pub mod charts;
@@ -77,12 +82,12 @@ pub mod evaluation;
 pub mod openigtlink;
 pub mod phantom;
 pub mod recording;
-pub mod registration;
 pub mod scenarios;
 pub mod scene;
 pub mod segmentation;
 pub mod server;
-pub mod session;
+#[cfg(test)]
+mod session_tests;
 pub mod simulation;
 pub mod synthetic;
 #[cfg(feature = "rerun")]

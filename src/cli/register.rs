@@ -2,6 +2,7 @@
 //! clouds (a directory of point files, or the `/frames` of an MCAP recording) registered frame
 //! after frame with warm start; one `results.jsonl` line per frame, and optionally a recording.
 
+use crate::simulation::FromScene;
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;

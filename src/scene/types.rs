@@ -15,6 +15,9 @@ use serde::{Deserialize, Serialize};
 pub use crate::grid::IntegrationMode;
 pub use crate::linalg::SolverKind;
 pub use crate::mechanics::{LawKind, VolumetricIntegration};
+// The registration's own choices, which `[registration]` names.
+pub use livereg_registration::registration::DataTerm;
+pub use livereg_registration::session::{PoseUpdate, RigidMode};
 
 /// A point or vector `[x, y, z]`.
 pub type Vec3 = [f64; 3];
@@ -526,44 +529,6 @@ pub struct ProbeSpec {
     pub points: PointSource,
 }
 
-/// The rigid stage of registration.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
-pub enum RigidMode {
-    /// `"icp"` (default): rigid ICP before the non-rigid stage.
-    #[default]
-    #[serde(rename = "icp")]
-    Icp,
-    /// `"none"`: no rigid stage (identity); the clouds are already in the model's frame.
-    #[serde(rename = "none")]
-    Identity,
-}
-
-/// How the model → cloud pose evolves across the frames of a session (with the non-rigid stage
-/// on; rigid-only registration always tracks).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
-pub enum PoseUpdate {
-    /// `"hold"` (default): the pose found on the first frame (or after a reset) is kept, and
-    /// the deformation explains all later change; the pose is searched again only when the
-    /// cloud no longer fits the deformed model at it (the camera or the patient moved). Right
-    /// for clouds in a fixed frame (a static or tracked camera): a rigid fit to a partly seen,
-    /// deforming organ otherwise turns the pose to absorb deformation, and the error drifts.
-    #[default]
-    #[serde(rename = "hold")]
-    Hold,
-    /// `"track"`: rigid ICP against the current deformed model on every frame, from the last
-    /// pose (clouds in a moving camera's frame with no tracker).
-    #[serde(rename = "track")]
-    Track,
-    /// `"follow"`: held as with `"hold"`, but a warm frame whose whole view moved (the
-    /// best-fitting half of the cloud lies at least twice as close to the last registered
-    /// shape after rigid ICP from the held pose, and closer by more than 0.3 mm) takes the
-    /// fitted pose: clouds from a camera that moves slowly and has no tracker, which the
-    /// elastic model would otherwise absorb frame after frame
-    /// (docs/pose.md#hold-track-or-follow).
-    #[serde(rename = "follow")]
-    Follow,
-}
-
 /// The camera pose (scene units, model frame), used to find the visible part of the surface.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -575,29 +540,6 @@ pub struct Camera {
     /// Up direction (optional; not parallel to the viewing direction).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub up: Option<Vec3>,
-}
-
-/// The direction of the correspondences of non-rigid ICP.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum DataTerm {
-    /// Model vertices (visible from the camera, or all) → nearest cloud point, blended with
-    /// the reverse direction by eq. 5.4 (thesis alg. 3), rim sources dropped.
-    SurfaceToCloud,
-    /// Every cloud point → its closest point on the deformed model surface, a barycentric
-    /// point of a triangle (`registration::surface_anchors`): the spring acts there.
-    #[default]
-    CloudToSurface,
-}
-
-impl DataTerm {
-    /// Scene-file name: `"surface-to-cloud"`, `"cloud-to-surface"`.
-    pub fn name(self) -> &'static str {
-        match self {
-            DataTerm::SurfaceToCloud => "surface-to-cloud",
-            DataTerm::CloudToSurface => "cloud-to-surface",
-        }
-    }
 }
 
 /// `[registration]`: registration settings. All optional.
@@ -753,6 +695,8 @@ impl Default for RegistrationSpec {
 
 /// Documented default values, shared by serde and the `Default` impls.
 pub mod defaults {
+    use livereg_registration::session::SessionSettings;
+
     /// `grid.cell_size` when omitted: a NaN with its own payload (an explicit `nan` in a scene
     /// is another NaN, and an error) until the scene is loaded, which derives it from the
     /// surface ([`super::GridSpec::cell_size_omitted`]).
@@ -816,19 +760,19 @@ pub mod defaults {
     }
     /// `registration.still_frames`.
     pub fn still_frames() -> u32 {
-        4
+        livereg_registration::session::settings::DEFAULT_STILL_FRAMES as u32
     }
     /// `registration.robust_pruning`.
     pub fn robust_pruning() -> bool {
-        true
+        SessionSettings::default().rigid.robust_pruning
     }
     /// `registration.remove_isolated_points`.
     pub fn remove_isolated_points() -> bool {
-        true
+        SessionSettings::default().remove_isolated_points
     }
     /// `registration.contact_refit`.
     pub fn contact_refit() -> bool {
-        true
+        SessionSettings::default().contact_refit
     }
     /// `registration.penalty_scale`.
     pub fn penalty_scale() -> f64 {

@@ -2,6 +2,7 @@
 //! [`Session`]: inline JSON arrays or uploaded files, written to a private directory under the
 //! data directory, with every path of the scene confined to that directory.
 
+use crate::simulation::FromScene;
 use std::collections::BTreeMap;
 use std::fmt::Write;
 use std::path::{Component, Path};

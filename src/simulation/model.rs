@@ -1,88 +1,26 @@
 //! A scene turned into a mechanical model in SI units: surface, grid, material, loads, fixed
-//! regions and embedded probes and structures.
-
-use std::path::PathBuf;
+//! regions and embedded probes and structures. The model type itself is the registration
+//! crate's [`Model`] (what registration reads); this module builds one from a scene
+//! ([`build_model`], [`FromScene`](super::FromScene)).
 
 use nalgebra::{Point3, Vector3};
 
 use crate::geometry::Aabb;
-use crate::grid::{Embedding, EmbeddingError, GridError, GridOptions, WeightedCellGrid};
+use crate::grid::{Embedding, GridOptions, WeightedCellGrid};
 use crate::mechanics::loads::{gravity_forces, traction_forces};
 use crate::mechanics::{
     Material, NewtonSettings, PenaltySprings, StaticProblem, VolumetricIntegration,
 };
-use crate::mesh::{read_points, read_surface, validate, MeshError, SurfaceReport, TriSurface};
+use crate::mesh::{read_points, read_surface, validate, SurfaceReport, TriSurface};
 use crate::scene::{FixedRegion, LoadedScene, PointSource, Scene};
 
-/// Default penalty factor κ of fixed regions: a held surface sample of area A gets a spring of
-/// `κ E A / h` (N/m), a held point `κ E h`; relative to the cell stiffness `~E h` this holds
-/// the region to about 1/κ of the local deformation.
-pub const DEFAULT_FIXED_PENALTY_FACTOR: f64 = 1e3;
+pub use livereg_registration::model::{
+    EmbeddedStructure, Model, ModelError, DEFAULT_FIXED_PENALTY_FACTOR,
+};
 
-/// Errors turning a scene into a model; every message names the file or key at fault.
-#[derive(Debug, thiserror::Error)]
-pub enum ModelError {
-    /// A mesh or point file could not be read.
-    #[error(transparent)]
-    Mesh(#[from] MeshError),
-    /// The grid could not be built.
-    #[error("{file}: grid: {source}")]
-    Grid {
-        /// The surface file.
-        file: PathBuf,
-        /// Why.
-        source: GridError,
-    },
-    /// A point (probe, fixed point, structure) could not be embedded.
-    #[error("{what}: {source}")]
-    Embedding {
-        /// Which key or file the points came from.
-        what: String,
-        /// Why.
-        source: EmbeddingError,
-    },
-    /// Any other invalid scene content.
-    #[error("{0}")]
-    Invalid(String),
-}
-
-/// A named set of embedded points carried by the deformation (vessel bifurcations, tumour
-/// vertices).
-#[derive(Debug, Clone)]
-pub struct EmbeddedStructure {
-    /// Name from the scene.
-    pub name: String,
-    /// The points, embedded in the grid (rest positions in metres).
-    pub embedding: Embedding,
-    /// The mesh's triangles, when the structure is a mesh.
-    pub triangles: Option<Vec<[usize; 3]>>,
-}
-
-/// Everything needed to simulate or register a scene, in SI units (lengths in metres).
-pub struct SceneModel {
-    /// Metres per scene unit (to convert results back).
-    pub length_scale: f64,
-    /// The pre-operative surface, metres.
-    pub surface: TriSurface,
-    /// Validation report of the surface as read.
-    pub surface_report: SurfaceReport,
-    /// Surface vertices embedded in the grid.
-    pub surface_embedding: Embedding,
-    /// The mechanical problem (grid, material, dead loads, fixed regions).
-    pub problem: StaticProblem,
-    /// Indices into `problem.springs` of the fixed regions given as points
-    /// (`boundary.fixed` `points`), one spring per point; the contact force's rest compliance
-    /// lumps them per cell (`registration::RestCompliance`).
-    pub point_holds: Vec<usize>,
-    /// Newton settings from `[solver]`.
-    pub newton: NewtonSettings,
-    /// Probe points, embedded.
-    pub probes: Embedding,
-    /// Internal structures, embedded.
-    pub structures: Vec<EmbeddedStructure>,
-    /// The scene file.
-    pub scene_path: PathBuf,
-}
+/// The model of a scene: the registration crate's [`Model`], under the name the scene layer
+/// has always given it.
+pub type SceneModel = Model;
 
 /// Options of the grid from `[grid]`.
 pub fn grid_options(scene: &Scene, scale: f64) -> GridOptions {
@@ -341,70 +279,50 @@ fn embedded_structures(
     Ok(structures)
 }
 
-impl SceneModel {
-    /// Each structure's name and number of points, in order (what a workload's truth must
-    /// match).
-    pub fn structure_sizes(&self) -> Vec<(String, usize)> {
-        self.structures
-            .iter()
-            .map(|s| (s.name.clone(), s.embedding.rest.len()))
-            .collect()
+/// Reads the scene's files and builds the model, stage by stage: the surface (metres,
+/// outward), the grid around it, the dead loads, the boundary springs, the probes and the
+/// internal structures, each embedded in the grid; with the validation report of the surface
+/// file as read.
+pub fn build_model(loaded: &LoadedScene) -> Result<(Model, SurfaceReport), ModelError> {
+    let scene = &loaded.scene;
+    let scale = loaded.length_scale();
+    let surface_path = loaded.resolve(&scene.model.surface);
+    let (surface, surface_report) = read_model_surface(&surface_path, scale)?;
+    let grid =
+        WeightedCellGrid::build(&surface, &grid_options(scene, scale)).map_err(|source| {
+            ModelError::Grid {
+                file: surface_path.clone(),
+                source,
+            }
+        })?;
+    let (material, volumetric) = material(scene)?;
+    let surface_embedding = embed(
+        format!("{}: surface vertices", surface_path.display()),
+        &surface.vertices,
+        &grid,
+    )?;
+    let external = external_loads(loaded, &grid, &surface)?;
+    let (mut springs, point_holds) = fixed_regions(loaded, &grid, &surface)?;
+    springs.extend(supports(loaded, &grid, &surface)?);
+    let mut probe_points = Vec::new();
+    for p in &scene.probe {
+        probe_points.extend(source_points(&p.points, loaded, scale)?);
     }
+    let probes = embed("probe".into(), &probe_points, &grid)?;
+    let structures = embedded_structures(loaded, &grid)?;
 
-    /// Reads the scene's files and builds the model, stage by stage: the surface (metres,
-    /// outward), the grid around it, the dead loads, the boundary springs, the probes and the
-    /// internal structures, each embedded in the grid.
-    pub fn build(loaded: &LoadedScene) -> Result<Self, ModelError> {
-        let scene = &loaded.scene;
-        let scale = loaded.length_scale();
-        let surface_path = loaded.resolve(&scene.model.surface);
-        let (surface, surface_report) = read_model_surface(&surface_path, scale)?;
-        let grid =
-            WeightedCellGrid::build(&surface, &grid_options(scene, scale)).map_err(|source| {
-                ModelError::Grid {
-                    file: surface_path.clone(),
-                    source,
-                }
-            })?;
-        let (material, volumetric) = material(scene)?;
-        let surface_embedding = embed(
-            format!("{}: surface vertices", surface_path.display()),
-            &surface.vertices,
-            &grid,
-        )?;
-        let external = external_loads(loaded, &grid, &surface)?;
-        let (mut springs, point_holds) = fixed_regions(loaded, &grid, &surface)?;
-        springs.extend(supports(loaded, &grid, &surface)?);
-        let mut probe_points = Vec::new();
-        for p in &scene.probe {
-            probe_points.extend(source_points(&p.points, loaded, scale)?);
-        }
-        let probes = embed("probe".into(), &probe_points, &grid)?;
-        let structures = embedded_structures(loaded, &grid)?;
-
-        let mut problem = StaticProblem::new(grid, material, volumetric);
-        problem.external = external;
-        problem.springs = springs;
-        Ok(Self {
-            length_scale: scale,
-            point_holds,
-            surface,
-            surface_report,
-            surface_embedding,
-            problem,
-            newton: newton_settings(scene),
-            probes,
-            structures,
-            scene_path: loaded.path.clone(),
-        })
-    }
-
-    /// The deformed surface (scene units) for grid displacements `u` (m).
-    pub fn deformed_surface(&self, u: &[f64]) -> TriSurface {
-        let pos = self.surface_embedding.positions(u);
-        TriSurface::new(
-            pos.iter().map(|p| p / self.length_scale).collect(),
-            self.surface.triangles.clone(),
-        )
-    }
+    let mut problem = StaticProblem::new(grid, material, volumetric);
+    problem.external = external;
+    problem.springs = springs;
+    let model = Model {
+        length_scale: scale,
+        point_holds,
+        surface,
+        surface_embedding,
+        problem,
+        newton: newton_settings(scene),
+        probes,
+        structures,
+    };
+    Ok((model, surface_report))
 }

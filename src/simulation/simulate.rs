@@ -3,7 +3,7 @@
 use std::path::Path;
 use std::time::Instant;
 
-use super::model::{ModelError, SceneModel};
+use super::model::{build_model, ModelError};
 use crate::mechanics::{NewtonSolver, Outcome};
 use crate::scene::{GridSummary, LoadedScene, ProbeResult, SimulateReport};
 
@@ -30,7 +30,7 @@ pub fn simulate_scene(
     out_dir: Option<&Path>,
 ) -> Result<SimulateReport, SimulateError> {
     let start = Instant::now();
-    let mut model = SceneModel::build(loaded)?;
+    let (mut model, surface_report) = build_model(loaded)?;
     let mut solver = NewtonSolver::new(model.newton);
     let u0 = vec![0.0; model.problem.dofs()];
     let result = solver.solve(&mut model.problem, &[], &u0);
@@ -63,8 +63,8 @@ pub fn simulate_scene(
     }
     let stats = model.problem.grid.stats();
     let mut message = result.message.clone();
-    if !model.surface_report.watertight {
-        let note = format!("surface is not watertight: {}", model.surface_report);
+    if !surface_report.watertight {
+        let note = format!("surface is not watertight: {}", surface_report);
         message = Some(match message {
             Some(m) => format!("{m}; {note}"),
             None => note,

@@ -8,8 +8,8 @@
 //! default, Kabsch point-to-point selectable via [`IcpMetric`]).
 //!
 //! ```
-//! use livereg::mesh::primitives::icosphere;
-//! use livereg::registration::{ModelTarget, RigidIcp, RigidTransform};
+//! use livereg_fem::mesh::primitives::icosphere;
+//! use livereg_registration::registration::{ModelTarget, RigidIcp, RigidTransform};
 //! use nalgebra::{Point3, Rotation3, Vector3};
 //!
 //! let mut model = icosphere(Point3::origin(), 1.0, 3);

@@ -3,9 +3,9 @@
 //! the cloud away from the contact still lies on the surface.
 
 use super::*;
+use crate::model::DEFAULT_FIXED_PENALTY_FACTOR;
 use crate::registration::contact_force::dent_centre;
 use crate::registration::contact_refit::{refit_at_contact, ContactRefitSettings, RefitInput};
-use crate::simulation::model::DEFAULT_FIXED_PENALTY_FACTOR;
 
 /// What a grid cannot shape, in cell edges (RMS): the registration must have reached the
 /// cloud at the contact within the noise and this for the refit to hold it there. The

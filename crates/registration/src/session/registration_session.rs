@@ -24,11 +24,13 @@ use super::frame::{Frame, FrameError, FrameResult, StageTimes};
 use super::frame_flag::FrameFlag;
 use super::memory_estimate::{still_window_bytes, ModelSize};
 use super::settings::SessionSettings;
+use super::settings::{PoseUpdate, RigidMode};
 use super::still_window::StillWindow;
 use crate::geometry::Camera;
 use crate::linalg::SolverKind;
 use crate::mechanics::{NewtonSettings, NewtonSolver, PenaltySprings};
 use crate::mesh::TriSurface;
+use crate::model::{Model, ModelError};
 use crate::registration::change_evidence::{cloud_noise_sigma_near, ChangeTest};
 use crate::registration::isolated_points::{
     isolated_mask, ISOLATION_MEDIAN_FACTOR, ISOLATION_NEIGHBOURS, ISOLATION_SIGMA,
@@ -42,8 +44,6 @@ use crate::registration::{
     IcpResult, IndexedPoints, ModelTarget, NonRigidIcp, NonRigidSettings, Prolongation, RigidIcp,
     RigidTransform, SurfaceDistances, SurfaceTopology,
 };
-use crate::scene::{LoadedScene, PoseUpdate, RigidMode};
-use crate::simulation::{ModelError, SceneModel};
 
 /// The last state a frame ended in successfully.
 #[derive(Debug, Clone)]
@@ -80,7 +80,7 @@ struct GoodState {
 /// displacement is finite, so a failed frame never corrupts the session.
 pub struct Session {
     /// The model (SI units).
-    pub model: SceneModel,
+    pub model: Model,
     /// Settings.
     pub settings: SessionSettings,
     /// The scene's camera in the model frame, metres.
@@ -123,7 +123,7 @@ pub struct Session {
 /// The surface of `model` (of `topology`) deformed by `u` (m), for signed distances; `None`
 /// for an empty surface.
 fn deformed_surface(
-    model: &SceneModel,
+    model: &Model,
     topology: &std::sync::Arc<SurfaceTopology>,
     u: &[f64],
 ) -> Option<SurfaceDistances> {
@@ -132,55 +132,16 @@ fn deformed_surface(
 
 /// The coarse model of a coarse-to-fine start and its prolongation to the fine grid.
 struct CoarseStart {
-    model: SceneModel,
+    model: Model,
     icp: NonRigidIcp,
     prolongation: Prolongation,
 }
 
 impl Session {
-    /// A session for a loaded scene, with settings from its `[registration]` section.
-    pub fn from_scene(loaded: &LoadedScene) -> Result<Self, ModelError> {
-        let model = SceneModel::build(loaded)?;
-        let settings = SessionSettings::from_scene(&loaded.scene, loaded.length_scale());
-        let scale = loaded.length_scale();
-        let scene_camera = match loaded
-            .scene
-            .registration
-            .as_ref()
-            .and_then(|r| r.camera.as_ref())
-        {
-            Some(c) => {
-                let p = |v: [f64; 3]| Point3::new(v[0], v[1], v[2]) * scale;
-                let cam = match c.up {
-                    None => Camera::looking_at(p(c.position), p(c.look_at)),
-                    Some(up) => Camera::new(
-                        p(c.position),
-                        p(c.look_at),
-                        nalgebra::Vector3::from(up),
-                        crate::geometry::camera::DEFAULT_FOV_DEG,
-                    ),
-                }
-                .map_err(|e| ModelError::Invalid(format!("registration.camera: {e}")))?;
-                Some(cam)
-            }
-            None => None,
-        };
-        let coarse_factor = settings.coarse_to_fine;
-        let mut session = Self::new(model, settings, scene_camera);
-        if let Some(f) = coarse_factor {
-            let mut coarse_scene = loaded.clone();
-            coarse_scene.scene.grid.cell_size *= f;
-            let coarse = SceneModel::build(&coarse_scene)
-                .map_err(|e| ModelError::Invalid(format!("registration.coarse_to_fine: {e}")))?;
-            session = session.with_coarse_start(coarse)?;
-        }
-        Ok(session)
-    }
-
     /// Adds a coarse-to-fine start: cold frames are first registered on `coarse` (the same
     /// body on a coarser grid, SI units) and the fine registration starts from its
     /// prolongated displacement, with one stiff penalty step.
-    pub fn with_coarse_start(mut self, coarse: SceneModel) -> Result<Self, ModelError> {
+    pub fn with_coarse_start(mut self, coarse: Model) -> Result<Self, ModelError> {
         let prolongation = Prolongation::new(&coarse.problem.grid, &self.model.problem.grid)
             .map_err(|e| ModelError::Invalid(format!("coarse-to-fine prolongation: {e}")))?;
         self.coarse = Some(CoarseStart {
@@ -242,7 +203,7 @@ impl Session {
 
     /// A session for `model` with `settings` and the camera (model frame, metres) used when a
     /// frame brings none.
-    pub fn new(model: SceneModel, settings: SessionSettings, camera: Option<Camera>) -> Self {
+    pub fn new(model: Model, settings: SessionSettings, camera: Option<Camera>) -> Self {
         let u = vec![0.0; model.problem.dofs()];
         let model_newton = model.newton;
         // One averaging of the surface normals for every stage (cold, warm, coarse, recovery).

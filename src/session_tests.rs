@@ -1,16 +1,17 @@
-//! Session behaviour: warm start, failed frames that leave no trace, thinning, the time
-//! budget, reset, and no drift on a still scene. A small ellipsoid (10 × 7.5 × 5 cm, in mm)
+//! Session behaviour, on sessions built from scene files: warm start, failed frames that leave
+//! no trace, thinning, the time budget, reset, and no drift on a still scene. A small ellipsoid (10 × 7.5 × 5 cm, in mm)
 //! clamped at one end keeps these fast; accuracy is tested on the phantom in `tests/`.
 
 use std::path::PathBuf;
 
 use nalgebra::{Point3, Vector3};
 
-use super::*;
 use crate::mesh::primitives::icosphere;
 use crate::mesh::{write_obj, write_points, TriSurface};
 use crate::scene::DataTerm;
 use crate::scene::{load_scene, PoseUpdate};
+use crate::session::*;
+use crate::simulation::FromScene;
 
 /// A fresh directory for `tag` holding `body.obj`: a 10 × 7.5 × 5 cm ellipsoid (mm), an
 /// icosphere of `levels`; returns the directory and the surface (mm).

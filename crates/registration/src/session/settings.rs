@@ -1,10 +1,47 @@
 //! What a session does per frame, and its limits.
 
-use crate::mechanics::LawKind;
+use serde::{Deserialize, Serialize};
+
 use crate::registration::change_evidence::ChangeTest;
-use crate::registration::non_rigid_icp::NormalScale;
 use crate::registration::{NonRigidSettings, PoseSearch, RigidIcp};
-use crate::scene::{DataTerm, PoseUpdate, RigidMode, Scene};
+
+/// The rigid stage of registration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
+pub enum RigidMode {
+    /// `"icp"` (default): rigid ICP before the non-rigid stage.
+    #[default]
+    #[serde(rename = "icp")]
+    Icp,
+    /// `"none"`: no rigid stage (identity); the clouds are already in the model's frame.
+    #[serde(rename = "none")]
+    Identity,
+}
+
+/// How the model → cloud pose evolves across the frames of a session (with the non-rigid stage
+/// on; rigid-only registration always tracks).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, Serialize)]
+pub enum PoseUpdate {
+    /// `"hold"` (default): the pose found on the first frame (or after a reset) is kept, and
+    /// the deformation explains all later change; the pose is searched again only when the
+    /// cloud no longer fits the deformed model at it (the camera or the patient moved). Right
+    /// for clouds in a fixed frame (a static or tracked camera): a rigid fit to a partly seen,
+    /// deforming organ otherwise turns the pose to absorb deformation, and the error drifts.
+    #[default]
+    #[serde(rename = "hold")]
+    Hold,
+    /// `"track"`: rigid ICP against the current deformed model on every frame, from the last
+    /// pose (clouds in a moving camera's frame with no tracker).
+    #[serde(rename = "track")]
+    Track,
+    /// `"follow"`: held as with `"hold"`, but a warm frame whose whole view moved (the
+    /// best-fitting half of the cloud lies at least twice as close to the last registered
+    /// shape after rigid ICP from the held pose, and closer by more than 0.3 mm) takes the
+    /// fitted pose: clouds from a camera that moves slowly and has no tracker, which the
+    /// elastic model would otherwise absorb frame after frame
+    /// (docs/pose.md#hold-track-or-follow).
+    #[serde(rename = "follow")]
+    Follow,
+}
 
 /// Settings of a [`Session`](super::Session). Lengths in metres.
 #[derive(Debug, Clone, PartialEq)]
@@ -94,8 +131,9 @@ pub struct SessionSettings {
     /// is flagged `recovered:<how>` or `recovery_failed` (default true).
     pub recovery: bool,
     /// Coarse-to-fine start of cold frames: the factor on the cell size of the coarse grid
-    /// (`None`: off). Takes effect when the session is built by
-    /// [`Session::from_scene`](super::Session::from_scene) (which builds the coarse model).
+    /// (`None`: off). Takes effect when the session is built from a scene (the scene layer
+    /// builds the coarse model and adds it by
+    /// [`Session::with_coarse_start`](super::Session::with_coarse_start)).
     pub coarse_to_fine: Option<f64>,
     /// Explain each registered field again by a load at the contact alone
     /// ([`refit_at_contact`](crate::registration::contact_refit::refit_at_contact)) and keep
@@ -120,6 +158,9 @@ pub const DEFAULT_CONTACT_RADIUS: f64 = 0.035;
 /// (`cargo test --test bad_frames -- --nocapture`).
 pub const DEFAULT_MAX_CLOUD_POINTS: usize = 2_000;
 
+/// Default of [`SessionSettings::still_frames`]: the most still frames registered together.
+pub const DEFAULT_STILL_FRAMES: usize = 4;
+
 /// Newton steps a helper-thread refactorisation lags behind its request when the scene asks
 /// for `registration.background_factorization` (`NonRigidSettings::background_lag`). Two steps
 /// hide most of a 1,443-node factorisation (20 ms against ~5 ms per step); three lose more
@@ -137,12 +178,12 @@ impl Default for SessionSettings {
             // Median/MAD pruning (`registration.robust_pruning`, default true); the rigid
             // ICP's own default stays the thesis's mean + 2σ.
             rigid: RigidIcp {
-                robust_pruning: crate::scene::defaults::robust_pruning(),
+                robust_pruning: true,
                 ..RigidIcp::default()
             },
             pose_search: Some(PoseSearch::default()),
             rest_test: Some(ChangeTest::default()),
-            still_frames: crate::scene::defaults::still_frames() as usize,
+            still_frames: DEFAULT_STILL_FRAMES,
             tracking_relative_tolerance: 1e-4,
             target_spacing: 0.005,
             max_rigid_rms: 0.02,
@@ -152,80 +193,11 @@ impl Default for SessionSettings {
             warm: NonRigidSettings::warm(),
             time_budget_ms: None,
             max_cloud_points: DEFAULT_MAX_CLOUD_POINTS,
-            remove_isolated_points: crate::scene::defaults::remove_isolated_points(),
+            remove_isolated_points: true,
             recovery: true,
             coarse_to_fine: None,
-            contact_refit: crate::scene::defaults::contact_refit(),
+            contact_refit: true,
             contact_radius: DEFAULT_CONTACT_RADIUS,
         }
-    }
-}
-
-impl SessionSettings {
-    /// Settings from a scene's `[registration]` section (defaults when absent); `scale` is
-    /// metres per scene unit.
-    pub fn from_scene(scene: &Scene, scale: f64) -> Self {
-        let mut s = Self::default();
-        if let Some(r) = &scene.registration {
-            s.rigid_mode = r.rigid;
-            s.pose_update = r.pose;
-            for n in [&mut s.cold, &mut s.warm] {
-                n.alpha = r.alpha;
-                n.penalty_end = r.penalty_end;
-                n.penalty_scale = r.penalty_scale;
-                n.max_pair_distance = r.max_pair_distance.map(|d| d * scale);
-                n.data_term = r.data_term;
-                n.normal_scale = match r.normal_radius {
-                    None => NormalScale::OrganSize,
-                    Some(0.0) => NormalScale::Vertex,
-                    Some(d) => NormalScale::Radius(d * scale),
-                };
-            }
-            s.rigid.robust_pruning = r.robust_pruning;
-            if !r.pose_search {
-                s.pose_search = None;
-            }
-            if !r.rest_test {
-                s.rest_test = None;
-            }
-            s.still_frames = r.still_frames as usize;
-            if let Some(d) = r.max_pose_uncertainty {
-                s.max_pose_uncertainty = d * scale;
-            }
-            if let Some(d) = r.max_expected_error {
-                s.max_expected_error = d * scale;
-            }
-            // Warm frames prune at median/MAD with the cloud → surface term (measured in
-            // docs/data-term.md#which-pairs-are-kept); the thesis's direction keeps mean + 2σ.
-            s.warm.robust_pruning = r.data_term == DataTerm::CloudToSurface;
-            if r.background_factorization {
-                s.warm.background_lag = BACKGROUND_FACTORIZATION_LAG;
-            }
-            s.cold.penalty_start = r.penalty_start;
-            s.cold.penalty_steps = r.penalty_steps as usize;
-            s.cold.max_icp_iterations = r.max_icp_iterations as usize;
-            s.time_budget_ms = r.time_budget_ms;
-            if let Some(n) = r.max_cloud_points {
-                s.max_cloud_points = n as usize;
-            }
-            s.coarse_to_fine = r.coarse_to_fine;
-            s.remove_isolated_points = r.remove_isolated_points;
-            s.contact_refit = r.contact_refit;
-            if let Some(d) = r.contact_radius {
-                s.contact_radius = d * scale;
-            }
-        }
-        if matches!(
-            scene.material.law,
-            LawKind::NeoHookean | LawKind::Svk | LawKind::MooneyRivlin
-        ) {
-            // `NonRigidSettings::warm`'s single Newton step per ICP iteration and 0.3 mm stop
-            // are measured on the corotated and linear laws. The hyperelastic laws take two
-            // steps and 0.5 mm (`livereg bench`: neo-Hookean 1.72 mm TRE with one step against
-            // 1.32 with two; SVK 1.40 with one step and 0.3 mm against 1.32).
-            s.warm.newton_iterations = 2;
-            s.warm.tolerance = 5e-4;
-        }
-        s
     }
 }

@@ -7,6 +7,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use nalgebra::Point3;
+use serde::{Deserialize, Serialize};
 
 use super::correspondences::{
     pair, Correspondences, IndexedPoints, PairingRule, RIM_NEIGHBOURS, RIM_RATIO,
@@ -17,8 +18,30 @@ use crate::geometry::{Camera, VisibleSurface};
 use crate::grid::Embedding;
 use crate::mechanics::{NewtonSettings, NewtonSolver, PenaltySprings, StaticProblem};
 use crate::mesh::TriSurface;
-pub use crate::scene::DataTerm;
-use crate::simulation::SceneModel;
+use crate::model::Model;
+
+/// The direction of the correspondences of non-rigid ICP.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DataTerm {
+    /// Model vertices (visible from the camera, or all) → nearest cloud point, blended with
+    /// the reverse direction by eq. 5.4 (thesis alg. 3), rim sources dropped.
+    SurfaceToCloud,
+    /// Every cloud point → its closest point on the deformed model surface, a barycentric
+    /// point of a triangle (`registration::surface_anchors`): the spring acts there.
+    #[default]
+    CloudToSurface,
+}
+
+impl DataTerm {
+    /// Scene-file name: `"surface-to-cloud"`, `"cloud-to-surface"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            DataTerm::SurfaceToCloud => "surface-to-cloud",
+            DataTerm::CloudToSurface => "cloud-to-surface",
+        }
+    }
+}
 
 /// Settings of the non-rigid stage. Stiffnesses in N/m per source point, lengths in metres.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -538,7 +561,7 @@ impl NonRigidIcp {
     /// springs. The model is not modified: the data term's springs are passed to the solver.
     pub fn register(
         &mut self,
-        model: &mut SceneModel,
+        model: &mut Model,
         cloud: &[Point3<f64>],
         camera: Option<&Camera>,
         u: &mut [f64],
@@ -589,7 +612,7 @@ impl NonRigidIcp {
     #[allow(clippy::too_many_arguments)]
     fn penalty_ramp(
         &mut self,
-        model: &mut SceneModel,
+        model: &mut Model,
         target: &Target,
         camera: Option<&Camera>,
         u: &mut [f64],
@@ -624,7 +647,7 @@ impl NonRigidIcp {
     #[allow(clippy::too_many_arguments)]
     fn penalty_step(
         &mut self,
-        model: &mut SceneModel,
+        model: &mut Model,
         target: &Target,
         camera: Option<&Camera>,
         u: &mut [f64],
@@ -676,7 +699,7 @@ impl NonRigidIcp {
     /// changed; kept in `self.visible`.
     fn update_visibility(
         &mut self,
-        model: &SceneModel,
+        model: &Model,
         x: &[Point3<f64>],
         camera: Option<&Camera>,
         timings: &mut NonRigidTimings,
@@ -710,7 +733,7 @@ impl NonRigidIcp {
     /// stiffness `k` (N/m) are made here since they need the anchors' embedding.
     fn pair_points(
         &mut self,
-        model: &SceneModel,
+        model: &Model,
         target: &Target,
         x: &[Point3<f64>],
         camera: Option<&Camera>,
@@ -832,7 +855,7 @@ impl NonRigidIcp {
     /// settled: no failure and no step shortened below ½ by the line search.
     fn newton_stage(
         &mut self,
-        model: &mut SceneModel,
+        model: &mut Model,
         springs: &PenaltySprings,
         u: &mut [f64],
         report: &mut NonRigidReport,
@@ -885,7 +908,7 @@ fn pulled_vertices(springs: &[PenaltySprings], emb: &Embedding) -> Vec<bool> {
 /// Registers `model` to `cloud` from `u` (updated in place) with a fresh [`NonRigidIcp`]: the
 /// one-shot form of [`NonRigidIcp::register`] (no deadline, Newton settings from the scene).
 pub fn register_non_rigid(
-    model: &mut SceneModel,
+    model: &mut Model,
     cloud: &[Point3<f64>],
     camera: Option<&Camera>,
     u: &mut [f64],

@@ -34,7 +34,7 @@
 //! [`BYTES_PER_WINDOW_POINT`] each (the phantom's, the larger).
 
 use crate::linalg::{predicted_factor_len, SolverKind};
-use crate::simulation::SceneModel;
+use crate::model::Model;
 
 /// Sizes of one model that drive a session's memory.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -126,7 +126,7 @@ impl ModelSize {
 
     /// The sizes of `model`, whose linear solver is `kind`. Runs the symbolic analysis of the
     /// tangent's pattern (milliseconds for the grids a session uses).
-    pub fn of(model: &SceneModel, kind: SolverKind) -> Result<Self, String> {
+    pub fn of(model: &Model, kind: SolverKind) -> Result<Self, String> {
         let grid = &model.problem.grid;
         let pattern = model.problem.assembler().pattern();
         let factor_values = predicted_factor_len(pattern, Some(&grid.node_coords), kind)

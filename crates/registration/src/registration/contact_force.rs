@@ -82,7 +82,7 @@ impl RestCompliance {
     /// Assembles and factorises, with the linear solver `kind` (the model's), the rest tangent
     /// of `problem`: its cells and its own springs (the fixed regions), those listed in
     /// `lumped_holds` (indices into `problem.springs`: the holds given as points,
-    /// [`SceneModel::point_holds`](crate::simulation::SceneModel::point_holds)) lumped per
+    /// [`Model::point_holds`](crate::model::Model::point_holds)) lumped per
     /// cell (module doc), given to [`StaticProblem::evaluate_with_springs`] for this one
     /// assembly: the problem's own springs are left as they are. Fails when the tangent
     /// cannot be assembled or factorised, or is not positive definite (a body held nowhere).

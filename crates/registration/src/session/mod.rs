@@ -1,6 +1,6 @@
 //! Registration sessions: the model's state carried from frame to frame.
 //!
-//! A [`Session`] owns one patient's [`SceneModel`](crate::simulation::SceneModel) and registers
+//! A [`Session`] owns one patient's [`Model`](crate::model::Model) and registers
 //! a stream of intra-operative clouds ([`Frame`]) to it: rigid ICP (tracking from the last
 //! pose), then non-rigid ICP warm-started from the last good displacement field, within an
 //! optional per-frame time budget. A frame that fails leaves the session exactly as it was, and
@@ -15,9 +15,6 @@ pub mod registration_session;
 pub mod settings;
 pub mod still_window;
 
-#[cfg(test)]
-mod tests;
-
 pub use frame::{Frame, FrameError, FrameResult, StageTimes};
 pub use frame_files::{frame_files, FrameFiles};
 pub use frame_flag::{flag_texts, FrameFlag};
@@ -26,5 +23,5 @@ pub use observer::FrameObserver;
 pub use registration_session::{
     damped_newton, recovery_ladder, recovery_settings, RecoveryRung, Session, BEFORE_RECOVERY,
 };
-pub use settings::SessionSettings;
+pub use settings::{PoseUpdate, RigidMode, SessionSettings};
 pub use still_window::StillWindow;
