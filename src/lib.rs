@@ -74,21 +74,19 @@ pub use livereg_fem::{geometry, grid, linalg, mechanics, mesh, random, stored_sc
 // Registration and sessions live in the `livereg-registration` crate (crates/registration);
 // their modules keep their paths here. The scene maps onto them in `simulation`.
 pub use livereg_registration::{registration, session};
+// The scene layer (scene files, segmentation, scene → model and session, result records,
+// recordings) lives in the `livereg-scene` crate (crates/scene).
+pub use livereg_scene::{evaluation, recording, scene, segmentation, simulation};
 
 pub mod benchmark;
 pub mod charts;
 pub mod cli;
-pub mod evaluation;
 pub mod openigtlink;
 pub mod phantom;
-pub mod recording;
 pub mod scenarios;
-pub mod scene;
-pub mod segmentation;
 pub mod server;
 #[cfg(test)]
 mod session_tests;
-pub mod simulation;
 pub mod synthetic;
 #[cfg(feature = "rerun")]
 pub mod visualisation;

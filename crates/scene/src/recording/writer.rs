@@ -14,7 +14,7 @@ use super::messages::{FrameMessage, ResultMessage, SessionMessage};
 use super::scene_files::SceneFiles;
 use super::{schema, RecordingError};
 use super::{FORMAT_NAME, FORMAT_VERSION, TOPIC_FRAMES, TOPIC_RESULTS, TOPIC_SCENE, TOPIC_SESSION};
-use crate::session::{Frame, FrameResult};
+use crate::session::{Frame, FrameObserver, FrameResult};
 
 /// Longest time a recorded result stays in the operating system's cache before the recorder
 /// forces it to the disk, unless [`Recorder::set_fsync_interval`] says otherwise.
@@ -282,5 +282,27 @@ impl Drop for Recorder {
         if let Some(mut w) = self.writer.take() {
             let _ = w.finish();
         }
+    }
+}
+
+/// A recorder records every frame a session registers, and its result (an unreadable frame
+/// as its reason).
+impl FrameObserver for Recorder {
+    fn frame_done(
+        &mut self,
+        _index: usize,
+        frame: Option<&Frame>,
+        received_ns: u64,
+        result: &FrameResult,
+    ) -> Result<(), String> {
+        match frame {
+            Some(f) => self.record_frame(f, received_ns),
+            None => {
+                let why = result.error.as_ref().map(|e| e.to_string());
+                self.record_unreadable_frame(&result.source, &why.unwrap_or_default(), received_ns)
+            }
+        }
+        .and_then(|()| self.record_result(result))
+        .map_err(|e| e.to_string())
     }
 }

@@ -8,8 +8,21 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Matrix4, Point3, Rotation3, Unit, Vector3};
 
 use super::*;
+use crate::geometry::closest_point::closest_point_on_triangle;
 use crate::mesh::{validate, TriSurface};
-use crate::phantom::distance::distance_to_surface;
+
+/// Unsigned distance from `p` to the nearest point of `surface` (brute force over all
+/// triangles).
+fn distance_to_surface(surface: &TriSurface, p: &Point3<f64>) -> f64 {
+    (0..surface.triangles.len())
+        .map(|t| {
+            let (q, _) = closest_point_on_triangle(p, &surface.corners(t));
+            (q - p).norm_squared()
+        })
+        .filter(|d2| d2.is_finite())
+        .fold(f64::INFINITY, f64::min)
+        .sqrt()
+}
 
 /// A fresh directory under the system temp dir, removed on drop.
 struct TempDir(PathBuf);

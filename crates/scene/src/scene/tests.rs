@@ -926,7 +926,7 @@ fn line_column_counts_characters() {
 
 #[test]
 fn examples_in_the_scene_reference_parse() {
-    let doc = include_str!("../../docs/scene.md");
+    let doc = include_str!("../../../../docs/scene.md");
     let mut blocks = 0;
     for (fence, format) in [
         ("```toml\n", SceneFormat::Toml),

@@ -6,10 +6,10 @@
 //! y. See `docs/segmentation.md`.
 //!
 //! ```no_run
-//! use livereg::segmentation::{read_labelmap, organ_surface, SurfaceOptions, LabelRef};
+//! use livereg_scene::segmentation::{read_labelmap, organ_surface, SurfaceOptions, LabelRef};
 //! let map = read_labelmap("liver.seg.nrrd".as_ref()).unwrap();
 //! let liver = organ_surface(&map, &[LabelRef::from("liver")], &SurfaceOptions::default()).unwrap();
-//! livereg::mesh::write_obj("liver.obj".as_ref(), &liver).unwrap();
+//! livereg_fem::mesh::write_obj("liver.obj".as_ref(), &liver).unwrap();
 //! ```
 //!
 //! One concept per file: [`labelmap`] (the grid, affine, segment names), [`nifti`], [`nrrd`],
