@@ -77,14 +77,16 @@ pub use livereg_registration::{registration, session};
 // The scene layer (scene files, segmentation, scene → model and session, result records,
 // recordings) lives in the `livereg-scene` crate (crates/scene).
 pub use livereg_scene::{evaluation, recording, scene, segmentation, simulation};
+// The registration server and the OpenIGTLink codec live in the `livereg-server` crate
+// (crates/server).
+pub use livereg_server as server;
+pub use livereg_server::openigtlink;
 
 pub mod benchmark;
 pub mod charts;
 pub mod cli;
-pub mod openigtlink;
 pub mod phantom;
 pub mod scenarios;
-pub mod server;
 #[cfg(test)]
 mod session_tests;
 pub mod synthetic;

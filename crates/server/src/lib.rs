@@ -1,5 +1,7 @@
-//! The registration server (`livereg serve`): HTTP + WebSocket (axum) and gRPC (tonic) front
-//! ends over one set of sessions, for AR displays streaming point clouds.
+//! livereg-server: the registration server (`livereg serve`): HTTP + WebSocket (axum), gRPC
+//! (tonic) and OpenIGTLink front ends over one set of sessions, for AR displays streaming point
+//! clouds. [`start`] binds the listeners and returns a [`RunningServer`]; [`http::router`] is
+//! the axum router of the HTTP and WebSocket API.
 //!
 //! - [`config`]: file, environment and flags; [`auth`]: bearer tokens (constant time);
 //! - [`limits`]: sizes and rates; [`registry`]: sessions, ownership, random ids;
@@ -7,11 +9,35 @@
 //!   the blocking pool with a newest-wins mailbox; [`service`]: the operations and shared state;
 //! - [`http`], [`ws`], [`grpc`]: the front ends; [`codec`]: frame and result encodings;
 //!   [`result_codec`]: the compact binary result encoding of WebSocket streams;
+//! - [`openigtlink`]: the OpenIGTLink protocol codec, which the OpenIGTLink listener speaks;
 //! - [`tls`]: native TLS (rustls) of the listeners;
 //! - [`metrics`]: Prometheus; [`openapi`]: the HTTP API's document; [`error`]: one error type.
 //!
-//! The server uses the session, scene and evaluation layers (and the mesh reader to check
-//! uploaded meshes before building anything); nothing below it imports it.
+//! The server stands on the scene layer (`livereg-scene`: scenes, result records,
+//! recordings), the registration sessions (`livereg-registration`) and the mesh reader
+//! (`livereg-fem`, to check uploaded meshes before building anything); nothing below it
+//! imports it.
+//!
+//! # Starting a server
+//!
+//! ```no_run
+//! # async fn run() -> Result<(), Box<dyn std::error::Error>> {
+//! use livereg_server::ServerConfig;
+//!
+//! let config = ServerConfig::default();
+//! let server = livereg_server::start(config).await?;
+//! println!("HTTP and WebSocket on {}", server.http_addr);
+//! # Ok(())
+//! # }
+//! ```
+#![warn(missing_docs)]
+
+// The layers below: their modules keep the paths the server's code names them by.
+#[cfg(test)]
+use livereg_fem::random;
+use livereg_fem::{geometry, mesh};
+use livereg_registration::session;
+use livereg_scene::{evaluation, recording, scene, simulation};
 
 pub(crate) mod audit;
 pub(crate) mod auth;
@@ -26,6 +52,7 @@ pub(crate) mod limits;
 pub(crate) mod memory_budget;
 pub(crate) mod metrics;
 pub(crate) mod openapi;
+pub mod openigtlink;
 pub mod registry;
 pub mod result_codec;
 pub(crate) mod service;

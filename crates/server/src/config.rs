@@ -724,7 +724,7 @@ mod tests {
     /// what their comments promise: the Kubernetes ConfigMap turns TLS on.
     #[test]
     fn deploy_configurations_parse() {
-        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy");
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../deploy");
         let example = ServerConfig::from_file(&root.join("config.example.toml")).unwrap();
         assert_eq!(example.data_dir, PathBuf::from("/var/lib/livereg"));
         let yaml = std::fs::read_to_string(root.join("kubernetes/livereg.yaml")).unwrap();

@@ -699,7 +699,7 @@ async fn send(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::server::config::{IgtlCoordinates, LimitsConfig};
+    use crate::config::{IgtlCoordinates, LimitsConfig};
 
     /// A 40³ NRRD of 1.5 mm voxels: label 1 a ball of radius 24 mm, label 2 a ball of 5 mm
     /// inside it (written byte by byte from the NRRD specification).

@@ -222,7 +222,7 @@ mod tests {
 
     fn fixture(name: &str) -> std::path::PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("fixtures/tls")
+            .join("../../fixtures/tls")
             .join(name)
     }
 

@@ -12,7 +12,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .build_server(true)
         .build_client(true)
         // Malformed protobuf is INVALID_ARGUMENT (tonic-prost's codec says INTERNAL).
-        .codec_path("crate::server::grpc::Codec")
+        .codec_path("crate::grpc::Codec")
         .compile_fds(fds)?;
     Ok(())
 }

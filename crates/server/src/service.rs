@@ -82,7 +82,7 @@ fn model_info(
             .iter()
             .map(|s| s.name.clone())
             .collect(),
-        meshes: Arc::new(crate::server::worker::ModelMeshes::of(&session.model)),
+        meshes: Arc::new(crate::worker::ModelMeshes::of(&session.model)),
         memory_estimate_bytes: estimate,
     }
 }
