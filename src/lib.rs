@@ -23,9 +23,15 @@
 //! - [`server`]: the registration server (HTTP, WebSocket, gRPC) for AR displays;
 //! - [`cli`]: the command line.
 //!
-//! `stored_scalar`, `mesh`, `geometry`, `grid`, `linalg`, `mechanics` and `random` are the
-//! `livereg-fem` crate's (crates/fem), re-exported under the same names. Lower layers never
-//! import higher ones. Inside the mechanics everything is SI (m, N, Pa, J).
+//! Most of these modules live in the workspace's crates and are re-exported here under the
+//! same names: `stored_scalar`, `mesh`, `geometry`, `grid`, `linalg`, `mechanics` and `random`
+//! are `livereg-fem`'s (crates/fem); `registration` and `session` are
+//! `livereg-registration`'s (crates/registration); `scene`, `segmentation`, `simulation`,
+//! `evaluation` and `recording` are `livereg-scene`'s (crates/scene); `server` and
+//! `openigtlink` are `livereg-server`'s (crates/server). This crate itself holds the command
+//! line, the bench, the charts, the phantom, the synthetic data and the visualisation. Lower
+//! layers never import higher ones; the crates make that a compiler fact. Inside the mechanics
+//! everything is SI (m, N, Pa, J).
 //!
 //! # The core path: scene → model → session → frame → result
 //!

@@ -110,7 +110,7 @@ pub struct RecoveryRung {
 /// not the law. With Jacobi-CG, the exact (indefinite) neo-Hookean, Mooney–Rivlin and SVK
 /// tangents stop CG ("matrix is not positive definite"), while the corotated law's projected
 /// tangent does not; swapping in that law would register another law's answer. The damped
-/// direct solve rescues those frames with the scene's law (`src/session/tests.rs`,
+/// direct solve rescues those frames with the scene's law (`src/session_tests.rs`,
 /// `the_recovery_keeps_the_scenes_law`).
 pub fn recovery_ladder(cold: &NonRigidSettings, newton: &NewtonSettings) -> [RecoveryRung; 2] {
     let smaller = recovery_settings(cold);
