@@ -7,6 +7,7 @@
 //!
 //! Run: `cargo bench --bench cold_registration` (`-- --quick` for a rough number).
 
+use livereg::simulation::FromScene;
 use std::hint::black_box;
 use std::time::Duration;
 

@@ -7,6 +7,7 @@
 //!
 //! Run: `cargo bench --bench contact_force -- --warm-up-time 1 --measurement-time 3`
 
+use livereg::simulation::FromScene;
 use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, Criterion};

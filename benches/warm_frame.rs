@@ -12,6 +12,7 @@
 //!
 //! Run: `cargo bench --bench warm_frame` (a few minutes; `-- --quick` for a rough number).
 
+use livereg::simulation::FromScene;
 use std::hint::black_box;
 use std::time::Instant;
 

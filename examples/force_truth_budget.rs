@@ -25,6 +25,7 @@
 //! [--cell-size MM] [--only NAME-PART]` (default: every case, frames 9, 19 and 29; ~5 min).
 //! docs/force-truths.md#the-error-budget quotes its table.
 
+use livereg::simulation::FromScene;
 use std::path::Path;
 
 use livereg::benchmark::force_truths::{
@@ -137,7 +138,7 @@ fn budget_row(
     let last = *graded.iter().max().unwrap_or(&0);
     let mut camera = Session::from_scene(&scene).map_err(|e| e.to_string())?;
     let mut whole = Session::from_scene(&scene).map_err(|e| e.to_string())?;
-    let mut model = SceneModel::build(&scene).map_err(|e| e.to_string())?;
+    let mut model = SceneModel::from_scene(&scene).map_err(|e| e.to_string())?;
     let patch: Vec<Point3<f64>> = meta
         .patch_vertex_indices
         .iter()

@@ -16,6 +16,7 @@ use livereg::benchmark::Workload;
 use livereg::evaluation::percentile;
 use livereg::scene::{load_scene, LoadedScene};
 use livereg::session::{Session, StageTimes};
+use livereg::simulation::FromScene;
 
 fn workloads(args: &[String]) -> Result<(LoadedScene, Vec<Workload>), String> {
     let what = args.get(1).map_or("press-slide", String::as_str);

@@ -24,6 +24,7 @@ use livereg::benchmark::indentation::{indentation_workload, scene_for, Indentati
 use livereg::benchmark::Workload;
 use livereg::scene::{load_scene, LoadedScene};
 use livereg::session::Session;
+use livereg::simulation::FromScene;
 use livereg::synthetic::indentation::{
     bundled_fixture_dir, indentation_sequence, whole_surface_sequence, IndentationCloudSpec,
     IndentationFrame, IndentationTruth,

@@ -4,12 +4,13 @@
 
 use livereg::mechanics::NewtonSolver;
 use livereg::scene::load_scene;
+use livereg::simulation::FromScene;
 use livereg::simulation::SceneModel;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let path = std::env::args().nth(1).ok_or("usage: trace_scene SCENE")?;
     let loaded = load_scene(std::path::Path::new(&path))?;
-    let mut model = SceneModel::build(&loaded)?;
+    let mut model = SceneModel::from_scene(&loaded)?;
     let u0 = vec![0.0; model.problem.dofs()];
     let r = NewtonSolver::new(model.newton).solve(&mut model.problem, &[], &u0);
     for it in &r.history {

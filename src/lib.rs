@@ -7,7 +7,8 @@
 //! - [`grid`]: the immersed weighted-cell grid, its quadrature and the embedding H;
 //! - [`linalg`]: sparse symmetric matrices and linear solvers;
 //! - [`mechanics`]: materials, the hexahedral cell, assembly, loads, penalties, Newton;
-//! - [`scene`]: the scene file; [`simulation`]: a scene turned into a solved model;
+//! - [`scene`]: the scene file; [`simulation`]: a scene turned into a solved model, and the
+//!   scene mapped onto the registration's model, sessions and settings ([`simulation::FromScene`]);
 //! - [`scenarios`]: reference problems from the source texts (tests, benchmarks);
 //! - [`registration`]: rigid ICP and the biomechanical non-rigid ICP;
 //! - [`session`]: a model registered frame after frame (warm start, time budget, recovery);
@@ -22,9 +23,15 @@
 //! - [`server`]: the registration server (HTTP, WebSocket, gRPC) for AR displays;
 //! - [`cli`]: the command line.
 //!
-//! `stored_scalar`, `mesh`, `geometry`, `grid`, `linalg`, `mechanics` and `random` are the
-//! `livereg-fem` crate's (crates/fem), re-exported under the same names. Lower layers never
-//! import higher ones. Inside the mechanics everything is SI (m, N, Pa, J).
+//! Most of these modules live in the workspace's crates and are re-exported here under the
+//! same names: `stored_scalar`, `mesh`, `geometry`, `grid`, `linalg`, `mechanics` and `random`
+//! are `livereg-fem`'s (crates/fem); `registration` and `session` are
+//! `livereg-registration`'s (crates/registration); `scene`, `segmentation`, `simulation`,
+//! `evaluation` and `recording` are `livereg-scene`'s (crates/scene); `server` and
+//! `openigtlink` are `livereg-server`'s (crates/server). This crate itself holds the command
+//! line, the bench, the charts, the phantom, the synthetic data and the visualisation. Lower
+//! layers never import higher ones; the crates make that a compiler fact. Inside the mechanics
+//! everything is SI (m, N, Pa, J).
 //!
 //! # The core path: scene → model → session → frame → result
 //!
@@ -34,6 +41,7 @@
 //! use livereg::mesh::read_obj;
 //! use livereg::scene::load_scene;
 //! use livereg::session::{Frame, Session};
+//! use livereg::simulation::FromScene;
 //!
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/liver_phantom");
@@ -69,21 +77,24 @@
 // The numerics below the registration live in the `livereg-fem` crate (crates/fem); their
 // modules keep their paths here.
 pub use livereg_fem::{geometry, grid, linalg, mechanics, mesh, random, stored_scalar};
+// Registration and sessions live in the `livereg-registration` crate (crates/registration);
+// their modules keep their paths here. The scene maps onto them in `simulation`.
+pub use livereg_registration::{registration, session};
+// The scene layer (scene files, segmentation, scene → model and session, result records,
+// recordings) lives in the `livereg-scene` crate (crates/scene).
+pub use livereg_scene::{evaluation, recording, scene, segmentation, simulation};
+// The registration server and the OpenIGTLink codec live in the `livereg-server` crate
+// (crates/server).
+pub use livereg_server as server;
+pub use livereg_server::openigtlink;
 
 pub mod benchmark;
 pub mod charts;
 pub mod cli;
-pub mod evaluation;
-pub mod openigtlink;
 pub mod phantom;
-pub mod recording;
-pub mod registration;
 pub mod scenarios;
-pub mod scene;
-pub mod segmentation;
-pub mod server;
-pub mod session;
-pub mod simulation;
+#[cfg(test)]
+mod session_tests;
 pub mod synthetic;
 #[cfg(feature = "rerun")]
 pub mod visualisation;

@@ -9,6 +9,7 @@
 
 mod common;
 
+use livereg::simulation::FromScene;
 use std::time::Instant;
 
 use livereg::mesh::TriSurface;

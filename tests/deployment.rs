@@ -31,7 +31,7 @@ struct Image {
     copies: Vec<(String, String)>,
     /// `-e NAME=VALUE` of the documented `docker run` line.
     docker_run_env: BTreeMap<String, String>,
-    /// The build stage's dependency-layer `RUN` script (the one after `COPY proto`).
+    /// The build stage's dependency-layer `RUN` script (the one after `COPY crates`).
     stub_script: String,
 }
 
@@ -62,7 +62,7 @@ fn parse_dockerfile() -> Image {
     let text = std::fs::read_to_string(Path::new(ROOT).join("deploy/Dockerfile")).unwrap();
     let mut image = Image::default();
     let mut stage = 0;
-    let mut after_proto = false;
+    let mut after_crates = false;
     for line in logical_lines(&text) {
         let t = line.trim();
         if let Some(cmd) = t.strip_prefix('#') {
@@ -78,10 +78,10 @@ fn parse_dockerfile() -> Image {
         let (instr, rest) = t.split_once(' ').unwrap_or((t, ""));
         match instr {
             "FROM" => stage += 1,
-            "COPY" if stage == 1 && rest.trim() == "proto ./proto" => after_proto = true,
-            "RUN" if stage == 1 && after_proto => {
+            "COPY" if stage == 1 && rest.trim() == "crates ./crates" => after_crates = true,
+            "RUN" if stage == 1 && after_crates => {
                 image.stub_script = rest.to_string();
-                after_proto = false;
+                after_crates = false;
             }
             "COPY" if stage == 2 && !rest.starts_with("--from") => {
                 let parts: Vec<&str> = rest.split_whitespace().collect();
@@ -311,7 +311,7 @@ fn the_dependency_layer_stubs_every_declared_target() {
     let root = Root::new("stubs");
     let dir = root.dir.join("src");
     std::fs::create_dir_all(&dir).unwrap();
-    for f in ["Cargo.toml", "Cargo.lock", "build.rs"] {
+    for f in ["Cargo.toml", "Cargo.lock"] {
         std::fs::copy(Path::new(ROOT).join(f), dir.join(f)).unwrap();
     }
     let shim = root.dir.join("bin");

@@ -19,6 +19,7 @@ use livereg::mechanics::{
     VolumetricIntegration,
 };
 use livereg::mesh::primitives::box_surface;
+use livereg::simulation::FromScene;
 use nalgebra::{Point3, Vector3};
 
 /// A 2 × 2 × 8 cm neo-Hookean column held at its base, with a strong sideways end traction.
@@ -179,7 +180,7 @@ fn indefinite_tangents_are_shifted_into_descent_directions() {
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/lobe_gravity/scene.toml");
     let mut loaded = livereg::scene::load_scene(&path).unwrap();
     loaded.scene.grid.cell_size = 16.0;
-    let mut model = livereg::simulation::SceneModel::build(&loaded).unwrap();
+    let mut model = livereg::simulation::SceneModel::from_scene(&loaded).unwrap();
     let u0 = vec![0.0; model.problem.dofs()];
     let r = NewtonSolver::new(model.newton).solve(&mut model.problem, &[], &u0);
     assert_eq!(r.outcome, Outcome::Converged, "{:?}", r.message);

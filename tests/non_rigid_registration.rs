@@ -6,6 +6,7 @@ use livereg::mechanics::loads::traction_forces;
 use livereg::mechanics::{NewtonSolver, Outcome};
 use livereg::registration::{register_non_rigid, NonRigidSettings};
 use livereg::scene::load_scene;
+use livereg::simulation::FromScene;
 use livereg::simulation::SceneModel;
 use nalgebra::{Point3, Vector3};
 
@@ -22,7 +23,7 @@ fn truth(dir: &std::path::Path) -> (Vec<Point3<f64>>, Vec<Point3<f64>>, f64) {
     loaded.scene.grid.cell_size = 10.0;
     loaded.scene.grid.integration = livereg::grid::IntegrationMode::FiniteCell;
     loaded.scene.grid.subdivisions = 2;
-    let mut m = SceneModel::build(&loaded).unwrap();
+    let mut m = SceneModel::from_scene(&loaded).unwrap();
     let lobe = livereg::geometry::Aabb {
         min: Point3::new(0.06, -1.0, -1.0),
         max: Point3::new(1.0, 1.0, 1.0),
@@ -67,7 +68,7 @@ fn full_surface_cloud_registers_surface_and_targets() {
     let dir = phantom_dir("full");
     let (cloud, true_targets, max_disp) = truth(&dir);
     let loaded = load_scene(&dir.join("scene.toml")).unwrap();
-    let mut model = SceneModel::build(&loaded).unwrap();
+    let mut model = SceneModel::from_scene(&loaded).unwrap();
     let rest_targets = model.structures[0].embedding.rest.clone();
     let before = tre(&rest_targets, &true_targets);
     let mut u = vec![0.0; model.problem.dofs()];
@@ -105,7 +106,7 @@ fn partial_noisy_cloud_rigid_then_non_rigid_beats_rigid_alone() {
     let dir = phantom_dir("partial");
     let (true_surface, true_targets, _) = truth(&dir);
     let loaded = load_scene(&dir.join("scene.toml")).unwrap();
-    let mut model = SceneModel::build(&loaded).unwrap();
+    let mut model = SceneModel::from_scene(&loaded).unwrap();
     let cam_spec = loaded
         .scene
         .registration

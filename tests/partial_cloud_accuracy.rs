@@ -24,6 +24,7 @@
 //!
 //! Run: `cargo test --test partial_cloud_accuracy -- --nocapture` (prints the table).
 
+use livereg::simulation::FromScene;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Instant;

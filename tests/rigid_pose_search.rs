@@ -17,6 +17,7 @@ use livereg::random::Rng;
 use livereg::registration::{ModelTarget, PoseSearch, RigidIcp, RigidTransform};
 use livereg::scene::load_scene;
 use livereg::session::{Frame, Session};
+use livereg::simulation::FromScene;
 use livereg::synthetic::{synthesize_cloud, CloudSpec};
 use nalgebra::{Point3, Rotation3, Unit, Vector3};
 

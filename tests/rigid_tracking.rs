@@ -16,6 +16,7 @@ mod common;
 use livereg::benchmark::workload::Workload;
 use livereg::scene::load_scene;
 use livereg::session::{FrameResult, Session};
+use livereg::simulation::FromScene;
 use livereg::synthetic::{generate_sequence, ScenarioKind, SequenceSpec};
 
 #[test]

@@ -2,6 +2,7 @@
 //! inline JSON), frames, ownership, limits, the bad-input suite with a healthy session
 //! streaming alongside, operations endpoints, and the OpenAPI document kept true.
 
+use livereg::simulation::FromScene;
 use std::net::SocketAddr;
 
 use serde_json::{json, Value};

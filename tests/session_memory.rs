@@ -6,6 +6,7 @@
 //! deformation (the surface grown by 3 % about its centroid), so both the cold and the warm
 //! solvers factorise.
 
+use livereg::simulation::FromScene;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::path::Path;
 use std::sync::atomic::{AtomicIsize, Ordering};

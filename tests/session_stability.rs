@@ -12,6 +12,7 @@
 
 mod common;
 
+use livereg::simulation::FromScene;
 use std::time::Instant;
 
 use livereg::benchmark::workload::Workload;

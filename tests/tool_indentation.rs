@@ -8,6 +8,7 @@ use livereg::benchmark::indentation::{
     indentation_cases, run_indentation, IndentationCase, IndentationMetrics, IndentationVariant,
 };
 use livereg::scene::{load_scene, DataTerm, LoadedScene};
+use livereg::simulation::FromScene;
 use livereg::synthetic::indentation::{
     bundled_fixture_dir, whole_surface_sequence, IndentationTruth,
 };

@@ -475,7 +475,7 @@ mod tests {
         let r = a.scene.registration.as_ref().unwrap();
         assert_eq!((r.penalty_start, r.penalty_end), (None, None));
         assert_eq!(r.penalty_scale, 10.0);
-        let settings = crate::session::SessionSettings::from_scene(&a.scene, a.length_scale());
+        let settings = crate::simulation::session_settings(&a.scene, a.length_scale());
         assert_eq!(settings.cold.penalty_scale, 10.0);
         assert_eq!(settings.warm.penalty_scale, 10.0);
         // Stiffnesses a scene gives are multiplied themselves.
@@ -513,9 +513,9 @@ mod tests {
         let r = c.resolved(&a);
         assert_eq!((r.min_fraction, r.robust_pruning), (1e-3, false));
         assert_eq!(r.step_stabilization, 0.0);
-        let settings = crate::session::SessionSettings::from_scene(&a.scene, a.length_scale());
+        let settings = crate::simulation::session_settings(&a.scene, a.length_scale());
         assert!(!settings.rigid.robust_pruning);
-        let default = crate::session::SessionSettings::from_scene(&scene.scene, 1e-3);
+        let default = crate::simulation::session_settings(&scene.scene, 1e-3);
         assert!(default.rigid.robust_pruning);
         // The rigid key leaves the non-rigid stage alone: with the default cloud → surface
         // term warm frames prune at median/MAD, a cold frame at mean + 2σ.

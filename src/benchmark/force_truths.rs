@@ -18,6 +18,7 @@
 //! and the report counts `pose_uncertain` on frames that are far off and near.
 //! Lengths in millimetres (the fixture's unit), forces in newtons.
 
+use crate::simulation::FromScene;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 

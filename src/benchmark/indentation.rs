@@ -2,6 +2,7 @@
 //! the truth mesh's nodes (mean, p95), the error inside the indented region, and each frame's
 //! error against no registration.
 
+use crate::simulation::FromScene;
 use nalgebra::{Point3, Rotation3, Unit, Vector3};
 use serde::Serialize;
 

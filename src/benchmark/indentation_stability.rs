@@ -7,6 +7,7 @@
 //! region), no registration's, the frames more than 10 % worse than no registration, failed
 //! frames and the warm frames' time. A panic is caught and reported as a crash of its cell.
 
+use crate::simulation::FromScene;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::Path;
 use std::time::Instant;

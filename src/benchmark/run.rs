@@ -1,6 +1,7 @@
 //! Registering a [`Workload`] with one session and measuring it: [`FrameSample`] per frame,
 //! [`Metrics`] over many.
 
+use crate::simulation::FromScene;
 use std::collections::BTreeMap;
 use std::time::Instant;
 

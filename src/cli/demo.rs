@@ -4,6 +4,7 @@
 //! registration, after rigid and after non-rigid, and ms per frame. The full pipeline's run of
 //! each scenario is recorded (`DIR/<scenario>/recording.mcap`) and, with `--rerun`, visualised.
 
+use crate::simulation::FromScene;
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;

@@ -2,6 +2,7 @@
 //! clouds (a directory of point files, or the `/frames` of an MCAP recording) registered frame
 //! after frame with warm start; one `results.jsonl` line per frame, and optionally a recording.
 
+use crate::simulation::FromScene;
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
@@ -91,26 +92,6 @@ impl FrameInput {
 }
 
 pub use crate::session::{frame_files, FrameFiles, FrameObserver};
-
-impl FrameObserver for Recorder {
-    fn frame_done(
-        &mut self,
-        _index: usize,
-        frame: Option<&Frame>,
-        received_ns: u64,
-        result: &FrameResult,
-    ) -> Result<(), String> {
-        match frame {
-            Some(f) => self.record_frame(f, received_ns),
-            None => {
-                let why = result.error.as_ref().map(|e| e.to_string());
-                self.record_unreadable_frame(&result.source, &why.unwrap_or_default(), received_ns)
-            }
-        }
-        .and_then(|()| self.record_result(result))
-        .map_err(|e| e.to_string())
-    }
-}
 
 /// Whether `path` is an MCAP file (by extension, or by its magic bytes for another file).
 pub fn is_mcap(path: &Path) -> bool {

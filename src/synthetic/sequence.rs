@@ -29,6 +29,7 @@
 //! patient frame of the bundled phantom (x: patient right → left, y: posterior → anterior,
 //! z: inferior → superior); see [`ScenarioLoad::for_surface`].
 
+use crate::simulation::FromScene;
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::Path;
@@ -789,7 +790,7 @@ pub fn generate_sequence(
     let camera = scene_camera(scene)?;
     let start = Instant::now();
     let truth_scene = spec.truth.apply_to(scene);
-    let mut model = SceneModel::build(&truth_scene)?;
+    let mut model = SceneModel::from_scene(&truth_scene)?;
     let density = truth_scene.scene.material.density;
     let load = ScenarioLoad::for_surface(spec.kind, spec.magnitude, &model.surface, density);
     let f_full = load.forces(&model.problem.grid, &model.surface)?;

@@ -139,7 +139,7 @@ fn truth_differs_from_the_registration_models_own_solution() {
     // exactly even knowing the load and the bed (it knows neither).
     let seq = shared();
     let scene = phantom();
-    let mut model = SceneModel::build(scene).unwrap();
+    let mut model = SceneModel::from_scene(scene).unwrap();
     add_elastic_bed(&mut model, seq.spec.truth.bed_stiffness).unwrap();
     model.problem.external = seq
         .load

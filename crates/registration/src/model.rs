@@ -1,0 +1,96 @@
+//! [`Model`]: what registration reads of a liver, in SI units (lengths in metres): the
+//! surface, its embedding in the immersed grid, the static problem, the holds, and the
+//! embedded structures whose positions a registration reports.
+//!
+//! Registration does not know where a model comes from: the scene layer above builds one from
+//! a scene file, a test from a fixture.
+
+use crate::grid::{Embedding, EmbeddingError, GridError};
+use crate::mechanics::{NewtonSettings, StaticProblem};
+use crate::mesh::{MeshError, TriSurface};
+
+/// Default penalty factor κ of fixed regions: a held surface sample of area A gets a spring of
+/// `κ E A / h` (N/m), a held point `κ E h`; relative to the cell stiffness `~E h` this holds
+/// the region to about 1/κ of the local deformation.
+pub const DEFAULT_FIXED_PENALTY_FACTOR: f64 = 1e3;
+
+/// Errors building a model; every message names the file or key at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    /// A mesh or point file could not be read.
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    /// The grid could not be built.
+    #[error("{file}: grid: {source}")]
+    Grid {
+        /// The surface file.
+        file: std::path::PathBuf,
+        /// Why.
+        source: GridError,
+    },
+    /// A point (probe, fixed point, structure) could not be embedded.
+    #[error("{what}: {source}")]
+    Embedding {
+        /// Which key or file the points came from.
+        what: String,
+        /// Why.
+        source: EmbeddingError,
+    },
+    /// Any other invalid model content.
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// A named set of embedded points carried by the deformation (vessel bifurcations, tumour
+/// vertices).
+#[derive(Debug, Clone)]
+pub struct EmbeddedStructure {
+    /// Name from the scene.
+    pub name: String,
+    /// The points, embedded in the grid (rest positions in metres).
+    pub embedding: Embedding,
+    /// The mesh's triangles, when the structure is a mesh.
+    pub triangles: Option<Vec<[usize; 3]>>,
+}
+
+/// Everything registration needs of one liver, in SI units (lengths in metres).
+pub struct Model {
+    /// Metres per scene unit (to convert results back).
+    pub length_scale: f64,
+    /// The pre-operative surface, metres.
+    pub surface: TriSurface,
+    /// Surface vertices embedded in the grid.
+    pub surface_embedding: Embedding,
+    /// The mechanical problem (grid, material, dead loads, fixed regions).
+    pub problem: StaticProblem,
+    /// Indices into `problem.springs` of the fixed regions given as points, one spring per
+    /// point; the contact force's rest compliance lumps them per cell
+    /// ([`RestCompliance`](crate::registration::RestCompliance)).
+    pub point_holds: Vec<usize>,
+    /// Newton settings of the model's solves.
+    pub newton: NewtonSettings,
+    /// Probe points, embedded.
+    pub probes: Embedding,
+    /// Internal structures, embedded.
+    pub structures: Vec<EmbeddedStructure>,
+}
+
+impl Model {
+    /// Each structure's name and number of points, in order (what a workload's truth must
+    /// match).
+    pub fn structure_sizes(&self) -> Vec<(String, usize)> {
+        self.structures
+            .iter()
+            .map(|s| (s.name.clone(), s.embedding.rest.len()))
+            .collect()
+    }
+
+    /// The deformed surface (scene units) for grid displacements `u` (m).
+    pub fn deformed_surface(&self, u: &[f64]) -> TriSurface {
+        let pos = self.surface_embedding.positions(u);
+        TriSurface::new(
+            pos.iter().map(|p| p / self.length_scale).collect(),
+            self.surface.triangles.clone(),
+        )
+    }
+}
