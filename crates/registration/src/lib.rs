@@ -12,7 +12,7 @@
 //!   [`RigidMode`](session::RigidMode)).
 //!
 //! It stands on `livereg-fem` (surfaces, grid, mechanics) and knows no file format above the
-//! surfaces: scene files map onto its settings and model from the crate above (`livereg`).
+//! surfaces: scene files map onto its settings and model from the crate above (`livereg-scene`).
 //! Lengths are metres inside.
 //!
 //! # A session on a model
