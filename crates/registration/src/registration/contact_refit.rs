@@ -248,12 +248,10 @@ struct HeldBody<'a, 'b> {
     solver: &'a mut NewtonSolver,
     input: &'a RefitInput<'b>,
     hold_stiffness: f64,
-    /// The held vertices' embedding.
+    /// The held vertices' embedding (with their rest positions, m).
     embedding: Embedding,
     /// Their registered positions, m.
     registered: Vec<Point3<f64>>,
-    /// Their rest positions, m.
-    rest: Vec<Point3<f64>>,
     outside: &'a [Point3<f64>],
     plane: [Vector3<f64>; 2],
 }
@@ -264,16 +262,31 @@ impl HeldBody<'_, '_> {
         self.plane[0] * d.x + self.plane[1] * d.y
     }
 
+    /// The held vertices' imposed displacements (m) for the slide `slide` (plane coordinates,
+    /// m): their registered positions slid, from rest.
+    fn targets(&self, slide: &Vector2<f64>) -> Vec<Vector3<f64>> {
+        let shift = self.tangent(slide);
+        self.registered
+            .iter()
+            .zip(&self.embedding.rest)
+            .map(|(x, r)| x + shift - r)
+            .collect()
+    }
+
     /// The held springs' force on the body (N) for the slide `slide` (plane coordinates, m) at
     /// grid displacements `u` (m), and where it acts ([`ContactRefit::force_centre`]).
     fn reaction(&self, slide: &Vector2<f64>, u: &[f64]) -> (Vector3<f64>, Point3<f64>) {
-        let shift = self.tangent(slide);
         let moved = self.embedding.interpolate(u);
         let mut force = Vector3::zeros();
         let mut weighted = Vector3::zeros();
         let mut weight = 0.0;
-        for ((x, r), d) in self.registered.iter().zip(&self.rest).zip(&moved) {
-            let f = (x + shift - r - d) * self.hold_stiffness;
+        for ((target, r), d) in self
+            .targets(slide)
+            .iter()
+            .zip(&self.embedding.rest)
+            .zip(&moved)
+        {
+            let f = (target - d) * self.hold_stiffness;
             force += f;
             weighted += (r.coords + d) * f.norm();
             weight += f.norm();
@@ -299,16 +312,10 @@ impl HeldBody<'_, '_> {
         start: &[f64],
         iterations: usize,
     ) -> Result<Evaluated, RefitSkip> {
-        let shift = self.tangent(slide);
         let held = PenaltySprings {
             embedding: self.embedding.clone(),
-            target: self
-                .registered
-                .iter()
-                .zip(&self.rest)
-                .map(|(x, r)| x + shift - r)
-                .collect(),
-            stiffness: vec![self.hold_stiffness; self.rest.len()],
+            target: self.targets(slide),
+            stiffness: vec![self.hold_stiffness; self.registered.len()],
             follows_load: false,
             normals: None,
         };
@@ -368,10 +375,6 @@ pub fn refit_at_contact(
                 .collect(),
         },
         registered: held_ids.iter().map(|&v| x[v]).collect(),
-        rest: held_ids
-            .iter()
-            .map(|&v| input.surface_embedding.rest[v])
-            .collect(),
         outside: &split.outside,
         plane,
     };

@@ -70,6 +70,23 @@ struct GoodState {
     expected_error: Option<ErrorEstimate>,
 }
 
+impl GoodState {
+    /// The state before any frame: displacements `u` (m; the rest shape, zeros), the identity
+    /// pose, nothing registered or estimated.
+    fn at_rest(u: Vec<f64>) -> Self {
+        GoodState {
+            u,
+            model_to_cloud: RigidTransform::identity(),
+            registered: false,
+            cloud: None,
+            contact_force: None,
+            pose_ambiguous: false,
+            pose_uncertainty: None,
+            expected_error: None,
+        }
+    }
+}
+
 /// Registers a stream of frames to one model, carrying the state from frame to frame.
 ///
 /// Per frame: checks (empty, non-finite → rejected; too many points → thinned and flagged);
@@ -225,16 +242,7 @@ impl Session {
             model,
             settings,
             scene_camera: camera,
-            good: GoodState {
-                u,
-                model_to_cloud: RigidTransform::identity(),
-                registered: false,
-                cloud: None,
-                contact_force: None,
-                pose_ambiguous: false,
-                pose_uncertainty: None,
-                expected_error: None,
-            },
+            good: GoodState::at_rest(u),
             frames: 0,
             coarse: None,
             rigid_target: None,
@@ -255,16 +263,7 @@ impl Session {
     /// Forgets every frame: back to the rest shape and the identity pose; the next frame is
     /// registered cold.
     pub fn reset(&mut self) {
-        self.good = GoodState {
-            u: vec![0.0; self.model.problem.dofs()],
-            model_to_cloud: RigidTransform::identity(),
-            registered: false,
-            cloud: None,
-            contact_force: None,
-            pose_ambiguous: false,
-            pose_uncertainty: None,
-            expected_error: None,
-        };
+        self.good = GoodState::at_rest(vec![0.0; self.model.problem.dofs()]);
         self.good_surface = std::sync::OnceLock::new();
         self.non_rigid_cold.invalidate();
         self.non_rigid_warm.invalidate();
