@@ -6,7 +6,10 @@
 //!
 //! `cargo run --release --example frame_stages -- press-slide linear` (a sequence and a truth
 //! law of the fixture; clouds in the model's frame, no camera), or
-//! `cargo run --release --example frame_stages -- phantom` (10 frames per scenario).
+//! `cargo run --release --example frame_stages -- phantom` (10 frames per scenario), or
+//! `cargo run --release --example frame_stages -- force NAME-PART` (every force truth of
+//! `fixtures/liver_force` whose name contains NAME-PART, e.g. `indentation-liver/press_neo`, with its own
+//! law's scene; no camera).
 //! `REPEAT=N` registers it N times, each with a fresh session; `QUIET=1` prints the summary only.
 
 use livereg::benchmark::indentation::{
@@ -27,6 +30,9 @@ fn workloads(args: &[String]) -> Result<(LoadedScene, Vec<Workload>), String> {
         let w = livereg::cli::bench::synthetic_workloads(&scene, &[], 10, false, 0, None)?;
         return Ok((scene, w));
     }
+    if what == "force" {
+        return force_workloads(args.get(2).map_or("", String::as_str));
+    }
     let law = args.get(2).map_or("linear", String::as_str);
     let dir = livereg::synthetic::indentation::bundled_fixture_dir();
     let scene = load_scene(&dir.join("scene.toml")).map_err(|e| e.to_string())?;
@@ -35,6 +41,41 @@ fn workloads(args: &[String]) -> Result<(LoadedScene, Vec<Workload>), String> {
     let applied = scene_for(&scene, case.variant);
     let w = indentation_workload(&case.truth, &case.frames, applied.length_scale(), false);
     Ok((applied, vec![w]))
+}
+
+/// The force truths whose name contains `part`, all registered with the first one's scene.
+fn force_workloads(part: &str) -> Result<(LoadedScene, Vec<Workload>), String> {
+    use livereg::benchmark::force_truths::{
+        force_truth_cases, force_truth_scene, force_truths_dir, ForceTruthOptions, TruthSet,
+    };
+    let cases: Vec<_> = force_truth_cases(&force_truths_dir(), TruthSet::All)?
+        .into_iter()
+        .filter(|c| c.name.contains(part))
+        .collect();
+    let first = cases.first().ok_or("no force truth of that name")?;
+    let scene = force_truth_scene(first, &ForceTruthOptions::default())?;
+    let mut workloads = Vec::new();
+    for case in cases.iter().filter(|c| c.law == first.law) {
+        let files = livereg::session::frame_files(&case.dir.join("frames"))?.frames;
+        let mut frames = Vec::new();
+        for f in &files {
+            let points =
+                livereg::mesh::read_points(f).map_err(|e| format!("{}: {e}", f.display()))?;
+            frames.push(livereg::session::Frame {
+                source: f.display().to_string(),
+                points,
+                camera: None,
+            });
+        }
+        workloads.push(Workload {
+            name: case.name.clone(),
+            frames,
+            truth: Vec::new(),
+            max_displacement_mm: None,
+            truth_law: Some(case.law.clone()),
+        });
+    }
+    Ok((scene, workloads))
 }
 
 fn main() -> Result<(), String> {
