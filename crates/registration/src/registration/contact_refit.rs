@@ -83,6 +83,13 @@ pub struct ContactRefit {
     pub held_vertices: usize,
     /// Cloud points away from the contact the slide was fitted to.
     pub outer_points: usize,
+    /// Whether the kept state is the held body's equilibrium: its solve met the solver's
+    /// tolerance within [`ContactRefitSettings::newton_iterations`]. When it did not, the
+    /// state is the solve's last iterate, `relative_residual` off balance.
+    pub converged: bool,
+    /// The kept state's relative residual (the held body's out-of-balance force over its
+    /// initial one).
+    pub relative_residual: f64,
 }
 
 /// Why no refit was made.
@@ -131,6 +138,10 @@ pub struct RefitInput<'a> {
 struct Evaluated {
     u: Vec<f64>,
     distances: Vec<f64>,
+    /// Whether the body's solve reached equilibrium ([`NewtonSolver::improve`]'s tests).
+    converged: bool,
+    /// Its relative residual.
+    relative_residual: f64,
 }
 
 impl Evaluated {
@@ -320,7 +331,7 @@ impl HeldBody<'_, '_> {
             normals: None,
         };
         let mut u = start.to_vec();
-        self.solver.improve(
+        let report = self.solver.improve(
             self.problem,
             std::slice::from_ref(&held),
             &mut u,
@@ -337,6 +348,8 @@ impl HeldBody<'_, '_> {
         Ok(Evaluated {
             distances: surface.signed_distances(self.outside),
             u,
+            converged: report.converged,
+            relative_residual: report.relative_residual,
         })
     }
 }
@@ -385,6 +398,8 @@ pub fn refit_at_contact(
     let (best, best_slide) = fit_slide(&mut body, settings)?;
     let (contact_force, force_centre) = body.reaction(&best_slide, &best.u);
     let refit = ContactRefit {
+        converged: best.converged,
+        relative_residual: best.relative_residual,
         contact_force,
         force_centre,
         outer_rms: best.rms(),

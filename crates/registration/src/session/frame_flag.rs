@@ -49,11 +49,14 @@ pub enum FrameFlag {
     /// `contact_refit`: the field was explained again by a load at the contact alone
     /// (`registration.contact_refit`).
     ContactRefit,
+    /// `refit_not_converged`: the kept contact refit's solve stopped at its iteration cap off
+    /// balance; its field is the solve's last iterate.
+    RefitNotConverged,
 }
 
 impl FrameFlag {
     /// Every flag without a value, for [`FrameFlag::parse`].
-    const PLAIN: [FrameFlag; 15] = [
+    const PLAIN: [FrameFlag; 16] = [
         FrameFlag::Decimated,
         FrameFlag::IsolatedRemoved,
         FrameFlag::AtRest,
@@ -69,6 +72,7 @@ impl FrameFlag {
         FrameFlag::PoseReacquired,
         FrameFlag::ExpectedErrorHigh,
         FrameFlag::ContactRefit,
+        FrameFlag::RefitNotConverged,
     ];
 
     /// The flag's name without its value (`still`, `recovered`, or the whole text).
@@ -91,6 +95,7 @@ impl FrameFlag {
             FrameFlag::PoseReacquired => "pose_reacquired",
             FrameFlag::ExpectedErrorHigh => "expected_error_high",
             FrameFlag::ContactRefit => "contact_refit",
+            FrameFlag::RefitNotConverged => "refit_not_converged",
         }
     }
 
@@ -189,10 +194,11 @@ mod tests {
             "pose_reacquired",
             "expected_error_high",
             "contact_refit",
+            "refit_not_converged",
         ] {
             assert!(texts.iter().any(|t| t == expected), "{expected}");
         }
-        assert_eq!(texts.len(), 18);
+        assert_eq!(texts.len(), 19);
     }
 
     /// Unknown texts, a still window without a count and an unknown rung are not flags.
