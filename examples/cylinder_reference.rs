@@ -1,5 +1,5 @@
 //! Computes the reference solution of the thesis's cylinder bending (a much finer finite-cell
-//! solve) and writes `fixtures/reference/cylinder_bending.json`, which `tests/cylinder.rs`
+//! solve) and writes `fixtures/reference/cylinder_bending.json`, which `tests/numerics/cylinder.rs`
 //! compares coarse weighted-cell and finite-cell solves against.
 //!
 //! Run: `cargo run --release --example cylinder_reference -- [CELL_SIZE_M] [LEVELS]`

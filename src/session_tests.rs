@@ -446,7 +446,7 @@ fn top_vertex_above(rest: &TriSurface, above: Point3<f64>) -> Point3<f64> {
 ///   printed, not asserted.
 ///
 /// What both leave out, the model's compliance (the same model on both sides here), is
-/// measured against the tetrahedral truth in `tests/tool_indentation.rs`.
+/// measured against the tetrahedral truth in `tests/registration/tool_indentation.rs`.
 #[test]
 fn contact_force_recovers_a_concentrated_load() {
     let (path, rest) = indentation_scene();

@@ -5,6 +5,9 @@
 //! peak live heap from the session's build through four frames of a cloud that needs a
 //! deformation (the surface grown by 3 % about its centroid), so both the cold and the warm
 //! solvers factorise.
+//!
+//! A test binary of its own: the allocator counts every allocation of the process, so no
+//! other test may run beside this one.
 
 use livereg::simulation::FromScene;
 use std::alloc::{GlobalAlloc, Layout, System};

@@ -1,6 +1,6 @@
 //! A Rust client of the livereg server: gRPC (tonic, the generated client) and WebSocket
 //! (tokio-tungstenite), with a minimal HTTP/1.1 helper for the JSON API, over plain TCP or
-//! TLS ([`Endpoint`]). Used by `examples/client/main.rs` and by the tests (`tests/server_*.rs`
+//! TLS ([`Endpoint`]). Used by `examples/client/main.rs` and by the tests (`tests/server/`
 //! include this file).
 #![allow(dead_code)]
 

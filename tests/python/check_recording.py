@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Reads a livereg MCAP recording with the `mcap` Python package (independent of the Rust
 reader) and prints one JSON object: channels, schemas, message counts and a summary of the
-decoded payloads. Used by tests/recording_cli.rs.
+decoded payloads. Used by tests/cli/recording_cli.rs.
 
 Usage: check_recording.py FILE            (a finished recording: indexed reader + summary)
        check_recording.py FILE --stream   (any file, e.g. one cut short by a kill: sequential

@@ -1,4 +1,4 @@
-"""pyigtl side of tests/openigtlink_pyigtl.rs (livereg's OpenIGTLink codec against pyigtl 0.3.4).
+"""pyigtl side of tests/server/openigtlink_pyigtl.rs (livereg's OpenIGTLink codec against pyigtl 0.3.4).
 
 Subcommands:
   check                      pyigtl 0.3.4 importable; prints pyigtl's CRC-64 of b"123456789"

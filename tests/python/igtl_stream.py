@@ -1,4 +1,4 @@
-"""A pyigtl client streaming frames to `livereg serve`'s OpenIGTLink port (tests/server_igtl.rs).
+"""A pyigtl client streaming frames to `livereg serve`'s OpenIGTLink port (tests/server/server_igtl.rs).
 
   igtl_stream.py PORT FRAMES.json OUT.json
 

@@ -1,4 +1,4 @@
-"""Independent VTK reader and writer for livereg's VTK tests (tests/vtk_files.rs).
+"""Independent VTK reader and writer for livereg's VTK tests (tests/cli/vtk_files.rs).
 
   vtk_check.py read FILE...        prints JSON: per file its points and cells as VTK reads them
   vtk_check.py write OBJ OUTDIR    writes the OBJ's surface in the encodings VTK itself uses

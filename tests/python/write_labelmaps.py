@@ -1,4 +1,4 @@
-"""Writes a labelmap with the independent writers nibabel and pynrrd, for tests/segmentation_python.rs.
+"""Writes a labelmap with the independent writers nibabel and pynrrd, for tests/registration/segmentation_python.rs.
 
 Input (in DIR): labels.u16 (little-endian uint16, first index fastest) and meta.json
 ({"dims": [nx, ny, nz], "affine_lps": 4x4 rows, index -> LPS mm}).

@@ -24,7 +24,7 @@ pub fn temp_dir(tag: &str) -> PathBuf {
     d
 }
 
-/// The scene of `tests/register_cli.rs` (a clamped ellipsoid in mm, 3 targets, 20 mm cells)
+/// The scene of `tests/cli/register_cli.rs` (a clamped ellipsoid in mm, 3 targets, 20 mm cells)
 /// with `n` frames bending it back and forth; coordinates are f32-exact so that JSON and
 /// binary frames carry the same numbers. Frames are `frames/f000.xyz`…
 pub fn small_case(tag: &str, n: usize) -> PathBuf {

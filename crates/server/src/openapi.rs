@@ -1,6 +1,6 @@
 //! The OpenAPI 3.0 document of the HTTP API, served at `/v1/openapi.json`. A test
-//! (`tests/server_http.rs`) checks that it lists exactly [`super::http::ROUTES`] and that real
-//! responses match its schemas and status codes.
+//! (`tests/server/server_http.rs`) checks that it lists exactly [`super::http::ROUTES`] and
+//! that real responses match its schemas and status codes.
 
 use serde_json::{json, Value};
 

@@ -14,11 +14,11 @@
 //! residual, so the model's equilibrium is unchanged: it is a fixed point of the stabilised
 //! steps, and a modified Newton iteration with any positive definite matrix and a line search
 //! converges to it. The price is the rate in the damped modes: the non-affine motion of badly
-//! cut cells approaches equilibrium linearly and slowly (`tests/newton_robustness.rs`: 200
-//! stabilised steps from rest to a 6 cm bend end 0.29 mm from the equilibrium at well-held
-//! nodes and 1.8 mm at the badly cut cells' nodes, against 10⁻¹¹ m without), which a
-//! registration's small frame-to-frame changes make tolerable. A fresh factorisation is exact
-//! and needs none (cold frames get none).
+//! cut cells approaches equilibrium linearly and slowly
+//! (`tests/numerics/newton_robustness.rs`: 200 stabilised steps from rest to a 6 cm bend end
+//! 0.29 mm from the equilibrium at well-held nodes and 1.8 mm at the badly cut cells' nodes,
+//! against 10⁻¹¹ m without), which a registration's small frame-to-frame changes make
+//! tolerable. A fresh factorisation is exact and needs none (cold frames get none).
 //!
 //! Why: a node whose cells are all badly cut is held only by the fictitious weight `α`
 //! (`grid.min_fraction`) of their outside parts: soft and, under a hyperelastic law, so

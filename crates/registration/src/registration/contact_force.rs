@@ -37,7 +37,7 @@
 //! median vector error 19 / 70 / 38 / 31 % (press-slide linear, neo-Hookean, two-sites
 //! linear, neo-Hookean) against 101 / 177 / 79 / 156 % for the spring sum. What remains:
 //! - the model's compliance: even lumped, the fit of the truth's own field needs 1.01–1.22
-//!   times its force (`tests/tool_indentation.rs`);
+//!   times its force (`tests/registration/tool_indentation.rs`);
 //! - the sideways part of a load: the cloud shows the surface's motion along its normal only
 //!   and the point-to-plane data term pulls only along it, so the registered field carries a
 //!   push but little of a sideways load (`session::tests::contact_force_recovers_a_concentrated_load`).

@@ -834,8 +834,8 @@ impl NonRigidIcp {
     /// search then cuts the whole step to 1/16. Newly paired vertices join at the next
     /// factorisation. Not with the cloud → surface term: its anchors move with each frame's
     /// noise, the restriction dropped a changing part of them, and a still scene drifted
-    /// (tests/session_stability.rs: targets 1.40 mm from frame 25 to 49 with it, 0.31 mm
-    /// without; phantom TRE 0.69 → 0.67 mm).
+    /// (tests/registration/session_stability.rs: targets 1.40 mm from frame 25 to 49 with it,
+    /// 0.31 mm without; phantom TRE 0.69 → 0.67 mm).
     fn data_springs(&self, paired: Paired, emb: &Embedding, k: f64) -> PenaltySprings {
         match paired {
             Paired::Vertices(pairs) => {

@@ -396,7 +396,8 @@ impl Session {
         }
         // A re-acquired pose must not need a new shape: measured on the phantom, a right
         // re-acquisition changes the surface by 0.2 mm RMS, ordinary frames by 0.8–1.6 mm,
-        // and a 109° wrong minimum of rigid ICP by 25 mm (`tests/bad_frames.rs`).
+        // and a 109° wrong minimum of rigid ICP by 25 mm
+        // (`tests/registration/bad_frames.rs`).
         if flags.contains(&FrameFlag::PoseReacquired) {
             let change = self.surface_change_rms(&u);
             if change > self.settings.pose_reacquire_rms {

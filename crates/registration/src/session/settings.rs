@@ -155,7 +155,7 @@ pub const DEFAULT_CONTACT_RADIUS: f64 = 0.035;
 /// phantom. Denser clouds register worse there: a million-point frame thinned to 5,000 points
 /// gives TRE 1.36 mm, to 2,000: 0.98 mm, to 1,000: 0.88 mm (the next normal frame then 0.52
 /// against 0.44 mm); the normal ~700-point cloud of that frame: 0.45 mm
-/// (`cargo test --test bad_frames -- --nocapture`).
+/// (`cargo test --test registration bad_frames:: -- --nocapture`).
 pub const DEFAULT_MAX_CLOUD_POINTS: usize = 2_000;
 
 /// Default of [`SessionSettings::still_frames`]: the most still frames registered together.

@@ -38,7 +38,7 @@ mod tests {
     #[test]
     fn known_answer_check_string() {
         // The catalogue "check" value of CRC-64/ECMA-182 over ASCII "123456789"; pyigtl's crcmod
-        // function gives the same (tests/openigtlink_pyigtl.rs checks it live).
+        // function gives the same (tests/server/openigtlink_pyigtl.rs checks it live).
         assert_eq!(crc64(b"123456789"), 0x6C40_DF5F_0B49_7347);
         assert_eq!(bitwise_reference(b"123456789"), 0x6C40_DF5F_0B49_7347);
         assert_eq!(crc64(b""), 0);
