@@ -4,7 +4,7 @@
 //! the `vtk` Python package.
 //!
 //! One test binary of a few (`tests/*/main.rs`, helpers in `tests/common` and
-//! `recording_case.rs`); one subject alone: `cargo test --test cli cli:: register_cli::`.
+//! `recording_case.rs`); one subject alone: `cargo test --test cli register_cli::`.
 
 #[path = "../common/mod.rs"]
 mod common;
