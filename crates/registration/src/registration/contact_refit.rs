@@ -85,11 +85,8 @@ pub struct ContactRefit {
     pub outer_points: usize,
     /// Whether the kept state is the held body's equilibrium: its solve met the solver's
     /// tolerance within [`ContactRefitSettings::newton_iterations`]. When it did not, the
-    /// state is the solve's last iterate, `relative_residual` off balance.
+    /// state is the solve's last iterate, off balance.
     pub converged: bool,
-    /// The kept state's relative residual (the held body's out-of-balance force over its
-    /// initial one).
-    pub relative_residual: f64,
 }
 
 /// Why no refit was made.
@@ -140,8 +137,6 @@ struct Evaluated {
     distances: Vec<f64>,
     /// Whether the body's solve reached equilibrium ([`NewtonSolver::improve`]'s tests).
     converged: bool,
-    /// Its relative residual.
-    relative_residual: f64,
 }
 
 impl Evaluated {
@@ -331,12 +326,15 @@ impl HeldBody<'_, '_> {
             normals: None,
         };
         let mut u = start.to_vec();
-        let report = self.solver.improve(
-            self.problem,
-            std::slice::from_ref(&held),
-            &mut u,
-            iterations,
-        );
+        let converged = self
+            .solver
+            .improve(
+                self.problem,
+                std::slice::from_ref(&held),
+                &mut u,
+                iterations,
+            )
+            .converged;
         if !u.iter().all(|v| v.is_finite()) {
             return Err(RefitSkip::Failed);
         }
@@ -348,8 +346,7 @@ impl HeldBody<'_, '_> {
         Ok(Evaluated {
             distances: surface.signed_distances(self.outside),
             u,
-            converged: report.converged,
-            relative_residual: report.relative_residual,
+            converged,
         })
     }
 }
@@ -399,7 +396,6 @@ pub fn refit_at_contact(
     let (contact_force, force_centre) = body.reaction(&best_slide, &best.u);
     let refit = ContactRefit {
         converged: best.converged,
-        relative_residual: best.relative_residual,
         contact_force,
         force_centre,
         outer_rms: best.rms(),
