@@ -23,8 +23,8 @@ use camera_patch::camera_patch;
 use criterion::{criterion_group, criterion_main, Criterion};
 use livereg::mesh::primitives::icosphere;
 use livereg::random::Rng;
-use livereg::registration::change_evidence::{cloud_noise_sigma_near, ChangeTest};
-use livereg::registration::correspondences::IndexedPoints;
+use livereg::registration::IndexedPoints;
+use livereg::registration::{cloud_noise_sigma_near, ChangeTest};
 use livereg::registration::{SurfaceDistances, SurfaceTopology};
 use nalgebra::Point3;
 

@@ -1,5 +1,5 @@
 //! Benchmark of the cloud → surface pairing of one ICP iteration
-//! (`registration::surface_anchors::pair_cloud_to_surface`): 500 cloud points 1 mm off a
+//! (`registration::pair_cloud_to_surface`): 500 cloud points 1 mm off a
 //! liver-ish surface (ellipsoid 20 × 15 × 10 cm with a lump, 5,120 triangles), with the normal
 //! at each anchor interpolated from the vertex normals or from the vertex normals averaged over
 //! a ball of 0.125 × ∛V (`NormalsAtScale::smooth`, ~15 mm here, once per ICP iteration),
@@ -12,9 +12,9 @@ use std::hint::black_box;
 use criterion::{criterion_group, criterion_main, Criterion};
 use livereg::mesh::primitives::icosphere;
 use livereg::mesh::TriSurface;
-use livereg::registration::correspondences::{IndexedPoints, PairingRule};
-use livereg::registration::surface_anchors::{incident_triangles, pair_cloud_to_surface};
-use livereg::registration::surface_normals::NormalsAtScale;
+use livereg::registration::{
+    incident_triangles, pair_cloud_to_surface, IndexedPoints, NormalsAtScale, PairingRule,
+};
 use nalgebra::{Point3, Vector3};
 
 fn bench_cloud_pairing(c: &mut Criterion) {

@@ -14,7 +14,7 @@ use camera_patch::camera_patch;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use livereg::random::Rng;
-use livereg::registration::correspondences::IndexedPoints;
+use livereg::registration::IndexedPoints;
 use rayon::prelude::*;
 
 fn bench_neighbour_lists(c: &mut Criterion) {

@@ -630,7 +630,7 @@ fn the_recovery_keeps_the_scenes_law() {
 /// converges), a difference of convergence, not of law.
 fn vertex_normals(mut settings: SessionSettings) -> SessionSettings {
     for n in [&mut settings.cold, &mut settings.warm] {
-        n.normal_scale = crate::registration::non_rigid_icp::NormalScale::Vertex;
+        n.normal_scale = crate::registration::NormalScale::Vertex;
     }
     settings
 }

@@ -1067,7 +1067,7 @@ async fn one_session(
 
 /// The header naming a session (the server's: the id a create asks for, and the key a
 /// scaled-out deployment's proxy routes every request of the session by).
-pub use livereg::server::registry::SESSION_HEADER;
+pub use livereg::server::SESSION_HEADER;
 
 /// A session id chosen by the client: 128 random bits, 32 lowercase hex digits.
 pub fn new_client_session_id() -> String {

@@ -25,8 +25,8 @@ use std::sync::Arc;
 use nalgebra::{Point3, Rotation3, Unit, Vector3};
 use serde::{Deserialize, Serialize};
 
+use crate::evaluation::percentile;
 use crate::evaluation::read_truth;
-use crate::evaluation::tre::percentile;
 use crate::mesh::{read_obj, read_points};
 use crate::registration::{RigidTransform, SurfaceDistances, SurfaceTopology};
 use crate::scene::{load_scene, LoadedScene, PoseUpdate, RigidMode};
@@ -98,7 +98,7 @@ pub struct ForceTruthCase {
     pub set: TruthSet,
     /// The case's directory (frames/, truth.jsonl, meta.json).
     pub dir: PathBuf,
-    /// The liver's directory (liver.obj, nodes.xyz, fixed.xyz, scene_<law>.toml).
+    /// The liver's directory (liver.obj, nodes.xyz, fixed.xyz, `scene_<law>.toml`).
     pub liver_dir: PathBuf,
     /// The law (`linear`, `neo-hookean`): the scene the case is registered with.
     pub law: String,
@@ -232,7 +232,7 @@ pub struct ForceTruthFrame {
     /// sees them (root mean square), mm: the pose's share of the error.
     pub pose_error_mm: f64,
     /// How far the truth's own deformation moves the seen part of the surface as a rigid body
-    /// (`registration::pose_share::rigid_share_of_deformation` of the surface vertices the
+    /// (`registration::rigid_share_of_deformation` of the surface vertices the
     /// cloud lies on, rest → truth, still camera), mm: the camera motion this frame's
     /// deformation looks like from the cloud alone.
     pub seen_rigid_motion_mm: f64,
@@ -473,8 +473,7 @@ fn seen_rigid_motion(rest: &[Point3<f64>], truth: &[Point3<f64>], cloud: &[Point
     let mut seen: Vec<usize> = cloud.iter().map(|c| index.nearest(c).0).collect();
     seen.sort_unstable();
     seen.dedup();
-    crate::registration::pose_share::rigid_share_of_deformation(rest, truth, &seen, 0.75)
-        .unwrap_or(0.0)
+    crate::registration::rigid_share_of_deformation(rest, truth, &seen, 0.75).unwrap_or(0.0)
 }
 
 /// One frame's grades; a registration with no (or non-finite) nodes counts as infinitely off.

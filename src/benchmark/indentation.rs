@@ -9,7 +9,7 @@ use serde::Serialize;
 use super::run::{run_workload, FrameSample};
 use super::workload::Workload;
 use crate::charts::pareto::ChartPoint;
-use crate::evaluation::tre::percentile;
+use crate::evaluation::percentile;
 use crate::geometry::Camera;
 use crate::registration::RigidTransform;
 use crate::scene::{LoadedScene, RigidMode};

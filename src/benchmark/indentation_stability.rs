@@ -20,7 +20,7 @@ use super::indentation::{IndentationMetrics, WORSE_THAN_NONE_FACTOR};
 use super::run::{Cause, FrameSample};
 use super::stability::{panic_text, Axis};
 use super::sweep::MachineInfo;
-use crate::evaluation::tre::percentile;
+use crate::evaluation::percentile;
 use crate::scene::LoadedScene;
 use crate::session::Session;
 use crate::synthetic::indentation::{

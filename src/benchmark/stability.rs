@@ -170,7 +170,7 @@ pub struct StabilityOptions {
     pub reduced: bool,
     /// The methods (model configurations) compared.
     pub methods: Vec<ModelConfig>,
-    /// Law of the synthetic truth (`None`: [`TruthModel`]'s default, neo-Hookean).
+    /// Law of the synthetic truth (`None`: [`TruthModel`](crate::synthetic::TruthModel)'s default, neo-Hookean).
     pub truth_law: Option<LawKind>,
 }
 

@@ -3,7 +3,7 @@
 
 use nalgebra::Point3;
 
-use crate::geometry::closest_point::closest_point_on_triangle;
+use crate::geometry::closest_point_on_triangle;
 use crate::mesh::TriSurface;
 
 /// Unsigned distance from `p` to the nearest point of `surface`, in the surface's units

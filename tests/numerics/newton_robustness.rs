@@ -13,7 +13,6 @@ use common::*;
 use livereg::grid::Embedding;
 use livereg::grid::IntegrationMode;
 use livereg::mechanics::loads::traction_forces;
-use livereg::mechanics::newton::norm;
 use livereg::mechanics::{
     LawKind, Need, NewtonSettings, NewtonSolver, Outcome, PenaltySprings, StaticProblem,
     VolumetricIntegration,
@@ -21,6 +20,11 @@ use livereg::mechanics::{
 use livereg::mesh::primitives::box_surface;
 use livereg::simulation::FromScene;
 use nalgebra::{Point3, Vector3};
+
+/// Euclidean norm.
+fn norm(v: &[f64]) -> f64 {
+    v.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
 
 /// A 2 × 2 × 8 cm neo-Hookean column held at its base, with a strong sideways end traction.
 fn column(traction: f64) -> StaticProblem {

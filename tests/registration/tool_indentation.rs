@@ -319,7 +319,7 @@ fn distance_to_surface(
         .iter()
         .map(|t| {
             let corners = t.map(|i| vertices[i]);
-            let (w, _) = livereg::geometry::closest_point::closest_barycentric(q, &corners);
+            let (w, _) = livereg::geometry::closest_barycentric(q, &corners);
             let p = corners[0].coords * w[0] + corners[1].coords * w[1] + corners[2].coords * w[2];
             (q.coords - p).norm()
         })

@@ -363,10 +363,7 @@ async fn pyigtl_streams_frames_and_the_server_survives_hostile_messages() {
         HeaderVersion::V1,
         "replies follow the client's latest version"
     );
-    let refused = server
-        .state()
-        .metrics
-        .counter("livereg_igtl_messages_total", "refused");
+    let refused = server.counter("livereg_igtl_messages_total", "refused");
     assert!(refused >= 5, "refusals counted: {refused}");
     drop(s);
     server.shutdown().await.unwrap();

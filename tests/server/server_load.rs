@@ -42,7 +42,7 @@ async fn run_load(
     let server = start(cfg).await;
     let scene = SceneFiles::read(&case.join("scene.toml")).unwrap();
     let single = single_session(server.http_addr, &scene, &frames[..frames.len().min(12)]).await;
-    let before = accounting(&server.state().metrics.render());
+    let before = accounting(&server.metrics_text());
     let spec = LoadSpec {
         sessions: 8,
         hz: 30.0,
@@ -54,7 +54,7 @@ async fn run_load(
     let rep = load_test(server.http_addr, TOKEN_A, &scene, frames, &spec)
         .await
         .unwrap();
-    let m = server.state().metrics.render();
+    let m = server.metrics_text();
     assert!(m.contains("livereg_sessions 0"), "sessions left open");
     let after = accounting(&m);
     server.shutdown().await.unwrap();

@@ -23,7 +23,7 @@ use livereg_fem::linalg::testing::{
     ball, elasticity_grid_matrix, grid_node_coordinates, node_set_elasticity_matrix, random_vector,
 };
 use livereg_fem::linalg::{SolverKind, SparseSolver, SymmetricCsc};
-use livereg_fem::mechanics::newton::MIXED_PRECISION_TOLERANCE;
+use livereg_fem::mechanics::MIXED_PRECISION_TOLERANCE;
 use std::hint::black_box;
 
 /// Solver variants: (benchmark name, kind, use node coordinates).

@@ -10,6 +10,14 @@
 //! - [`mechanics`]: materials, the hexahedral cell, assembly, loads, penalties, Newton;
 //! - [`random`]: the seeded generator every test and the synthetic data draw from.
 //!
+//! Each module offers its types and functions at its front (`geometry::InsideTest`,
+//! `grid::WeightedCellGrid`, `mechanics::StaticProblem`, `mesh::read_surface`, ...); the
+//! submodules that are public are namespaces of their own: [`geometry::shapes`] and
+//! [`mesh::primitives`] (simple closed surfaces), [`geometry::visibility`],
+//! [`grid::hex8`] (the trilinear cell), [`mechanics::loads`], [`mechanics::material`],
+//! [`mesh::vtk`], [`linalg::testing`] (test matrices), and `mechanics::test_fixtures` (small
+//! cut-box problems, with the `test-fixtures` feature).
+//!
 //! Lower modules never import higher ones, and nothing here imports the registration above
 //! it (the `livereg` crate, which re-exports these modules under the same names). Inside the
 //! mechanics everything is SI (m, N, Pa, J).
@@ -39,6 +47,9 @@
 //! assert!(error < 1e-3, "{} m³ against {volume} m³", stats.volume);
 //! ```
 #![warn(missing_docs)]
+// The public API is what the crate root and its public modules offer: an item is `pub` only
+// when a user of the crate can reach it, and every type a public item shows can be named.
+#![warn(unnameable_types, unreachable_pub)]
 
 pub mod geometry;
 pub mod grid;

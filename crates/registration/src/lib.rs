@@ -1,8 +1,9 @@
 //! livereg-registration: a liver model registered to intra-operative point clouds.
 //!
 //! What it offers:
-//! - [`model::Model`]: what registration reads of a liver (the surface, its embedding in the
-//!   immersed grid, the static problem, the holds, the embedded structures), in SI units;
+//! - [`Model`]: what registration reads of a liver (the surface, its embedding in the immersed
+//!   grid, the static problem, the holds, the [`EmbeddedStructure`]s), in SI units, with its
+//!   [`ModelError`] and the [`DEFAULT_FIXED_PENALTY_FACTOR`] of its holds;
 //! - [`registration`]: rigid ICP, correspondences, the biomechanical non-rigid ICP, the
 //!   contact force and its refit, pose search and uncertainty, the change test;
 //! - [`session`]: a [`Session`](session::Session) registering a stream of
@@ -52,14 +53,17 @@
 //! assert!(result.error.is_none(), "{:?}", result.error);
 //! ```
 #![warn(missing_docs)]
+// The public API is what the crate root and its public modules offer: an item is `pub` only
+// when a user of the crate can reach it, and every type a public item shows can be named.
+#![warn(unnameable_types, unreachable_pub)]
 
 // The numerics below: their modules keep the paths the registration code names them by.
 #[cfg(test)]
 use livereg_fem::random;
 use livereg_fem::{geometry, grid, linalg, mechanics, mesh};
 
-pub mod model;
+mod model;
 pub mod registration;
 pub mod session;
 
-pub use model::{EmbeddedStructure, Model, ModelError};
+pub use model::{EmbeddedStructure, Model, ModelError, DEFAULT_FIXED_PENALTY_FACTOR};

@@ -9,7 +9,8 @@
 //!   [`Session`](livereg_registration::session::Session)s and their settings
 //!   ([`simulation::FromScene`], [`simulation::session_settings`]), and `simulate`;
 //! - [`evaluation`]: results and truth formats, target registration error;
-//! - [`recording`]: MCAP recordings of sessions and their replay.
+//! - [`recording`]: MCAP recordings of sessions and their replay, and the retention of a
+//!   directory of them ([`recording::retention`]).
 //!
 //! It stands on `livereg-fem` and `livereg-registration`, and holds no service (no async
 //! runtime, HTTP or gRPC) and no charts: the server's crate and the command line stand on it.
@@ -29,6 +30,9 @@
 //! assert_eq!(session.model.structures.len(), scene.scene.model.structures.len());
 //! ```
 #![warn(missing_docs)]
+// The public API is what the crate root and its public modules offer: an item is `pub` only
+// when a user of the crate can reach it, and every type a public item shows can be named.
+#![warn(unnameable_types, unreachable_pub)]
 
 // The layers below: their modules keep the paths this crate's code names them by.
 use livereg_fem::{geometry, grid, linalg, mechanics, mesh, stored_scalar};

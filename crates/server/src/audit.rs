@@ -10,23 +10,23 @@
 use std::net::SocketAddr;
 
 /// The `tracing` target of every audit event.
-pub const TARGET: &str = "livereg::audit";
+pub(crate) const TARGET: &str = "livereg::audit";
 
 /// The client's address of a request, as the transports know it (axum's connection info,
 /// tonic's remote address); `None` where the transport does not say (in-process tests).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Peer(pub Option<SocketAddr>);
+pub(crate) struct Peer(pub Option<SocketAddr>);
 
 impl Peer {
     /// The address as text, `-` when unknown.
-    pub fn shown(&self) -> String {
+    pub(crate) fn shown(&self) -> String {
         self.0.map_or_else(|| "-".to_string(), |a| a.to_string())
     }
 }
 
 /// What was attempted.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Action {
+pub(crate) enum Action {
     /// A request's bearer token was checked (only failures are logged: successes are the
     /// operations that follow).
     Authenticate,
@@ -46,7 +46,7 @@ pub enum Action {
 
 impl Action {
     /// The action's name in the log (`create_session`, …).
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             Action::Authenticate => "authenticate",
             Action::CreateSession => "create_session",
@@ -61,7 +61,7 @@ impl Action {
 
 /// One audit event: `outcome` is `ok` or the refusal's error code (`unauthorized`,
 /// `invalid_scene`, …); `detail` says more for people (an error message, a close reason).
-pub fn event(
+pub(crate) fn event(
     action: Action,
     outcome: &str,
     peer: Peer,
@@ -81,7 +81,7 @@ pub fn event(
 }
 
 /// The outcome field for a result: `ok`, or the error's code.
-pub fn outcome<T>(r: &Result<T, super::error::ApiError>) -> &'static str {
+pub(crate) fn outcome<T>(r: &Result<T, super::error::ApiError>) -> &'static str {
     match r {
         Ok(_) => "ok",
         Err(e) => e.code,

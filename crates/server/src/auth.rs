@@ -12,18 +12,18 @@ use super::error::ApiError;
 
 /// Who is calling: the name of the token used (or `dev` in loopback development mode).
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
-pub struct Owner(pub Arc<str>);
+pub(crate) struct Owner(pub Arc<str>);
 
 impl Owner {
     /// The owner's name (never the token).
-    pub fn name(&self) -> &str {
+    pub(crate) fn name(&self) -> &str {
         &self.0
     }
 }
 
 /// Byte strings equal, in time that depends only on their lengths (xor fold over the longer
 /// length, the length difference folded in).
-pub fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
+pub(crate) fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
     let n = a.len().max(b.len());
     let mut diff: u64 = (a.len() ^ b.len()) as u64;
     for i in 0..n {
@@ -36,7 +36,7 @@ pub fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
 
 /// The accepted tokens.
 #[derive(Debug, Clone)]
-pub struct Authenticator {
+pub(crate) struct Authenticator {
     tokens: Vec<(Owner, Vec<u8>)>,
     /// No token needed (loopback development mode): everyone is [`Authenticator::DEV_OWNER`].
     open: bool,
@@ -44,11 +44,11 @@ pub struct Authenticator {
 
 impl Authenticator {
     /// Owner name of every request in loopback development mode.
-    pub const DEV_OWNER: &'static str = "dev";
+    pub(crate) const DEV_OWNER: &'static str = "dev";
 
     /// Accepts `tokens`; with `open`, requests without a token are accepted as `dev` (a given
     /// token is still checked).
-    pub fn new(tokens: &[TokenEntry], open: bool) -> Self {
+    pub(crate) fn new(tokens: &[TokenEntry], open: bool) -> Self {
         Self {
             tokens: tokens
                 .iter()
@@ -65,7 +65,7 @@ impl Authenticator {
 
     /// Owner for an `Authorization` header value (`Bearer <token>`), or 401 naming what is
     /// wrong (missing header, wrong scheme, unknown token).
-    pub fn authenticate(&self, header: Option<&[u8]>) -> Result<Owner, ApiError> {
+    pub(crate) fn authenticate(&self, header: Option<&[u8]>) -> Result<Owner, ApiError> {
         let Some(raw) = header else {
             if self.open {
                 return Ok(Owner(Arc::from(Self::DEV_OWNER)));

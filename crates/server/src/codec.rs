@@ -65,7 +65,7 @@ pub struct JsonFrame {
 
 /// A decoded frame with the client's number.
 #[derive(Debug, Clone)]
-pub struct Incoming {
+pub(crate) struct Incoming {
     /// Client frame number.
     pub seq: u64,
     /// The frame.
@@ -77,12 +77,7 @@ fn camera(position: [f64; 3], look_at: [f64; 3], up: Option<[f64; 3]>) -> Result
     let l = Point3::from(look_at);
     let c = match up {
         None => Camera::looking_at(p, l),
-        Some(u) => Camera::new(
-            p,
-            l,
-            Vector3::from(u),
-            crate::geometry::camera::DEFAULT_FOV_DEG,
-        ),
+        Some(u) => Camera::new(p, l, Vector3::from(u), crate::geometry::DEFAULT_FOV_DEG),
     };
     c.map_err(|e| ApiError::invalid_frame(format!("camera: {e}")))
 }
@@ -95,7 +90,7 @@ fn source_or(seq: u64, source: Option<String>) -> String {
 }
 
 /// Decodes a JSON frame; 400 naming line, column and field on malformed input.
-pub fn decode_json_frame(bytes: &[u8]) -> Result<Incoming, ApiError> {
+pub(crate) fn decode_json_frame(bytes: &[u8]) -> Result<Incoming, ApiError> {
     let f: JsonFrame = serde_json::from_slice(bytes)
         .map_err(|e| ApiError::bad_request(format!("malformed JSON frame: {e}")))?;
     let cam = match f.camera {
@@ -134,7 +129,7 @@ pub fn encode_binary_frame(seq: u64, points: &[[f32; 3]], cam: Option<[[f32; 3];
 
 /// The `seq` of a binary frame read from its header alone (0 when the message is too short
 /// or not a binary frame): refusals made before decoding still name the frame.
-pub fn peek_binary_seq(bytes: &[u8]) -> u64 {
+pub(crate) fn peek_binary_seq(bytes: &[u8]) -> u64 {
     match bytes.get(8..16) {
         Some(b) if bytes.starts_with(&BINARY_MAGIC) => {
             u64::from_le_bytes(b.try_into().unwrap_or([0; 8]))
@@ -145,7 +140,7 @@ pub fn peek_binary_seq(bytes: &[u8]) -> u64 {
 
 /// Decodes a binary frame (see the module docs); 400 naming what is wrong, 413 when it holds
 /// more than `max_points` points.
-pub fn decode_binary_frame(bytes: &[u8], max_points: usize) -> Result<Incoming, ApiError> {
+pub(crate) fn decode_binary_frame(bytes: &[u8], max_points: usize) -> Result<Incoming, ApiError> {
     if bytes.len() < BINARY_HEADER {
         return Err(ApiError::bad_request(format!(
             "binary frame of {} bytes is shorter than its {BINARY_HEADER}-byte header",
@@ -220,7 +215,7 @@ pub fn decode_binary_frame(bytes: &[u8], max_points: usize) -> Result<Incoming, 
 
 /// Decodes a protobuf frame (`points_f64` when non-empty, else `points`); 400 naming what is
 /// wrong, 413 over `max_points`.
-pub fn decode_proto_frame(f: proto::Frame, max_points: usize) -> Result<Incoming, ApiError> {
+pub(crate) fn decode_proto_frame(f: proto::Frame, max_points: usize) -> Result<Incoming, ApiError> {
     let coords: Vec<f64> = if f.points_f64.is_empty() {
         f.points.iter().map(|&v| f64::from(v)).collect()
     } else {

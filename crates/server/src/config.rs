@@ -27,7 +27,7 @@ pub struct TlsConfig {
     pub key: PathBuf,
 }
 
-/// Limits enforced on every request (see [`super::limits`]).
+/// Limits enforced on every request.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LimitsConfig {
@@ -52,8 +52,7 @@ pub struct LimitsConfig {
     pub session_idle_timeout_s: u64,
     /// Longest registration of one frame, ms, whatever the uploaded scene or `budget_ms`
     /// says: the session's time budget is at most this (the best state so far is answered,
-    /// flagged `time_budget`). A frame still running after [`super::worker::WATCHDOG_FACTOR`]
-    /// times this retires its session.
+    /// flagged `time_budget`). A frame still running after 5 times this retires its session.
     pub max_frame_ms: f64,
     /// Most iterations or steps an uploaded scene may ask for in any one of
     /// `solver.max_newton_iterations`, `solver.load_steps`, `registration.max_icp_iterations`

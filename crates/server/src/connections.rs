@@ -21,7 +21,7 @@ use super::metrics::Metrics;
 
 /// Limits of the accept loop (from [`super::config::LimitsConfig`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ConnectionLimits {
+pub(crate) struct ConnectionLimits {
     /// Most open connections of the listener.
     pub max_connections: usize,
     /// Most open connections from one client IP address.
@@ -33,21 +33,21 @@ pub struct ConnectionLimits {
 
 /// Open connections, in all and per client address; a [`ConnectionPermit`] holds one place.
 #[derive(Debug)]
-pub struct ConnectionLimiter {
+pub(crate) struct ConnectionLimiter {
     limits: ConnectionLimits,
     open: Mutex<(usize, HashMap<IpAddr, usize>)>,
 }
 
 /// One admitted connection's place; released when dropped.
 #[derive(Debug)]
-pub struct ConnectionPermit {
+pub(crate) struct ConnectionPermit {
     limiter: Arc<ConnectionLimiter>,
     ip: IpAddr,
 }
 
 /// Why a connection was refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Refusal {
+pub(crate) enum Refusal {
     /// The listener holds `max_connections`.
     ServerFull,
     /// The address holds `max_per_address`.
@@ -56,7 +56,7 @@ pub enum Refusal {
 
 impl Refusal {
     /// The metrics label (`server`, `address`).
-    pub fn label(self) -> &'static str {
+    pub(crate) fn label(self) -> &'static str {
         match self {
             Refusal::ServerFull => "server",
             Refusal::AddressFull => "address",
@@ -66,7 +66,7 @@ impl Refusal {
 
 impl ConnectionLimiter {
     /// A limiter with `limits` and nothing open.
-    pub fn new(limits: ConnectionLimits) -> Arc<Self> {
+    pub(crate) fn new(limits: ConnectionLimits) -> Arc<Self> {
         Arc::new(Self {
             limits,
             open: Mutex::new((0, HashMap::new())),
@@ -74,7 +74,7 @@ impl ConnectionLimiter {
     }
 
     /// A place for a connection from `ip`, or why not.
-    pub fn admit(self: &Arc<Self>, ip: IpAddr) -> Result<ConnectionPermit, Refusal> {
+    pub(crate) fn admit(self: &Arc<Self>, ip: IpAddr) -> Result<ConnectionPermit, Refusal> {
         let mut g = self.open.lock().unwrap_or_else(|p| p.into_inner());
         if g.0 >= self.limits.max_connections {
             return Err(Refusal::ServerFull);
@@ -93,7 +93,7 @@ impl ConnectionLimiter {
 
     /// Open connections (in all, from `ip`); the unit tests' view of the counts.
     #[cfg(test)]
-    pub fn open(&self, ip: IpAddr) -> (usize, usize) {
+    pub(crate) fn open(&self, ip: IpAddr) -> (usize, usize) {
         let g = self.open.lock().unwrap_or_else(|p| p.into_inner());
         (g.0, g.1.get(&ip).copied().unwrap_or(0))
     }
@@ -114,10 +114,10 @@ impl Drop for ConnectionPermit {
 
 /// Interval of the HTTP/2 pings on every HTTP/2 connection (gRPC included), and how long an
 /// unanswered one waits before the connection is closed.
-pub const HTTP2_KEEPALIVE: Duration = Duration::from_secs(20);
+pub(crate) const HTTP2_KEEPALIVE: Duration = Duration::from_secs(20);
 
 /// Most concurrent HTTP/2 streams (gRPC calls) on one connection.
-pub const MAX_STREAMS_PER_CONNECTION: u32 = 64;
+pub(crate) const MAX_STREAMS_PER_CONNECTION: u32 = 64;
 
 /// Bytes a client must send before hyper's own timers take over: the length of the HTTP/2
 /// preface, which hyper's protocol detection waits for without any timeout.
@@ -211,11 +211,11 @@ impl<T: tokio::io::AsyncWrite + Unpin> tokio::io::AsyncWrite for OpeningDeadline
 /// A TCP listener whose accepted sockets have `TCP_NODELAY` set: results are small writes
 /// that must leave at once, not wait for the client's delayed ACK (Nagle's algorithm).
 #[derive(Debug)]
-pub struct NoDelayListener(TcpListener);
+pub(crate) struct NoDelayListener(TcpListener);
 
 impl NoDelayListener {
     /// Wraps a bound listener.
-    pub fn new(listener: TcpListener) -> Self {
+    pub(crate) fn new(listener: TcpListener) -> Self {
         Self(listener)
     }
 }
@@ -238,7 +238,7 @@ impl Listener for NoDelayListener {
 
 /// Serves `app` on `listener` until `shutdown`, then waits for the open connections to
 /// finish (their requests complete, WebSockets close on their own shutdown signal).
-pub async fn serve<L>(
+pub(crate) async fn serve<L>(
     mut listener: L,
     app: axum::Router,
     limits: ConnectionLimits,

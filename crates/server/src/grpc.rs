@@ -28,11 +28,11 @@ use crate::scene::SceneFormat;
 /// The protobuf codec of the generated code: tonic-prost's, with decode errors answered
 /// `INVALID_ARGUMENT` naming the problem.
 #[derive(Debug, Clone, Copy, Default)]
-pub struct Codec<T, U>(std::marker::PhantomData<(T, U)>);
+pub(crate) struct Codec<T, U>(std::marker::PhantomData<(T, U)>);
 
 /// Decoder half of [`Codec`].
 #[derive(Debug)]
-pub struct CheckedDecoder<U>(tonic_prost::ProstDecoder<U>);
+pub(crate) struct CheckedDecoder<U>(tonic_prost::ProstDecoder<U>);
 
 impl<U: prost::Message + Default> Decoder for CheckedDecoder<U> {
     type Item = U;
@@ -58,7 +58,7 @@ impl<U: prost::Message + Default> Decoder for CheckedDecoder<U> {
 
 /// Encoder half of [`Codec`].
 #[derive(Debug)]
-pub struct PlainEncoder<T>(tonic_prost::ProstEncoder<T>);
+pub(crate) struct PlainEncoder<T>(tonic_prost::ProstEncoder<T>);
 
 impl<T: prost::Message> Encoder for PlainEncoder<T> {
     type Item = T;
@@ -98,13 +98,13 @@ where
 
 /// The gRPC service.
 #[derive(Debug, Clone)]
-pub struct GrpcService {
+pub(crate) struct GrpcService {
     state: Arc<AppState>,
 }
 
 impl GrpcService {
     /// The service over the shared state.
-    pub fn new(state: Arc<AppState>) -> Self {
+    pub(crate) fn new(state: Arc<AppState>) -> Self {
         Self { state }
     }
 

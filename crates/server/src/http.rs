@@ -1,5 +1,5 @@
 //! The HTTP API (axum) under `/v1`, plus `/healthz`, `/readyz`, `/metrics` and the OpenAPI
-//! document. Every error is [`ApiError`]'s JSON shape.
+//! document. Every error has one JSON shape, `{"error": {"code", "message"}}`.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -43,7 +43,7 @@ pub const ROUTES: &[(&str, &str)] = &[
 type ApiResult<T> = Result<T, ApiError>;
 
 /// The router of the HTTP API.
-pub fn router(state: Arc<AppState>) -> Router {
+pub(crate) fn router(state: Arc<AppState>) -> Router {
     let limit = state.config.limits.max_body_bytes;
     let authed = Router::new()
         .route("/v1/sessions", post(create_session).get(list_sessions))

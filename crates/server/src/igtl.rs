@@ -52,14 +52,14 @@ use crate::scene::load_scene;
 use crate::session::Frame;
 
 /// The owner of every OpenIGTLink session (the protocol carries no identity).
-pub const IGTL_OWNER: &str = "openigtlink";
+pub(crate) const IGTL_OWNER: &str = "openigtlink";
 
 /// Results waiting to be written per connection.
 const CONNECTION_BUFFER: usize = 16;
 
 /// The scenes OpenIGTLink sessions are built from, read once at start.
 #[derive(Debug, Default)]
-pub struct IgtlScenes {
+pub(crate) struct IgtlScenes {
     default: Option<Arc<SceneUpload>>,
     by_device: HashMap<String, Arc<SceneUpload>>,
     /// Clients speak RAS (3D Slicer's world): x and y change sign both ways.
@@ -69,7 +69,7 @@ pub struct IgtlScenes {
 impl IgtlScenes {
     /// Reads `default` and every scene of `by_device` (device name → scene file) with the
     /// files they name; an unreadable scene is an error naming its key.
-    pub fn load(
+    pub(crate) fn load(
         default: Option<&Path>,
         by_device: &std::collections::BTreeMap<String, std::path::PathBuf>,
         coordinates: super::config::IgtlCoordinates,
@@ -116,7 +116,7 @@ impl IgtlScenes {
 
 /// Accepts OpenIGTLink connections on `listener` (through TLS when `tls` is given) within
 /// `limits` until `shutdown`; each is served by [`serve_connection`].
-pub async fn serve(
+pub(crate) async fn serve(
     listener: TcpListener,
     state: Arc<AppState>,
     scenes: Arc<IgtlScenes>,
@@ -180,7 +180,7 @@ type Outgoing = Vec<u8>;
 
 /// Serves one OpenIGTLink connection until the client closes it, the stream breaks, it
 /// stays idle for `limits.stream_idle_timeout_s`, or the server shuts down.
-pub async fn serve_connection<S>(
+pub(crate) async fn serve_connection<S>(
     io: S,
     addr: SocketAddr,
     state: Arc<AppState>,
@@ -519,7 +519,7 @@ fn current_version(v: &AtomicU8) -> HeaderVersion {
 /// POLYDATA `DeformedLiver`, a POLYDATA per mesh structure, POINT `Targets` (every point of
 /// the point structures, named `<structure>-<k>`, grouped by structure), and a STATUS when
 /// the frame failed (the positions are then the last good state's).
-pub fn result_messages(c: &Completed, handle: &SessionHandle, ras: bool) -> Vec<Message> {
+pub(crate) fn result_messages(c: &Completed, handle: &SessionHandle, ras: bool) -> Vec<Message> {
     let r = &c.result;
     let to_mm = handle.info.length_scale * 1e3;
     let mm = |ps: &[Point3<f64>]| -> Vec<Point3<f64>> {

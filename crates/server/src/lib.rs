@@ -1,17 +1,26 @@
 //! livereg-server: the registration server (`livereg serve`): HTTP + WebSocket (axum), gRPC
 //! (tonic) and OpenIGTLink front ends over one set of sessions, for AR displays streaming point
-//! clouds. [`start`] binds the listeners and returns a [`RunningServer`]; [`http::router`] is
-//! the axum router of the HTTP and WebSocket API.
+//! clouds.
 //!
-//! - [`config`]: file, environment and flags; [`auth`]: bearer tokens (constant time);
-//! - [`limits`]: sizes and rates; [`registry`]: sessions, ownership, random ids;
-//! - [`upload`]: scenes uploaded with their files; [`worker`]: per-session registration on
-//!   the blocking pool with a newest-wins mailbox; [`service`]: the operations and shared state;
-//! - [`http`], [`ws`], [`grpc`]: the front ends; [`codec`]: frame and result encodings;
-//!   [`result_codec`]: the compact binary result encoding of WebSocket streams;
+//! What it offers:
+//! - [`start`]: checks a [`ServerConfig`], binds the listeners and returns a [`RunningServer`]
+//!   (its addresses, a [`ShutdownHandle`], its metrics);
+//! - [`config`]: the configuration from file, environment and flags ([`ServerConfig`], its
+//!   limits, tokens and TLS files);
+//! - [`codec`]: the frames clients send (JSON, the compact binary encoding) and the JSON result
+//!   ([`codec::ResultMessage`]); [`result_codec`]: the compact binary result encoding of
+//!   WebSocket streams;
+//! - [`http::ROUTES`]: the HTTP API's routes; [`SESSION_HEADER`]: the header naming a session;
+//!   [`proto`]: the gRPC messages, server and client;
 //! - [`openigtlink`]: the OpenIGTLink protocol codec, which the OpenIGTLink listener speaks;
-//! - [`tls`]: native TLS (rustls) of the listeners;
-//! - [`metrics`]: Prometheus; [`openapi`]: the HTTP API's document; [`error`]: one error type.
+//! - [`tls`]: the handshake limits of the TLS listeners;
+//! - [`ApiError`]: the API's one error type, with its JSON shape [`ErrorBody`].
+//!
+//! The rest is the server's own: bearer tokens checked in constant time, sizes and rates, the
+//! session registry (ownership, random ids), scenes uploaded with their files, per-session
+//! registration on the blocking pool with a newest-wins mailbox, the operations and shared
+//! state, the HTTP, WebSocket, gRPC and OpenIGTLink front ends, the Prometheus metrics and the
+//! HTTP API's OpenAPI document.
 //!
 //! The server stands on the scene layer (`livereg-scene`: scenes, result records,
 //! recordings), the registration sessions (`livereg-registration`) and the mesh reader
@@ -31,6 +40,9 @@
 //! # }
 //! ```
 #![warn(missing_docs)]
+// The public API is what the crate root and its public modules offer: an item is `pub` only
+// when a user of the crate can reach it, and every type a public item shows can be named.
+#![warn(unnameable_types, unreachable_pub)]
 
 // The layers below: their modules keep the paths the server's code names them by.
 #[cfg(test)]
@@ -53,7 +65,7 @@ pub(crate) mod memory_budget;
 pub(crate) mod metrics;
 pub(crate) mod openapi;
 pub mod openigtlink;
-pub mod registry;
+pub(crate) mod registry;
 pub mod result_codec;
 pub(crate) mod service;
 pub(crate) mod slots;
@@ -64,7 +76,7 @@ pub(crate) mod worker;
 pub(crate) mod ws;
 
 /// Generated gRPC messages, server and client of `proto/livereg/v1/registration.proto`.
-#[allow(missing_docs, clippy::all, clippy::pedantic)]
+#[allow(missing_docs, clippy::all, clippy::pedantic, rustdoc::all)]
 pub mod proto {
     tonic::include_proto!("livereg.v1");
 }
@@ -77,7 +89,8 @@ use tokio::sync::watch;
 use tokio::task::JoinHandle;
 
 pub use config::ServerConfig;
-pub use error::ApiError;
+pub use error::{ApiError, ErrorBody, ErrorDetail};
+pub use registry::SESSION_HEADER;
 use service::AppState;
 
 /// Triggers a graceful shutdown: new work is refused (503 / `UNAVAILABLE`), frames in flight
@@ -116,9 +129,16 @@ impl RunningServer {
         self.handle.clone()
     }
 
-    /// The shared state (metrics, sessions), for tests and tools.
-    pub fn state(&self) -> &Arc<AppState> {
-        &self.state
+    /// The text exposition of the server's metrics: what `GET /metrics` serves, without the
+    /// registration slots' and draining gauges it adds. For tests and tools.
+    pub fn metrics_text(&self) -> String {
+        self.state.metrics.render()
+    }
+
+    /// The value of the metrics counter `family` with label value `label` (0 when never
+    /// incremented), for tests and tools.
+    pub fn counter(&self, family: &'static str, label: &str) -> u64 {
+        self.state.metrics.counter(family, label)
     }
 
     /// Waits until a shutdown is triggered, then drains: closes every session, lets the frames

@@ -10,7 +10,7 @@ use crate::session::Frame;
 
 /// Token bucket: `capacity` frames at once, refilled at `rate` frames per second.
 #[derive(Debug, Clone)]
-pub struct RateLimiter {
+pub(crate) struct RateLimiter {
     capacity: f64,
     rate: f64,
     tokens: f64,
@@ -19,7 +19,7 @@ pub struct RateLimiter {
 
 impl RateLimiter {
     /// A full bucket of `per_second` tokens refilled at `per_second` per second.
-    pub fn new(per_second: f64) -> Self {
+    pub(crate) fn new(per_second: f64) -> Self {
         Self {
             capacity: per_second.max(1.0),
             rate: per_second,
@@ -29,7 +29,7 @@ impl RateLimiter {
     }
 
     /// Takes one token at time `now`; false when the bucket is empty.
-    pub fn try_acquire(&mut self, now: Instant) -> bool {
+    pub(crate) fn try_acquire(&mut self, now: Instant) -> bool {
         let dt = now.saturating_duration_since(self.last).as_secs_f64();
         self.last = now;
         self.tokens = (self.tokens + dt * self.rate).min(self.capacity);
@@ -43,7 +43,7 @@ impl RateLimiter {
 }
 
 /// 429 `rate_limited` for a session over its frame rate.
-pub fn rate_limited(limit: f64) -> ApiError {
+pub(crate) fn rate_limited(limit: f64) -> ApiError {
     ApiError::too_many(
         "rate_limited",
         format!("more than {limit} frames per second for this session; send fewer frames (the newest frame wins anyway)"),
@@ -53,11 +53,11 @@ pub fn rate_limited(limit: f64) -> ApiError {
 /// Largest coordinate magnitude a frame's point may have, scene units (1,000 km in a
 /// millimetre scene): beyond it squared distances lose all precision long before any real
 /// camera could produce such a point.
-pub const MAX_COORDINATE: f64 = 1e9;
+pub(crate) const MAX_COORDINATE: f64 = 1e9;
 
 /// Checks a decoded frame before it reaches a session: not empty, every coordinate finite and
 /// within ±[`MAX_COORDINATE`], at most `limits.max_frame_points` points.
-pub fn check_frame(frame: &Frame, limits: &LimitsConfig) -> Result<(), ApiError> {
+pub(crate) fn check_frame(frame: &Frame, limits: &LimitsConfig) -> Result<(), ApiError> {
     if frame.points.is_empty() {
         return Err(ApiError::invalid_frame("the frame holds no points"));
     }
@@ -105,7 +105,7 @@ pub fn check_frame(frame: &Frame, limits: &LimitsConfig) -> Result<(), ApiError>
 /// Checks the work an uploaded scene asks for per frame: every iteration or step count of
 /// its solver and registration at most `limits.max_solver_iterations` (413 `work_too_large`
 /// naming the key).
-pub fn check_scene_work(
+pub(crate) fn check_scene_work(
     limits: &LimitsConfig,
     scene: &crate::scene::Scene,
 ) -> Result<(), ApiError> {
@@ -137,7 +137,7 @@ pub fn check_scene_work(
 
 /// Checks a scene's size before its grid is built: triangles of a mesh, octree levels, and the
 /// number of grid cells its bounding box (`min`, `max`, scene units) asks for at `cell_size`.
-pub fn check_scene_size(
+pub(crate) fn check_scene_size(
     limits: &LimitsConfig,
     mesh_name: &str,
     triangles: usize,

@@ -11,11 +11,11 @@
 use std::path::Path;
 
 /// Share of the available memory the automatic budget gives to sessions.
-pub const AUTO_BUDGET_FRACTION: f64 = 0.75;
+pub(crate) const AUTO_BUDGET_FRACTION: f64 = 0.75;
 
 /// Where the budget came from, for the start-up log and the metrics.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum BudgetSource {
+pub(crate) enum BudgetSource {
     /// `limits.max_memory_mb`.
     Configured,
     /// [`AUTO_BUDGET_FRACTION`] of the cgroup's memory limit.
@@ -27,7 +27,7 @@ pub enum BudgetSource {
 }
 
 /// The budget in bytes (`u64::MAX` when unknown) and where it came from.
-pub fn memory_budget(max_memory_mb: u64) -> (u64, BudgetSource) {
+pub(crate) fn memory_budget(max_memory_mb: u64) -> (u64, BudgetSource) {
     memory_budget_from(
         max_memory_mb,
         Path::new("/sys/fs/cgroup"),
@@ -37,7 +37,11 @@ pub fn memory_budget(max_memory_mb: u64) -> (u64, BudgetSource) {
 
 /// [`memory_budget`] reading the cgroup file system under `cgroup` and `meminfo` under
 /// `proc` (tests point them at fixtures).
-pub fn memory_budget_from(max_memory_mb: u64, cgroup: &Path, proc: &Path) -> (u64, BudgetSource) {
+pub(crate) fn memory_budget_from(
+    max_memory_mb: u64,
+    cgroup: &Path,
+    proc: &Path,
+) -> (u64, BudgetSource) {
     if max_memory_mb > 0 {
         return (
             max_memory_mb.saturating_mul(1 << 20),
@@ -78,7 +82,7 @@ fn mem_total(proc: &Path) -> Option<u64> {
 }
 
 /// Bytes as MiB, for messages.
-pub fn mib(bytes: u64) -> f64 {
+pub(crate) fn mib(bytes: u64) -> f64 {
     bytes as f64 / (1u64 << 20) as f64
 }
 

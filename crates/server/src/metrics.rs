@@ -7,13 +7,13 @@ use std::sync::atomic::{AtomicI64, AtomicU64, Ordering};
 use std::sync::Mutex;
 
 /// Bucket upper bounds of the latency histograms, seconds.
-pub const LATENCY_BUCKETS: &[f64] = &[
+pub(crate) const LATENCY_BUCKETS: &[f64] = &[
     0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0,
 ];
 
 /// A histogram with fixed buckets (seconds).
 #[derive(Debug)]
-pub struct Histogram {
+pub(crate) struct Histogram {
     bounds: &'static [f64],
     counts: Vec<AtomicU64>,
     sum_micros: AtomicU64,
@@ -22,7 +22,7 @@ pub struct Histogram {
 
 impl Histogram {
     /// An empty histogram with upper bounds `bounds` (seconds, increasing).
-    pub fn new(bounds: &'static [f64]) -> Self {
+    pub(crate) fn new(bounds: &'static [f64]) -> Self {
         Self {
             bounds,
             counts: bounds.iter().map(|_| AtomicU64::new(0)).collect(),
@@ -32,7 +32,7 @@ impl Histogram {
     }
 
     /// Records one observation, seconds (non-finite or negative values count as 0).
-    pub fn observe(&self, seconds: f64) {
+    pub(crate) fn observe(&self, seconds: f64) {
         let s = if seconds.is_finite() && seconds > 0.0 {
             seconds
         } else {
@@ -49,7 +49,7 @@ impl Histogram {
     }
 
     /// Observations so far.
-    pub fn count(&self) -> u64 {
+    pub(crate) fn count(&self) -> u64 {
         self.count.load(Ordering::Relaxed)
     }
 
@@ -119,7 +119,7 @@ const COUNTERS: &[(&str, &str, &str)] = &[
 
 /// Every metric of the server.
 #[derive(Debug)]
-pub struct Metrics {
+pub(crate) struct Metrics {
     counters: Mutex<BTreeMap<(&'static str, String), u64>>,
     /// Open sessions.
     pub sessions: AtomicI64,
@@ -160,7 +160,7 @@ fn escape(v: &str) -> String {
 
 impl Metrics {
     /// Adds `n` to the counter `family` (one of the families above) with label value `label`.
-    pub fn inc(&self, family: &'static str, label: &str, n: u64) {
+    pub(crate) fn inc(&self, family: &'static str, label: &str, n: u64) {
         debug_assert!(COUNTERS.iter().any(|(f, _, _)| *f == family));
         if let Ok(mut c) = self.counters.lock() {
             *c.entry((family, label.to_string())).or_insert(0) += n;
@@ -168,7 +168,7 @@ impl Metrics {
     }
 
     /// The value of a counter (0 when never incremented).
-    pub fn counter(&self, family: &'static str, label: &str) -> u64 {
+    pub(crate) fn counter(&self, family: &'static str, label: &str) -> u64 {
         self.counters
             .lock()
             .map(|c| c.get(&(family, label.to_string())).copied().unwrap_or(0))
@@ -176,7 +176,7 @@ impl Metrics {
     }
 
     /// The text exposition of every metric.
-    pub fn render(&self) -> String {
+    pub(crate) fn render(&self) -> String {
         let mut out = String::new();
         let counters = self.counters.lock().map(|c| c.clone()).unwrap_or_default();
         for (family, help, label) in COUNTERS {

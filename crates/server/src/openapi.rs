@@ -21,7 +21,7 @@ fn id_param() -> Value {
 }
 
 /// The document: the API's info, its schemas ([`schemas`]) and its routes ([`paths`]).
-pub fn document() -> Value {
+pub(crate) fn document() -> Value {
     json!({
       "openapi": "3.0.3",
       "info": {

@@ -14,7 +14,7 @@ use super::memory_budget::{memory_budget, mib};
 use super::worker::SessionHandle;
 
 /// A new session id: 128 random bits from the operating system, 32 lowercase hex digits.
-pub fn new_session_id() -> Result<String, ApiError> {
+pub(crate) fn new_session_id() -> Result<String, ApiError> {
     let mut b = [0u8; 16];
     getrandom::fill(&mut b)
         .map_err(|e| ApiError::internal(format!("no randomness for a session id: {e}")))?;
@@ -28,7 +28,7 @@ pub const SESSION_HEADER: &str = "x-livereg-session";
 
 /// The session id a create request asks for, from the raw value of its [`SESSION_HEADER`]
 /// (HTTP header or gRPC metadata), if any; its shape is checked when it is reserved.
-pub fn requested_session_id(value: Option<&[u8]>) -> Result<Option<String>, ApiError> {
+pub(crate) fn requested_session_id(value: Option<&[u8]>) -> Result<Option<String>, ApiError> {
     value
         .map(|v| {
             std::str::from_utf8(v)
@@ -39,7 +39,7 @@ pub fn requested_session_id(value: Option<&[u8]>) -> Result<Option<String>, ApiE
 }
 
 /// Whether `id` has the shape of a session id (so bad ids are answered without a lookup).
-pub fn is_session_id(id: &str) -> bool {
+pub(crate) fn is_session_id(id: &str) -> bool {
     id.len() == 32
         && id
             .bytes()
@@ -48,7 +48,7 @@ pub fn is_session_id(id: &str) -> bool {
 
 /// A session's public description (`GET /v1/sessions/{id}`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SessionInfo {
+pub(crate) struct SessionInfo {
     /// The id.
     pub id: String,
     /// Scene units.
@@ -90,7 +90,7 @@ pub struct SessionInfo {
 
 impl SessionInfo {
     /// The description of `h` now.
-    pub fn of(h: &SessionHandle) -> Self {
+    pub(crate) fn of(h: &SessionHandle) -> Self {
         use std::sync::atomic::Ordering::Relaxed;
         Self {
             id: h.id.clone(),
@@ -142,7 +142,7 @@ impl Inner {
 
 /// The open sessions.
 #[derive(Debug)]
-pub struct Registry {
+pub(crate) struct Registry {
     inner: Mutex<Inner>,
     limits: LimitsConfig,
     /// Bytes of estimated session memory the open sessions may hold together.
@@ -152,7 +152,7 @@ pub struct Registry {
 /// A place and an id reserved for a session being created; released on drop unless
 /// committed.
 #[derive(Debug)]
-pub struct Reservation<'a> {
+pub(crate) struct Reservation<'a> {
     registry: &'a Registry,
     owner: Owner,
     /// The new session's id.
@@ -176,7 +176,7 @@ impl Reservation<'_> {
     /// budget (no server configured like this one can hold it); 429 `memory_budget` when the
     /// open sessions leave too little (another replica, or later, may). Claiming again
     /// replaces the earlier claim.
-    pub fn claim_memory(&mut self, bytes: u64) -> Result<(), ApiError> {
+    pub(crate) fn claim_memory(&mut self, bytes: u64) -> Result<(), ApiError> {
         let budget = self.registry.memory_budget;
         let mut g = self.registry.lock()?;
         g.reserved_memory -= self.memory;
@@ -210,7 +210,7 @@ impl Reservation<'_> {
 
     /// Registers the created session (its id must be [`Reservation::id`]) in place of the
     /// reservation.
-    pub fn commit(mut self, handle: Arc<SessionHandle>) {
+    pub(crate) fn commit(mut self, handle: Arc<SessionHandle>) {
         debug_assert_eq!(handle.id, self.id);
         self.done = true;
         if let Ok(mut g) = self.registry.inner.lock() {
@@ -227,7 +227,7 @@ impl Reservation<'_> {
 impl Registry {
     /// An empty registry enforcing `limits`, with the memory budget they give
     /// ([`memory_budget`], logged with where it came from).
-    pub fn new(limits: LimitsConfig) -> Self {
+    pub(crate) fn new(limits: LimitsConfig) -> Self {
         let (memory_budget, source) = memory_budget(limits.max_memory_mb);
         tracing::info!(
             memory_budget_mb = mib(memory_budget).round(),
@@ -238,7 +238,7 @@ impl Registry {
     }
 
     /// An empty registry enforcing `limits` with a memory budget of `bytes`.
-    pub fn with_memory_budget(limits: LimitsConfig, bytes: u64) -> Self {
+    pub(crate) fn with_memory_budget(limits: LimitsConfig, bytes: u64) -> Self {
         Self {
             inner: Mutex::new(Inner::default()),
             limits,
@@ -247,12 +247,12 @@ impl Registry {
     }
 
     /// The memory budget of the open sessions' estimates, bytes (`u64::MAX`: none known).
-    pub fn memory_budget(&self) -> u64 {
+    pub(crate) fn memory_budget(&self) -> u64 {
         self.memory_budget
     }
 
     /// Estimated memory of the open sessions and of those being created, bytes.
-    pub fn memory_in_use(&self) -> u64 {
+    pub(crate) fn memory_in_use(&self) -> u64 {
         self.inner.lock().map(|g| g.memory_in_use()).unwrap_or(0)
     }
 
@@ -276,7 +276,7 @@ impl Registry {
     /// (32 lowercase hex digits; the routing key of a scaled-out deployment, docs/server.md)
     /// or a new random one. 400 for a malformed id, 409 `session_exists` when the id is
     /// taken, 429 when the token or the server is at its session limit.
-    pub fn reserve(
+    pub(crate) fn reserve(
         &self,
         owner: &Owner,
         requested: Option<&str>,
@@ -332,7 +332,7 @@ impl Registry {
 
     /// The session `id` of `owner`; 404 when it does not exist *or belongs to another token*
     /// (the same answer, so ids of other tokens cannot be probed).
-    pub fn get(&self, owner: &Owner, id: &str) -> Result<Arc<SessionHandle>, ApiError> {
+    pub(crate) fn get(&self, owner: &Owner, id: &str) -> Result<Arc<SessionHandle>, ApiError> {
         if !is_session_id(id) {
             return Err(ApiError::unknown_session(id));
         }
@@ -344,14 +344,14 @@ impl Registry {
     }
 
     /// Removes the session `id` of `owner` (404 as [`Registry::get`]) and returns it.
-    pub fn remove(&self, owner: &Owner, id: &str) -> Result<Arc<SessionHandle>, ApiError> {
+    pub(crate) fn remove(&self, owner: &Owner, id: &str) -> Result<Arc<SessionHandle>, ApiError> {
         let h = self.get(owner, id)?;
         self.lock()?.sessions.remove(id);
         Ok(h)
     }
 
     /// The sessions of `owner`.
-    pub fn list(&self, owner: &Owner) -> Vec<Arc<SessionHandle>> {
+    pub(crate) fn list(&self, owner: &Owner) -> Vec<Arc<SessionHandle>> {
         self.inner
             .lock()
             .map(|g| {
@@ -365,7 +365,7 @@ impl Registry {
     }
 
     /// Removes and returns every session (shutdown).
-    pub fn drain(&self) -> Vec<Arc<SessionHandle>> {
+    pub(crate) fn drain(&self) -> Vec<Arc<SessionHandle>> {
         self.inner
             .lock()
             .map(|mut g| g.sessions.drain().map(|(_, h)| h).collect())
@@ -373,7 +373,7 @@ impl Registry {
     }
 
     /// Removes and returns the sessions idle for more than `seconds`.
-    pub fn take_idle(&self, seconds: f64) -> Vec<Arc<SessionHandle>> {
+    pub(crate) fn take_idle(&self, seconds: f64) -> Vec<Arc<SessionHandle>> {
         let Ok(mut g) = self.inner.lock() else {
             return Vec::new();
         };
@@ -387,7 +387,7 @@ impl Registry {
     }
 
     /// The recordings of the open sessions (files that retention must not remove).
-    pub fn recording_paths(&self) -> std::collections::HashSet<std::path::PathBuf> {
+    pub(crate) fn recording_paths(&self) -> std::collections::HashSet<std::path::PathBuf> {
         self.inner
             .lock()
             .map(|i| {
@@ -400,13 +400,8 @@ impl Registry {
     }
 
     /// Number of open sessions.
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.inner.lock().map(|g| g.sessions.len()).unwrap_or(0)
-    }
-
-    /// Whether no session is open.
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
     }
 }
 

@@ -41,7 +41,7 @@ use crate::evaluation::{ContactForceRecord, DiagnosticsRecord, ResultRecord, Rig
 
 /// How results are sent: `?results=json|binary` on the stream URL, or on a frame's POST.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum ResultFormat {
+pub(crate) enum ResultFormat {
     /// JSON: `{"type": "result", ...}` text messages on a stream, a JSON body for a POST
     /// (the default).
     #[default]
@@ -54,7 +54,7 @@ pub enum ResultFormat {
 impl ResultFormat {
     /// Reads the URL's query string: empty, or `results=json` / `results=binary`; any
     /// other parameter or value is a 400 naming it.
-    pub fn from_query(query: Option<&str>) -> Result<Self, ApiError> {
+    pub(crate) fn from_query(query: Option<&str>) -> Result<Self, ApiError> {
         let mut format = Self::Json;
         for pair in query.unwrap_or("").split('&').filter(|p| !p.is_empty()) {
             match pair.split_once('=').unwrap_or((pair, "")) {

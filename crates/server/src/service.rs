@@ -25,7 +25,7 @@ use super::worker::{
 
 /// Frame messages up to this size (bytes) are decoded on the network thread that received
 /// them (a few hundred µs at most); larger ones on the blocking pool.
-pub const INLINE_DECODE_BYTES: usize = 64 * 1024;
+pub(crate) const INLINE_DECODE_BYTES: usize = 64 * 1024;
 
 /// Builds the session of `upload` in `dir` on the blocking pool (a panic while building is
 /// an internal error, never a lost server): the loaded scene, the session, the upload and
@@ -122,7 +122,7 @@ fn open_recording(
 
 /// Everything the front ends share.
 #[derive(Debug)]
-pub struct AppState {
+pub(crate) struct AppState {
     /// The configuration in force.
     pub config: ServerConfig,
     /// Token check.
@@ -173,7 +173,7 @@ impl LiveCount {
 
 /// Counts an open stream while alive (shutdown waits for streams to finish their frames).
 #[derive(Debug)]
-pub struct StreamGuard(Arc<AppState>);
+pub(crate) struct StreamGuard(Arc<AppState>);
 
 impl Drop for StreamGuard {
     fn drop(&mut self) {
@@ -195,7 +195,11 @@ impl Drop for WorkerGuard {
 
 impl AppState {
     /// The state for a validated configuration.
-    pub fn new(config: ServerConfig, auth: Authenticator, shutdown: watch::Receiver<bool>) -> Self {
+    pub(crate) fn new(
+        config: ServerConfig,
+        auth: Authenticator,
+        shutdown: watch::Receiver<bool>,
+    ) -> Self {
         Self {
             registry: Registry::new(config.limits.clone()),
             metrics: Arc::new(Metrics::default()),
@@ -211,43 +215,43 @@ impl AppState {
     }
 
     /// Whether shutdown has started.
-    pub fn is_draining(&self) -> bool {
+    pub(crate) fn is_draining(&self) -> bool {
         self.draining.load(Ordering::Acquire)
     }
 
     /// Marks the start of shutdown: new work is refused from now on.
-    pub fn start_draining(&self) {
+    pub(crate) fn start_draining(&self) {
         self.draining.store(true, Ordering::Release);
     }
 
     /// Counts `e` in the metrics and returns it.
-    pub fn count(&self, e: ApiError) -> ApiError {
+    pub(crate) fn count(&self, e: ApiError) -> ApiError {
         self.metrics.inc("livereg_errors_total", e.code, 1);
         e
     }
 
     /// A guard counting an open stream.
-    pub fn stream_guard(self: &Arc<Self>) -> StreamGuard {
+    pub(crate) fn stream_guard(self: &Arc<Self>) -> StreamGuard {
         self.metrics.streams.fetch_add(1, Ordering::Relaxed);
         self.open_streams.enter();
         StreamGuard(self.clone())
     }
 
     /// Waits until no stream is open.
-    pub async fn streams_closed(&self) {
+    pub(crate) async fn streams_closed(&self) {
         self.open_streams.reached_zero().await;
     }
 
     /// Waits until every session worker has ended, those of sessions closed earlier included
     /// (a closed session's worker still finishes its pending frames and its recording).
-    pub async fn workers_ended(&self) {
+    pub(crate) async fn workers_ended(&self) {
         self.live_workers.reached_zero().await;
     }
 
     /// Creates a session for `owner` from `upload`, with the client's `requested_id` (the
     /// `X-Livereg-Session` routing key) or a new random id: limits, scene checks, model build
     /// on the blocking pool, then its worker.
-    pub async fn create_session(
+    pub(crate) async fn create_session(
         self: &Arc<Self>,
         owner: &Owner,
         upload: SceneUpload,
@@ -365,21 +369,21 @@ impl AppState {
     }
 
     /// The session `id` of `owner` (404 otherwise).
-    pub fn session(&self, owner: &Owner, id: &str) -> Result<Arc<SessionHandle>, ApiError> {
+    pub(crate) fn session(&self, owner: &Owner, id: &str) -> Result<Arc<SessionHandle>, ApiError> {
         let h = self.registry.get(owner, id)?;
         h.touch();
         Ok(h)
     }
 
     /// Closes a session: removed at once, its pending frames still finish.
-    pub fn close_session(&self, owner: &Owner, id: &str) -> Result<SessionInfo, ApiError> {
+    pub(crate) fn close_session(&self, owner: &Owner, id: &str) -> Result<SessionInfo, ApiError> {
         let h = self.registry.remove(owner, id)?;
         self.retire(&h, "client");
         Ok(SessionInfo::of(&h))
     }
 
     /// Closes a session already removed from the registry, counting why.
-    pub fn retire(&self, h: &SessionHandle, reason: &str) {
+    pub(crate) fn retire(&self, h: &SessionHandle, reason: &str) {
         h.close();
         self.metrics.inc("livereg_sessions_closed_total", reason, 1);
         self.forget(h, reason);
@@ -404,7 +408,7 @@ impl AppState {
     /// Admits one more frame of `h` before it is decoded: not draining, within the session's
     /// frame rate (token bucket). A flood of frames costs a counter each, never a decode.
     /// Refusals are counted.
-    pub fn admit_rate(&self, h: &SessionHandle) -> Result<(), ApiError> {
+    pub(crate) fn admit_rate(&self, h: &SessionHandle) -> Result<(), ApiError> {
         if self.is_draining() {
             return Err(ApiError::shutting_down());
         }
@@ -415,7 +419,11 @@ impl AppState {
 
     /// Checks a decoded frame for `h` (not empty, finite, within `max_frame_points`):
     /// refusals are counted.
-    pub fn admit_decoded(&self, h: &SessionHandle, incoming: &Incoming) -> Result<(), ApiError> {
+    pub(crate) fn admit_decoded(
+        &self,
+        h: &SessionHandle,
+        incoming: &Incoming,
+    ) -> Result<(), ApiError> {
         if self.is_draining() {
             return Err(ApiError::shutting_down());
         }
@@ -425,7 +433,7 @@ impl AppState {
     /// Decodes a frame message (binary encoding or JSON) of `h`: on the blocking pool when it
     /// is large (over [`INLINE_DECODE_BYTES`]), so that big clouds never stall the network
     /// threads. Decoding failures are counted as rejections of `h`.
-    pub async fn decode(
+    pub(crate) async fn decode(
         &self,
         h: &SessionHandle,
         bytes: axum::body::Bytes,
@@ -451,7 +459,7 @@ impl AppState {
     }
 
     /// Counts a frame of `h` refused before registration (session counter and metrics).
-    pub fn reject(&self, h: &SessionHandle, e: &ApiError) {
+    pub(crate) fn reject(&self, h: &SessionHandle, e: &ApiError) {
         h.counters.rejected.fetch_add(1, Ordering::Relaxed);
         self.count_rejection(e);
     }
@@ -463,7 +471,7 @@ impl AppState {
 
     /// Submits one frame and waits for its outcome (HTTP and gRPC unary): 409 when a newer
     /// frame replaced it.
-    pub async fn register_once(
+    pub(crate) async fn register_once(
         &self,
         owner: &Owner,
         id: &str,

@@ -18,21 +18,21 @@ use std::time::{Duration, Instant};
 use tokio::sync::oneshot;
 
 /// The starvation limit is never below this (a few sessions on fast frames).
-pub const MIN_STARVATION_LIMIT: Duration = Duration::from_millis(50);
+pub(crate) const MIN_STARVATION_LIMIT: Duration = Duration::from_millis(50);
 
 /// How many fair shares a session may wait before it is served ahead of fresher frames.
-pub const STARVATION_SHARES: f64 = 2.0;
+pub(crate) const STARVATION_SHARES: f64 = 2.0;
 
 /// What the slots need to know of a session that waits for one: when its pending frame
 /// arrived. The server's session handle implements it; the slots know nothing else of it.
-pub trait PendingFrame: Send + Sync {
+pub(crate) trait PendingFrame: Send + Sync {
     /// When the frame waiting for registration was received (`None`: none waits).
     fn pending_received(&self) -> Option<Instant>;
 }
 
 /// What the choice looks at for one waiting session.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct WaitingSession {
+pub(crate) struct WaitingSession {
     /// When the session was last registered (or started waiting, if never).
     pub since: Instant,
     /// When its pending frame was received (`None`: nothing pending).
@@ -50,7 +50,7 @@ pub struct WaitingSession {
 /// 3. else the session with the freshest pending frame (ties: longest waiting).
 ///
 /// Sessions with nothing pending come last (they only need the slot to notice they are done).
-pub fn choose(
+pub(crate) fn choose(
     waiting: &[WaitingSession],
     now: Instant,
     starvation: Duration,
@@ -99,7 +99,7 @@ struct Inner {
 }
 
 /// The server's registration slots.
-pub struct RegistrationSlots {
+pub(crate) struct RegistrationSlots {
     inner: Mutex<Inner>,
     total: usize,
     min_starvation: Duration,
@@ -117,7 +117,7 @@ impl std::fmt::Debug for RegistrationSlots {
 }
 
 /// A held slot; dropping it hands the slot on.
-pub struct SlotPermit {
+pub(crate) struct SlotPermit {
     slots: Arc<RegistrationSlots>,
     granted: Instant,
 }
@@ -147,12 +147,12 @@ impl Drop for PendingWake {
 
 impl RegistrationSlots {
     /// `n` slots (at least 1), starvation limit at least [`MIN_STARVATION_LIMIT`].
-    pub fn new(n: usize) -> Arc<Self> {
+    pub(crate) fn new(n: usize) -> Arc<Self> {
         Self::with_min_starvation(n, MIN_STARVATION_LIMIT)
     }
 
     /// `n` slots with a given floor of the starvation limit.
-    pub fn with_min_starvation(n: usize, min_starvation: Duration) -> Arc<Self> {
+    pub(crate) fn with_min_starvation(n: usize, min_starvation: Duration) -> Arc<Self> {
         Arc::new(Self {
             inner: Mutex::new(Inner {
                 free: n.max(1),
@@ -173,7 +173,7 @@ impl RegistrationSlots {
     }
 
     /// Waits for a slot for `session`, last registered at `since`.
-    pub async fn acquire<S: PendingFrame + 'static>(
+    pub(crate) async fn acquire<S: PendingFrame + 'static>(
         self: &Arc<Self>,
         session: &Arc<S>,
         since: Instant,
@@ -247,12 +247,12 @@ impl RegistrationSlots {
     }
 
     /// Slots free now.
-    pub fn free(&self) -> usize {
+    pub(crate) fn free(&self) -> usize {
         self.inner.lock().map(|i| i.free).unwrap_or_default()
     }
 
     /// Sessions waiting for a slot.
-    pub fn waiting(&self) -> usize {
+    pub(crate) fn waiting(&self) -> usize {
         self.inner
             .lock()
             .map(|i| i.waiting.len())

@@ -21,7 +21,7 @@ use super::worker::{Job, Reply, SessionHandle, StreamSink};
 
 /// What ended the wait for a stream's next message.
 #[derive(Debug)]
-pub enum Next<T> {
+pub(crate) enum Next<T> {
     /// The read finished with this.
     Message(T),
     /// The server is shutting down.
@@ -31,7 +31,7 @@ pub enum Next<T> {
 }
 
 /// Waits for `read`, the server's `shutdown` or `idle` to pass, whichever comes first.
-pub async fn next_message<T>(
+pub(crate) async fn next_message<T>(
     read: impl Future<Output = T>,
     shutdown: &mut watch::Receiver<bool>,
     idle: Duration,
@@ -45,13 +45,13 @@ pub async fn next_message<T>(
 
 /// A frame refused before registration: the sequence number to answer with (0 when the
 /// frame's own is not known) and why.
-pub type Refusal = (u64, ApiError);
+pub(crate) type Refusal = (u64, ApiError);
 
 /// Admits one frame of `handle`: [`AppState::admit_rate`] (refused with `seq_if_rate_refused`,
 /// the sequence number the transport could read without decoding), then `decode` (refused
 /// with 0; it counts its own failures), then [`AppState::admit_decoded`] (refused with the
 /// frame's sequence number). `decode` runs only when the rate admits the frame.
-pub async fn admit_frame(
+pub(crate) async fn admit_frame(
     state: &AppState,
     handle: &SessionHandle,
     seq_if_rate_refused: u64,
@@ -69,7 +69,7 @@ pub async fn admit_frame(
 
 /// Submits an admitted frame, received at `received`, to `handle`'s worker; its result (or
 /// its skip, when a newer frame replaces it) goes to `sink`.
-pub fn submit_frame(
+pub(crate) fn submit_frame(
     state: &AppState,
     handle: &SessionHandle,
     incoming: Incoming,
@@ -88,7 +88,7 @@ pub fn submit_frame(
 
 /// An open stream: counted while it lives (shutdown waits for it) and audited as it opens
 /// and closes, with its transport named in every audit line.
-pub struct OpenStream {
+pub(crate) struct OpenStream {
     _guard: StreamGuard,
     peer: Peer,
     token: Arc<str>,
@@ -96,7 +96,7 @@ pub struct OpenStream {
 
 impl OpenStream {
     /// Counts the stream open; nothing is audited until [`OpenStream::audit_open`].
-    pub fn new(state: &Arc<AppState>, peer: Peer, token: &str) -> Self {
+    pub(crate) fn new(state: &Arc<AppState>, peer: Peer, token: &str) -> Self {
         Self {
             _guard: state.stream_guard(),
             peer,
@@ -105,7 +105,7 @@ impl OpenStream {
     }
 
     /// Audits the stream (or one of its sessions) opening: `detail` names the transport.
-    pub fn audit_open(&self, session: Option<&str>, detail: &str) {
+    pub(crate) fn audit_open(&self, session: Option<&str>, detail: &str) {
         audit::event(
             Action::OpenStream,
             "ok",
@@ -118,7 +118,7 @@ impl OpenStream {
 
     /// Audits the stream closing (`detail`: the transport and how it closed) and lets the
     /// shutdown stop waiting for it.
-    pub fn close(self, session: Option<&str>, detail: &str) {
+    pub(crate) fn close(self, session: Option<&str>, detail: &str) {
         audit::event(
             Action::CloseStream,
             "ok",

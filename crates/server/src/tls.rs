@@ -1,16 +1,20 @@
 //! Native TLS (rustls, ring provider) for both listeners (HTTP/WebSocket, and the dedicated
 //! gRPC port, which runs the same accept loop).
 //!
-//! - [`TlsFiles::load`] reads the PEM certificate chain and private key named by
-//!   [`TlsConfig`], and checks that they belong together, before anything is bound: every
-//!   failure names the file and what is wrong with it.
-//! - [`TlsListener`] is an [`axum::serve::Listener`]: a task accepts TCP connections and
-//!   performs each handshake in a task of its own, with a time limit, so a client that
-//!   connects and never speaks (or speaks plain HTTP) does not hold up anyone else's
-//!   connection. Failed handshakes are logged at debug level and dropped.
+//! - The PEM certificate chain and private key named by [`TlsConfig`] are read, and checked
+//!   to belong together, before anything is bound: every failure names the file and what is
+//!   wrong with it.
+//! - The listener is an [`axum::serve::Listener`]: a task accepts TCP connections and
+//!   performs each handshake in a task of its own, with a time limit
+//!   ([`HANDSHAKE_TIMEOUT`]) and caps on the handshakes pending ([`MAX_PENDING_HANDSHAKES`],
+//!   [`MAX_PENDING_HANDSHAKES_PER_ADDRESS`]), so a client that connects and never speaks (or
+//!   speaks plain HTTP) does not hold up anyone else's connection. Failed handshakes are
+//!   logged at debug level and dropped.
 //!
 //! ALPN offers `http/1.1` first (WebSocket streams need the HTTP/1.1 upgrade; rustls picks by
 //! the server's order), then `h2` for gRPC clients, which offer only h2.
+//!
+//! Public here are those limits; the listener itself is the server's own.
 
 use std::net::SocketAddr;
 use std::path::Path;
@@ -40,11 +44,7 @@ pub const MAX_PENDING_HANDSHAKES_PER_ADDRESS: usize = 8;
 
 /// The certificate chain and key of [`TlsConfig`], read and checked.
 #[derive(Debug, Clone)]
-pub struct TlsFiles {
-    /// The chain's PEM text (leaf first), as read.
-    pub cert_pem: Vec<u8>,
-    /// The private key's PEM text, as read.
-    pub key_pem: Vec<u8>,
+pub(crate) struct TlsFiles {
     /// The rustls configuration of the HTTP listener (ALPN `http/1.1`).
     pub server_config: Arc<rustls::ServerConfig>,
 }
@@ -53,7 +53,7 @@ impl TlsFiles {
     /// Reads and checks `config`'s files: the certificate file must hold at least one PEM
     /// certificate, the key file one PEM private key (PKCS#8, PKCS#1 or SEC1), and the key
     /// must match the first (leaf) certificate.
-    pub fn load(config: &TlsConfig) -> Result<Self, String> {
+    pub(crate) fn load(config: &TlsConfig) -> Result<Self, String> {
         let read = |what: &str, p: &Path| {
             std::fs::read(p).map_err(|e| format!("tls.{what} {}: cannot read: {e}", p.display()))
         };
@@ -96,8 +96,6 @@ impl TlsFiles {
         // then HTTP/2 for gRPC clients, which offer only h2, on the HTTP port.
         server_config.alpn_protocols = vec![b"http/1.1".to_vec(), b"h2".to_vec()];
         Ok(Self {
-            cert_pem,
-            key_pem,
             server_config: Arc::new(server_config),
         })
     }
@@ -127,7 +125,7 @@ impl Drop for PendingHandshake {
 /// A TCP listener that yields TLS streams whose handshake completed (see the module docs).
 /// Dropping it stops the accepting task.
 #[derive(Debug)]
-pub struct TlsListener {
+pub(crate) struct TlsListener {
     ready: mpsc::Receiver<(TlsStream<TcpStream>, SocketAddr)>,
     local: SocketAddr,
     accepting: tokio::task::JoinHandle<()>,
@@ -136,7 +134,10 @@ pub struct TlsListener {
 impl TlsListener {
     /// Serves TLS on `listener` with `config`; accepted sockets get `TCP_NODELAY` (results
     /// are small writes that must leave at once).
-    pub fn new(listener: TcpListener, config: Arc<rustls::ServerConfig>) -> std::io::Result<Self> {
+    pub(crate) fn new(
+        listener: TcpListener,
+        config: Arc<rustls::ServerConfig>,
+    ) -> std::io::Result<Self> {
         let local = listener.local_addr()?;
         let acceptor = TlsAcceptor::from(config);
         let (tx, ready) = mpsc::channel(64);

@@ -17,7 +17,7 @@ use crate::session::Session;
 
 /// A scene and its files, however they arrived.
 #[derive(Debug, Clone, Default)]
-pub struct SceneUpload {
+pub(crate) struct SceneUpload {
     /// The scene file's text.
     pub scene: String,
     /// Its syntax.
@@ -33,7 +33,7 @@ pub struct SceneUpload {
 /// An inline triangle mesh (written as OBJ).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct InlineMesh {
+pub(crate) struct InlineMesh {
     /// Vertex positions, scene units.
     pub vertices: Vec<[f64; 3]>,
     /// Triangles as 0-based vertex indices, outward (right-hand) orientation.
@@ -47,7 +47,7 @@ pub struct InlineMesh {
 /// `points` or `files`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct CreateSessionJson {
+pub(crate) struct CreateSessionJson {
     /// The scene: a JSON object with the scene file's structure, or TOML text.
     pub scene: serde_json::Value,
     /// Inline meshes by file name (must end in `.obj`).
@@ -69,7 +69,7 @@ pub struct CreateSessionJson {
 
 /// Checks an uploaded file name: 1–128 characters of `A-Z a-z 0-9 . _ -`, not starting with a
 /// dot (no directories, no traversal).
-pub fn check_file_name(name: &str) -> Result<(), ApiError> {
+pub(crate) fn check_file_name(name: &str) -> Result<(), ApiError> {
     let ok = !name.is_empty()
         && name.len() <= 128
         && !name.starts_with('.')
@@ -93,7 +93,7 @@ fn ends_with(name: &str, exts: &[&str]) -> bool {
 
 impl CreateSessionJson {
     /// The upload this request describes (inline meshes and points rendered as OBJ and XYZ).
-    pub fn into_upload(self) -> Result<SceneUpload, ApiError> {
+    pub(crate) fn into_upload(self) -> Result<SceneUpload, ApiError> {
         let (scene, format) = match self.scene {
             serde_json::Value::String(toml) => (toml, SceneFormat::Toml),
             v @ serde_json::Value::Object(_) => (v.to_string(), SceneFormat::Json),
@@ -169,7 +169,7 @@ fn plain_name(p: &Path) -> Option<&str> {
 /// Writes the upload into `dir` (created) after checking names, confinement and sizes, and
 /// loads the scene from there. Errors name the key, file and limit concerned; paths in
 /// messages are shown relative to the upload.
-pub fn materialize(
+pub(crate) fn materialize(
     upload: &SceneUpload,
     dir: &Path,
     limits: &LimitsConfig,
@@ -264,7 +264,7 @@ pub fn materialize(
 /// `message` with the session directory `dir` (as given and canonicalised) removed from
 /// every path, so that a file shows as the name it was uploaded under: the client learns
 /// which of its files is wrong, never where the server keeps it.
-pub fn hide_server_paths(message: &str, dir: &Path) -> String {
+pub(crate) fn hide_server_paths(message: &str, dir: &Path) -> String {
     let mut forms = vec![dir.to_path_buf()];
     if let Ok(c) = dir.canonicalize() {
         forms.push(c);
@@ -289,7 +289,7 @@ pub fn hide_server_paths(message: &str, dir: &Path) -> String {
 
 /// The uploaded scene loaded from `dir` and its session built ([`materialize`] then
 /// [`build_session`]); every error's message names the upload's files, never a server path.
-pub fn prepare_session(
+pub(crate) fn prepare_session(
     upload: &SceneUpload,
     dir: &Path,
     limits: &LimitsConfig,
@@ -306,7 +306,7 @@ pub fn prepare_session(
 /// A session for a loaded scene with the upload's overrides (budget, rigid only); its time
 /// budget is at most `limits.max_frame_ms` whatever the scene or the upload asks. Its errors
 /// may name the files where the scene was loaded from: [`prepare_session`] hides them.
-pub fn build_session(
+pub(crate) fn build_session(
     loaded: &LoadedScene,
     upload: &SceneUpload,
     limits: &LimitsConfig,

@@ -27,7 +27,7 @@ use crate::session::{FrameResult, Session};
 
 /// A registered frame with its timings.
 #[derive(Debug, Clone)]
-pub struct Completed {
+pub(crate) struct Completed {
     /// The client's frame number.
     pub seq: u64,
     /// The session's result.
@@ -42,7 +42,7 @@ pub struct Completed {
 
 /// What happened to a submitted frame.
 #[derive(Debug)]
-pub enum Outcome {
+pub(crate) enum Outcome {
     /// Registered (the result may still carry a registration `error`).
     Done(Box<Completed>),
     /// Replaced by a newer frame before registration.
@@ -53,7 +53,7 @@ pub enum Outcome {
 
 /// Events delivered to a stream (WebSocket or gRPC).
 #[derive(Debug)]
-pub enum StreamEvent {
+pub(crate) enum StreamEvent {
     /// A registered frame.
     Result(Box<Completed>),
     /// An error about one frame (`seq`) or the stream; the stream goes on.
@@ -67,7 +67,7 @@ pub enum StreamEvent {
 
 /// A stream's receiving end, as held by the frames it submitted.
 #[derive(Debug, Clone)]
-pub struct StreamSink {
+pub(crate) struct StreamSink {
     /// Where results go (bounded: a client that does not read loses results, counted as
     /// skipped, rather than making the server queue them).
     pub tx: mpsc::Sender<StreamEvent>,
@@ -77,7 +77,7 @@ pub struct StreamSink {
 
 /// Where a frame's outcome goes.
 #[derive(Debug)]
-pub enum Reply {
+pub(crate) enum Reply {
     /// One request waiting for its answer (HTTP, gRPC unary).
     Once(oneshot::Sender<Outcome>),
     /// A stream.
@@ -86,7 +86,7 @@ pub enum Reply {
 
 /// A frame waiting in a session's mailbox.
 #[derive(Debug)]
-pub struct Job {
+pub(crate) struct Job {
     /// The decoded frame.
     pub incoming: Incoming,
     /// When the server received it.
@@ -97,7 +97,7 @@ pub struct Job {
 
 /// Facts about a session's model, fixed at creation.
 #[derive(Debug, Clone)]
-pub struct ModelInfo {
+pub(crate) struct ModelInfo {
     /// Scene units (`m`, `cm`, `mm`).
     pub units: String,
     /// Metres per scene unit.
@@ -120,7 +120,7 @@ pub struct ModelInfo {
 
 /// The triangles of a session's model, indexing the positions of its results.
 #[derive(Debug, Clone, Default, PartialEq)]
-pub struct ModelMeshes {
+pub(crate) struct ModelMeshes {
     /// The liver surface's triangles (`FrameResult::surface` positions).
     pub surface: Vec<[usize; 3]>,
     /// Per structure, in scene order: its triangles when it is a mesh.
@@ -129,7 +129,7 @@ pub struct ModelMeshes {
 
 impl ModelMeshes {
     /// The triangles of `model`'s surface and mesh structures.
-    pub fn of(model: &crate::simulation::SceneModel) -> Self {
+    pub(crate) fn of(model: &crate::simulation::SceneModel) -> Self {
         Self {
             surface: model.surface.triangles.clone(),
             structures: model
@@ -143,7 +143,7 @@ impl ModelMeshes {
 
 /// Frame counters of a session.
 #[derive(Debug, Default)]
-pub struct Counters {
+pub(crate) struct Counters {
     /// Frames registered (with or without a registration error).
     pub registered: AtomicU64,
     /// Frames skipped because a newer one arrived first.
@@ -163,7 +163,7 @@ struct Mailbox {
 /// One open session: ownership, model facts, mailbox and counters. The [`Session`] itself
 /// lives in the worker task.
 #[derive(Debug)]
-pub struct SessionHandle {
+pub(crate) struct SessionHandle {
     /// 128-bit random id, hex.
     pub id: String,
     /// The token that created it.
@@ -200,7 +200,7 @@ impl PendingFrame for SessionHandle {
 
 impl SessionHandle {
     /// A handle for a new session.
-    pub fn new(
+    pub(crate) fn new(
         id: String,
         owner: Owner,
         info: ModelInfo,
@@ -229,7 +229,7 @@ impl SessionHandle {
 
     /// Why the session's recording stopped while the session went on (a full disk, an I/O
     /// error), or `None` while it records (or was never recorded).
-    pub fn recording_failure(&self) -> Option<String> {
+    pub(crate) fn recording_failure(&self) -> Option<String> {
         self.recording_failure.lock().ok().and_then(|f| f.clone())
     }
 
@@ -240,14 +240,14 @@ impl SessionHandle {
     }
 
     /// Marks the session used now (idle timeout).
-    pub fn touch(&self) {
+    pub(crate) fn touch(&self) {
         if let Ok(mut t) = self.last_used.lock() {
             *t = Instant::now();
         }
     }
 
     /// Seconds since the last request.
-    pub fn idle_s(&self) -> f64 {
+    pub(crate) fn idle_s(&self) -> f64 {
         self.last_used
             .lock()
             .map(|t| t.elapsed().as_secs_f64())
@@ -255,12 +255,12 @@ impl SessionHandle {
     }
 
     /// Whether the next frame starts from a registered state.
-    pub fn is_warm(&self) -> bool {
+    pub(crate) fn is_warm(&self) -> bool {
         self.warm.load(Ordering::Relaxed)
     }
 
     /// Takes a frame-rate token; 429 when the session is over its rate.
-    pub fn admit(&self, max_fps: f64) -> Result<(), ApiError> {
+    pub(crate) fn admit(&self, max_fps: f64) -> Result<(), ApiError> {
         let ok = self
             .rate
             .lock()
@@ -275,7 +275,7 @@ impl SessionHandle {
     }
 
     /// Puts `job` in the mailbox; a frame still waiting there is skipped (newest wins).
-    pub fn submit(&self, job: Job, metrics: &Metrics) {
+    pub(crate) fn submit(&self, job: Job, metrics: &Metrics) {
         self.touch();
         let previous = {
             let Ok(mut mb) = self.mailbox.lock() else {
@@ -309,14 +309,14 @@ impl SessionHandle {
     }
 
     /// Asks the worker to forget every frame before the next one (back to the rest shape).
-    pub fn request_reset(&self) {
+    pub(crate) fn request_reset(&self) {
         self.reset_requested.store(true, Ordering::Relaxed);
         self.warm.store(false, Ordering::Relaxed);
     }
 
     /// Closes the mailbox: frames already submitted are still registered, new ones refused;
     /// the worker ends after them.
-    pub fn close(&self) {
+    pub(crate) fn close(&self) {
         if let Ok(mut mb) = self.mailbox.lock() {
             mb.closed = true;
         }
@@ -324,12 +324,12 @@ impl SessionHandle {
     }
 
     /// Whether the worker has ended.
-    pub fn has_ended(&self) -> bool {
+    pub(crate) fn has_ended(&self) -> bool {
         self.ended_flag.load(Ordering::Acquire)
     }
 
     /// Waits until the worker has ended (after [`SessionHandle::close`]).
-    pub async fn wait_ended(&self) {
+    pub(crate) async fn wait_ended(&self) {
         loop {
             let notified = self.ended.notified();
             if self.has_ended() {
@@ -387,7 +387,7 @@ fn ms_since(t: Instant) -> f64 {
 /// A frame still registering after `guard.watchdog` retires the session: its waiting frames
 /// are refused, `guard.on_failure` takes it out of the registry, and the registration
 /// thread, which cannot be stopped, keeps its slot until it returns.
-pub async fn run_worker(
+pub(crate) async fn run_worker(
     handle: Arc<SessionHandle>,
     session: Session,
     recorder: Option<Recorder>,
@@ -565,11 +565,11 @@ async fn serve_frames(
 }
 
 /// How many times `limits.max_frame_ms` a frame may run before its session is retired.
-pub const WATCHDOG_FACTOR: f64 = 5.0;
+pub(crate) const WATCHDOG_FACTOR: f64 = 5.0;
 
 /// What a session's worker does when a frame goes wrong beyond the frame itself.
 #[derive(Clone)]
-pub struct WorkerGuardrails {
+pub(crate) struct WorkerGuardrails {
     /// Longest a frame may register before the session is retired.
     pub watchdog: Duration,
     /// Called once when the session fails (takes it out of the registry at once).

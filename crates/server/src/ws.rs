@@ -38,7 +38,7 @@ use super::worker::{SessionHandle, StreamEvent, StreamSink};
 /// A server → client message.
 #[derive(Debug, Serialize)]
 #[serde(tag = "type", rename_all = "lowercase")]
-pub enum ServerMessage<'a> {
+pub(crate) enum ServerMessage<'a> {
     /// A frame's result.
     Result(&'a ResultMessage),
     /// A refused frame (or a stream-level problem).
@@ -103,7 +103,7 @@ const STREAM_BUFFER: usize = 8;
 
 /// Upgrades to a WebSocket for the session `id` of the caller (404 before the upgrade when
 /// it is not theirs).
-pub async fn stream(
+pub(crate) async fn stream(
     State(state): State<Arc<AppState>>,
     Extension(owner): Extension<Owner>,
     Extension(peer): Extension<Peer>,

@@ -7,7 +7,7 @@
 /// plus others sharing its cell. Insertion and query use the same monotone cell mapping, so a
 /// point on a rectangle's border always finds it.
 #[derive(Clone, Debug, Default)]
-pub struct BucketGrid {
+pub(crate) struct BucketGrid {
     origin: [f64; 2],
     upper: [f64; 2],
     inv_cell: [f64; 2],
@@ -22,7 +22,7 @@ const MAX_DIM: usize = 4096;
 impl BucketGrid {
     /// Builds the grid over `rects` given as `[x_min, y_min, x_max, y_max]` (finite, in length
     /// units), aiming at about `cells_per_rect` cells per rectangle in total.
-    pub fn build(rects: &[[f64; 4]], cells_per_rect: f64) -> Self {
+    pub(crate) fn build(rects: &[[f64; 4]], cells_per_rect: f64) -> Self {
         if rects.is_empty() {
             return BucketGrid::default();
         }
@@ -117,7 +117,7 @@ impl BucketGrid {
     /// Rectangles listed in the cell containing `(x, y)`; empty outside the grid's extent
     /// (and for NaN coordinates).
     #[inline]
-    pub fn candidates(&self, x: f64, y: f64) -> &[u32] {
+    pub(crate) fn candidates(&self, x: f64, y: f64) -> &[u32] {
         if self.offsets.is_empty()
             || !(x >= self.origin[0] && x <= self.upper[0])
             || !(y >= self.origin[1] && y <= self.upper[1])
@@ -129,13 +129,9 @@ impl BucketGrid {
     }
 
     /// Number of cells along x and y.
-    pub fn dims(&self) -> [usize; 2] {
+    #[cfg(test)]
+    fn dims(&self) -> [usize; 2] {
         self.dims
-    }
-
-    /// Total number of (cell, rectangle) entries.
-    pub fn entries(&self) -> usize {
-        self.items.len()
     }
 }
 

@@ -13,7 +13,7 @@ const MIN_UP_SINE: f64 = 1e-6;
 
 /// Largest coordinate magnitude of `position` and `look_at`, metres (1,000 km: far beyond any
 /// operating room, and small enough that every distance computed from them is finite).
-pub const MAX_CAMERA_COORDINATE_M: f64 = 1e6;
+pub(crate) const MAX_CAMERA_COORDINATE_M: f64 = 1e6;
 
 /// A pinhole depth camera with a circular field of view.
 ///

@@ -24,7 +24,7 @@ const SOLID_ANGLE_BUDGET: f64 = 0.9;
 
 /// Virtual triangles closing the holes of a surface, and the regions where they matter.
 #[derive(Clone, Debug, Default)]
-pub struct HoleCaps {
+pub(crate) struct HoleCaps {
     /// Cap triangles (outward orientation consistent with the surface) with multiplicities.
     pub triangles: Vec<([Point3<f64>; 3], i32)>,
     /// One box per boundary component: outside all of them the caps' solid angle is below
@@ -36,7 +36,7 @@ pub struct HoleCaps {
 
 impl HoleCaps {
     /// Computes the boundary chain of `tris` and the cones closing it.
-    pub fn new(tris: &[[Point3<f64>; 3]]) -> Self {
+    pub(crate) fn new(tris: &[[Point3<f64>; 3]]) -> Self {
         // Weld vertices by exact coordinates (−0 and +0 identified).
         let key = |p: &Point3<f64>| {
             [

@@ -31,7 +31,7 @@ struct LineTri {
 /// Index of a triangle set for crossing queries along z-parallel lines: projected triangles in
 /// a [`BucketGrid`] over (x, y).
 #[derive(Clone, Debug, Default)]
-pub struct ZLineIndex {
+pub(crate) struct ZLineIndex {
     tris: Vec<LineTri>,
     grid: BucketGrid,
 }
@@ -41,7 +41,7 @@ impl ZLineIndex {
     /// a multiplicity (how many times it counts, may be negative). Triangles with non-finite
     /// corners and triangles whose projection has exactly zero area (vertical ones, which a
     /// perturbed line never crosses) are dropped.
-    pub fn new<I>(tris: I) -> Self
+    pub(crate) fn new<I>(tris: I) -> Self
     where
         I: IntoIterator<Item = ([Point3<f64>; 3], i32)>,
     {
@@ -82,33 +82,12 @@ impl ZLineIndex {
         }
     }
 
-    /// Number of indexed (non-vertical) triangles.
-    pub fn len(&self) -> usize {
-        self.tris.len()
-    }
-
-    /// True when no triangle is indexed.
-    pub fn is_empty(&self) -> bool {
-        self.tris.is_empty()
-    }
-
-    /// Human-readable statistics of the bucket grid (dimensions, entries per cell).
-    pub fn stats(&self) -> String {
-        let [nx, ny] = self.grid.dims();
-        format!(
-            "{} triangles, grid {nx}×{ny}, {} entries ({:.2} per cell)",
-            self.tris.len(),
-            self.grid.entries(),
-            self.grid.entries() as f64 / (nx * ny) as f64
-        )
-    }
-
     /// Calls `f(z, weight)` for every crossing of the line through `(x, y)` parallel to z, in
     /// no particular order: `z` is the crossing height (interpolated in the triangle's plane,
     /// clamped to its z range) and `weight` is +m when the line, going towards +z, enters the
     /// surface and −m when it leaves.
     #[inline]
-    pub fn for_each_crossing(&self, x: f64, y: f64, mut f: impl FnMut(f64, i32)) {
+    pub(crate) fn for_each_crossing(&self, x: f64, y: f64, mut f: impl FnMut(f64, i32)) {
         let p = [x, y];
         for &k in self.grid.candidates(x, y) {
             let t = &self.tris[k as usize];

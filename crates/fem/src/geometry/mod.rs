@@ -34,21 +34,21 @@
 //! assert!(!cut.is_empty());
 //! ```
 
-pub mod aabb;
-pub mod bucket_grid;
-pub mod bvh;
-pub mod camera;
-pub mod closest_point;
-pub mod holes;
-pub mod inside;
-pub mod line_crossings;
-pub mod neighbour_grid;
-pub mod predicates;
+pub(crate) mod aabb;
+pub(crate) mod bucket_grid;
+pub(crate) mod bvh;
+pub(crate) mod camera;
+pub(crate) mod closest_point;
+pub(crate) mod holes;
+pub(crate) mod inside;
+pub(crate) mod line_crossings;
+pub(crate) mod neighbour_grid;
+pub(crate) mod predicates;
 pub mod shapes;
-pub mod tri_box;
-pub mod view_error;
+pub(crate) mod tri_box;
+pub(crate) mod view_error;
 pub mod visibility;
-pub mod winding;
+pub(crate) mod winding;
 
 #[cfg(test)]
 mod tests;
@@ -56,7 +56,9 @@ mod tests;
 pub use aabb::Aabb;
 pub use bvh::{Bvh, BvhNode};
 pub use camera::{Camera, DEFAULT_FOV_DEG};
+pub use closest_point::{closest_barycentric, closest_point_on_triangle};
 pub use inside::{GeometryError, InsideTest};
+pub use neighbour_grid::NeighbourGrid;
 pub use tri_box::triangle_overlaps_box;
 pub use view_error::ViewError;
 pub use visibility::VisibleSurface;

@@ -16,10 +16,10 @@ use nalgebra::Point3;
 /// Largest number of cells the grid may have per point (plus [`MIN_CELLS`]): a set with far
 /// outliers spans a box the grid would need millions of cells for; the caller then uses a
 /// tree.
-pub const MAX_CELLS_PER_POINT: usize = 8;
+pub(crate) const MAX_CELLS_PER_POINT: usize = 8;
 
 /// Cells allowed whatever the number of points.
-pub const MIN_CELLS: usize = 4096;
+pub(crate) const MIN_CELLS: usize = 4096;
 
 /// A uniform grid over a borrowed point set (compressed: each cell's points are a range of
 /// `order`).

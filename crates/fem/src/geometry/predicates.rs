@@ -15,7 +15,7 @@ const CCW_ERR_BOUND_A: f64 = (3.0 + 16.0 * EPS) * EPS;
 /// The value is the plain floating-point evaluation (useful for interpolation); the sign is
 /// exact for finite inputs (barring underflow of products below ~1e-292).
 #[inline]
-pub fn orient2d(a: [f64; 2], b: [f64; 2], p: [f64; 2]) -> (f64, i8) {
+pub(crate) fn orient2d(a: [f64; 2], b: [f64; 2], p: [f64; 2]) -> (f64, i8) {
     let detleft = (a[0] - p[0]) * (b[1] - p[1]);
     let detright = (a[1] - p[1]) * (b[0] - p[0]);
     let det = detleft - detright;
@@ -37,7 +37,7 @@ pub fn orient2d(a: [f64; 2], b: [f64; 2], p: [f64; 2]) -> (f64, i8) {
 /// consistent across triangles: it amounts to moving the query point off every line through
 /// two input points, and sign(a, b, p) = −sign(b, a, p) always holds.
 #[inline]
-pub fn orient2d_perturbed(a: [f64; 2], b: [f64; 2], p: [f64; 2]) -> (f64, i8) {
+pub(crate) fn orient2d_perturbed(a: [f64; 2], b: [f64; 2], p: [f64; 2]) -> (f64, i8) {
     let (det, s) = orient2d(a, b, p);
     if s != 0 {
         return (det, s);

@@ -13,7 +13,7 @@ use super::bvh::Bvh;
 
 /// Default accuracy parameter β of [`FastWinding`]: a node is approximated when the query is
 /// farther than `β · r` from its expansion centre (`r` = node radius).
-pub const DEFAULT_BETA: f64 = 2.0;
+pub(crate) const DEFAULT_BETA: f64 = 2.0;
 
 /// Signed solid angle (steradians) subtended at `q` by the triangle `tri`
 /// (Van Oosterom & Strackee 1983), positive when `q` sees the triangle's back, i.e. lies on

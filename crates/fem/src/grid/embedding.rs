@@ -139,7 +139,7 @@ impl Embedding {
 }
 
 /// Displacement of one embedded point.
-pub fn interpolate_one(e: &EmbeddedPoint, u: &[f64]) -> Vector3<f64> {
+pub(crate) fn interpolate_one(e: &EmbeddedPoint, u: &[f64]) -> Vector3<f64> {
     let mut v = Vector3::zeros();
     for (n, w) in e.nodes.iter().zip(e.weights) {
         v += Vector3::new(u[3 * n], u[3 * n + 1], u[3 * n + 2]) * w;

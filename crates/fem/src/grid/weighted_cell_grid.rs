@@ -12,7 +12,7 @@ use crate::mesh::TriSurface;
 
 /// Largest number of background cells a grid may have (a guard against a cell size that is far
 /// too small for the surface, which would otherwise exhaust memory).
-pub const MAX_BACKGROUND_CELLS: usize = 20_000_000;
+pub(crate) const MAX_BACKGROUND_CELLS: usize = 20_000_000;
 
 /// How to build a [`WeightedCellGrid`].
 #[derive(Debug, Clone, Copy, PartialEq)]

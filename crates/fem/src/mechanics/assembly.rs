@@ -11,11 +11,11 @@ use crate::linalg::SymmetricCsc;
 
 /// Number of stored (lower-triangle) entries of one cell's 24 × 24 tangent: 28 off-diagonal
 /// 3 × 3 blocks and 8 diagonal blocks of 6.
-pub const CELL_LOWER_ENTRIES: usize = 28 * 9 + 8 * 6;
+pub(crate) const CELL_LOWER_ENTRIES: usize = 28 * 9 + 8 * 6;
 
 /// Index, in a cell's scatter map, of entry `(i, k)` of node block `(a, b)` with `a ≥ b`
 /// (and `i ≥ k` when `a == b`).
-pub fn lower_slot(a: usize, b: usize, i: usize, k: usize) -> usize {
+pub(crate) fn lower_slot(a: usize, b: usize, i: usize, k: usize) -> usize {
     debug_assert!(a > b || (a == b && i >= k));
     // Blocks in order (a, b) for a in 0..8, b in 0..=a; a diagonal block holds 6 entries.
     let before_row = a * a.saturating_sub(1) / 2 * 9 + a * 6; // all blocks of rows < a
@@ -55,7 +55,7 @@ const LOWER_ROW_COL: [(u8, u8); CELL_LOWER_ENTRIES] = {
 
 /// The stored entries `(a, b, i, k)` of a cell tangent (blocks `a ≥ b`, and `i ≥ k` on the
 /// diagonal blocks), in the order of [`lower_slot`].
-pub fn lower_entries() -> impl Iterator<Item = (usize, usize, usize, usize)> {
+pub(crate) fn lower_entries() -> impl Iterator<Item = (usize, usize, usize, usize)> {
     LOWER_ROW_COL.iter().map(|&(r, c)| {
         let (r, c) = (r as usize, c as usize);
         (r / 3, c / 3, r % 3, c % 3)

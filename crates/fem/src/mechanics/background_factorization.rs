@@ -20,7 +20,7 @@ use crate::linalg::{SolverKind, SparseSolver, SymmetricCsc};
 
 /// A linear solver holding a factorisation and the matrix it factorised (solves refine
 /// against it).
-pub struct Factored {
+pub(crate) struct Factored {
     /// Solver with the numeric factorisation.
     pub linear: SparseSolver,
     /// The factorised matrix, N/m.
@@ -29,7 +29,7 @@ pub struct Factored {
 
 /// A factorisation the helper made, and the extra spring sets (beyond the problem's own) whose
 /// stiffness its tangent includes.
-pub struct Made {
+pub(crate) struct Made {
     /// The factorisation and its matrix.
     pub factored: Factored,
     /// The extra springs of the request (N/m), as given to [`BackgroundFactorizer::request`].
@@ -51,7 +51,7 @@ struct Job {
 type Answer = Result<Made, String>;
 
 /// A helper thread that assembles and factorises the projected tangent of one problem.
-pub struct BackgroundFactorizer {
+pub(crate) struct BackgroundFactorizer {
     jobs: Option<Sender<Job>>,
     answers: Receiver<Answer>,
     thread: Option<JoinHandle<()>>,
@@ -71,7 +71,7 @@ impl BackgroundFactorizer {
     /// stabilisation of coefficient `stabilization`
     /// ([`StaticProblem::add_cut_cell_stabilization`]). `None` when the thread cannot be
     /// started (the caller then factorises itself).
-    pub fn spawn(
+    pub(crate) fn spawn(
         problem: &StaticProblem,
         kind: SolverKind,
         node_coords: Vec<[usize; 3]>,
@@ -139,12 +139,12 @@ impl BackgroundFactorizer {
     }
 
     /// Steps between a request and the swap of its factorisation.
-    pub fn lag(&self) -> usize {
+    pub(crate) fn lag(&self) -> usize {
         self.lag
     }
 
     /// Whether a requested factorisation has not been swapped in yet.
-    pub fn pending(&self) -> bool {
+    pub(crate) fn pending(&self) -> bool {
         self.due.is_some()
     }
 
@@ -152,7 +152,13 @@ impl BackgroundFactorizer {
     /// the `extra` spring sets (N/m) to be factorised, to be swapped in at step `step + lag`.
     /// Ignored while another request is pending. `false` when the helper has gone (the caller
     /// factorises itself).
-    pub fn request(&mut self, u: &[f64], load: f64, extra: &[PenaltySprings], step: usize) -> bool {
+    pub(crate) fn request(
+        &mut self,
+        u: &[f64],
+        load: f64,
+        extra: &[PenaltySprings],
+        step: usize,
+    ) -> bool {
         if self.due.is_some() {
             return true;
         }
@@ -176,7 +182,7 @@ impl BackgroundFactorizer {
     /// At step `step`: the requested factorisation when it is due (waiting for it if the
     /// helper is still at work), with the extra springs it was asked with; `None` before.
     /// `Some(Err)` when the helper failed or is gone.
-    pub fn take_due(&mut self, step: usize) -> Option<Result<Made, String>> {
+    pub(crate) fn take_due(&mut self, step: usize) -> Option<Result<Made, String>> {
         if self.due.is_none_or(|d| step < d) {
             return None;
         }
@@ -192,7 +198,7 @@ impl BackgroundFactorizer {
 
     /// Drops a pending request (its answer is awaited and discarded, so the next one is
     /// not confused with it).
-    pub fn cancel(&mut self) {
+    pub(crate) fn cancel(&mut self) {
         if self.due.take().is_some() {
             if let Ok(Ok(made)) = self.answers.recv() {
                 self.spare = Some(made.factored);
@@ -201,7 +207,7 @@ impl BackgroundFactorizer {
     }
 
     /// Keeps `f` (a factorisation no longer in use) as buffers for the next request.
-    pub fn give_back(&mut self, f: Factored) {
+    pub(crate) fn give_back(&mut self, f: Factored) {
         self.spare = Some(f);
     }
 }

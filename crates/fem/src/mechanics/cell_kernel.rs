@@ -9,9 +9,9 @@ use crate::grid::hex8::shape_gradients;
 use crate::grid::QuadPoint;
 
 /// Element force vector: 8 nodes × 3 components, node-major (N).
-pub type CellForce = SVector<f64, 24>;
+pub(crate) type CellForce = SVector<f64, 24>;
 /// Element tangent: 24 × 24, node-major (N/m).
-pub type CellTangent = SMatrix<f64, 24, 24>;
+pub(crate) type CellTangent = SMatrix<f64, 24, 24>;
 
 /// How the volumetric (λ-multiplied) part of the strain energy is integrated.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -42,7 +42,7 @@ pub enum Need {
 
 /// Energy (J), internal force (N) and tangent (N/m) of one cell.
 #[derive(Debug, Clone, PartialEq)]
-pub struct CellResponse {
+pub(crate) struct CellResponse {
     /// Strain energy of the cell, J (with lengths in m and moduli in Pa).
     pub energy: f64,
     /// Internal nodal forces `R_a = ∫ P ∇N_a dV`.
@@ -63,7 +63,7 @@ impl Default for CellResponse {
 
 /// Evaluates a cell of edge `h` with nodal displacements `u` at its integration points.
 /// Fails with the material's error when a point is inverted (or non-finite).
-pub fn evaluate_cell(
+pub(crate) fn evaluate_cell(
     material: &Material,
     volumetric: VolumetricIntegration,
     h: f64,
@@ -174,20 +174,6 @@ fn add_force(p: &Matrix3<f64>, g: &SMatrix<f64, 8, 3>, w: f64, force: &mut CellF
         for i in 0..3 {
             force[3 * a + i] +=
                 w * (p[(i, 0)] * g[(a, 0)] + p[(i, 1)] * g[(a, 1)] + p[(i, 2)] * g[(a, 2)]);
-        }
-    }
-}
-
-/// Copies the lower block triangle of a tangent (blocks `a ≥ b`, filled by [`evaluate_cell`]) to
-/// the upper one, making the full symmetric matrix (for tests and dense uses).
-pub fn symmetrize(k: &mut CellTangent) {
-    for a in 0..8 {
-        for b in 0..a {
-            for i in 0..3 {
-                for j in 0..3 {
-                    k[(3 * b + j, 3 * a + i)] = k[(3 * a + i, 3 * b + j)];
-                }
-            }
         }
     }
 }

@@ -47,7 +47,7 @@ use crate::linalg::SymmetricCsc;
 
 /// The projector `P = I − A Aᵀ/8` onto the non-affine modes of the 8 corner values
 /// (dimensionless, symmetric, idempotent, rank 4).
-pub fn non_affine_projector() -> [[f64; 8]; 8] {
+pub(crate) fn non_affine_projector() -> [[f64; 8]; 8] {
     let mut p = [[0.0; 8]; 8];
     for (a, row) in p.iter_mut().enumerate() {
         for (b, v) in row.iter_mut().enumerate() {
@@ -62,7 +62,7 @@ pub fn non_affine_projector() -> [[f64; 8]; 8] {
 /// The weight `1 − f_c` of cell `c` in the stabilisation: its outside fraction for a cut cell,
 /// 0 for a full one and for every cell in full-cell mode (cut cells count as full there and
 /// have no weak nodes).
-pub fn cell_weight(grid: &WeightedCellGrid, c: usize) -> f64 {
+pub(crate) fn cell_weight(grid: &WeightedCellGrid, c: usize) -> f64 {
     let cell = &grid.cells[c];
     if grid.options.mode == IntegrationMode::FullCell || !cell.cut {
         return 0.0;
@@ -72,7 +72,7 @@ pub fn cell_weight(grid: &WeightedCellGrid, c: usize) -> f64 {
 
 /// Adds `c S` to `tangent` (N/m, through `assembler`'s cell scatter maps, built for `grid`),
 /// with `c = γ μ h` (Pa·m): `½ c uᵀ S u` is the penalty of the module's formula.
-pub fn add_cut_cell_stabilization(
+pub(crate) fn add_cut_cell_stabilization(
     grid: &WeightedCellGrid,
     assembler: &Assembler,
     c: f64,

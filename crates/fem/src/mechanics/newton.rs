@@ -1000,9 +1000,9 @@ impl NewtonSolver {
 /// A residual (N) below this displacement (m) times the tangent's largest stiffness (N/m)
 /// is round-off: the state is exact to within a picometre, far below any registration's
 /// accuracy, and Newton's method cannot improve it.
-pub const ROUND_OFF_DISPLACEMENT: f64 = 1e-12;
+pub(crate) const ROUND_OFF_DISPLACEMENT: f64 = 1e-12;
 
 /// Euclidean norm.
-pub fn norm(v: &[f64]) -> f64 {
+pub(crate) fn norm(v: &[f64]) -> f64 {
     v.iter().map(|x| x * x).sum::<f64>().sqrt()
 }

@@ -109,8 +109,9 @@ impl StaticProblem {
     }
 
     /// Adds the cut-cell step stabilisation of coefficient `gamma` (dimensionless), i.e.
-    /// `γ μ h S` ([`cut_cell_stabilization`](super::cut_cell_stabilization)), to a tangent `k`
-    /// (N/m) of this problem's pattern.
+    /// `γ μ h S`, with `S` a penalty on the non-affine (hourglass) part of each cut cell's
+    /// displacement weighted by the cell's outside volume fraction, to a tangent `k` (N/m) of
+    /// this problem's pattern.
     /// Not part of `Π`: for the matrix of a registration step only.
     pub fn add_cut_cell_stabilization(&self, gamma: f64, k: &mut SymmetricCsc) {
         if gamma > 0.0 {
@@ -162,7 +163,7 @@ impl StaticProblem {
     /// [`StaticProblem::evaluate`] with the spring sets `springs` (N/m) in place of the
     /// body's own ([`StaticProblem::springs`]) for this one evaluation, and no others: a
     /// variant of the body's conditions (the contact-force fit's holds lumped per cell,
-    /// `livereg::registration::contact_force::RestCompliance`) without
+    /// `livereg::registration::RestCompliance`) without
     /// changing the problem. The cells are evaluated (and cached) as by
     /// [`StaticProblem::evaluate_with`].
     pub fn evaluate_with_springs(

@@ -2,17 +2,17 @@
 //! files), writers (OBJ, VTK, point text), validation and simple primitive solids. Lengths are always in the
 //! file's units; unit conversion is done by the caller with [`TriSurface::scale`].
 
-pub mod error;
-pub mod finite_points;
-pub mod msh;
-pub mod obj;
-pub mod off;
-pub mod ply;
-pub mod points;
+pub(crate) mod error;
+pub(crate) mod finite_points;
+pub(crate) mod msh;
+pub(crate) mod obj;
+pub(crate) mod off;
+pub(crate) mod ply;
+pub(crate) mod points;
 pub mod primitives;
-pub mod stl;
-pub mod surface;
-pub mod validate;
+pub(crate) mod stl;
+pub(crate) mod surface;
+pub(crate) mod validate;
 pub mod vtk;
 
 mod assemble;

@@ -50,17 +50,17 @@ use crate::mechanics::{Need, PenaltySprings, StaticProblem};
 use crate::mesh::TriSurface;
 
 /// Points closer to the dent's centre than this many cell edges are left out of the fit.
-pub const NEAR_FIELD_CELLS: f64 = 2.0;
+pub(crate) const NEAR_FIELD_CELLS: f64 = 2.0;
 
 /// The dent's centre is taken over the seen points pushed inwards by at least this share of
 /// the deepest one.
-pub const CENTRE_SHARE: f64 = 0.8;
+pub(crate) const CENTRE_SHARE: f64 = 0.8;
 
 /// Fewer points than this outside the near field: no estimate.
 pub const MIN_FIT_POINTS: usize = 12;
 
 /// A unit-load solve whose relative residual exceeds this gives no estimate.
-pub const MAX_SOLVE_RESIDUAL: f64 = 1e-8;
+pub(crate) const MAX_SOLVE_RESIDUAL: f64 = 1e-8;
 
 /// The contact force a registration implies (module doc): the concentrated load that explains
 /// the registered deformation, and where it acts. Newtons and metres, model frame.

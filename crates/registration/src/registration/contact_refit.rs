@@ -111,7 +111,7 @@ pub enum RefitSkip {
 const REFIT_FACTOR_USES: usize = 32;
 
 /// Fewest cloud points away from the contact that may decide the slide.
-pub const MIN_OUTER_POINTS: usize = 30;
+pub(crate) const MIN_OUTER_POINTS: usize = 30;
 
 /// What [`refit_at_contact`] works on.
 pub struct RefitInput<'a> {

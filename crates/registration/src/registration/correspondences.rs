@@ -7,7 +7,7 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
-use crate::geometry::neighbour_grid::NeighbourGrid;
+use crate::geometry::NeighbourGrid;
 
 /// Points whose `k`-th neighbour distance sets [`IndexedPoints::nearest_k_all`]'s cell edge.
 const GRID_EDGE_SAMPLES: usize = 16;
@@ -69,7 +69,7 @@ impl IndexedPoints {
     }
 
     /// [`IndexedPoints::nearest_k`] of every point of the set, in the set's order (on the
-    /// rayon pool). On a [`NeighbourGrid`] whose cell edge is [`GRID_EDGE_FACTOR`] times the
+    /// rayon pool). On a [`NeighbourGrid`] whose cell edge is 1.3 times the
     /// median `k`-th neighbour distance of a few sampled points (exact whatever the edge; 1.7×
     /// faster than a tree query per point for the change test's 32 neighbours of a camera's
     /// patch, slower for 9: use it for long lists); per point on the tree when the set's box
@@ -190,9 +190,9 @@ impl PairingRule {
 }
 
 /// Neighbours examined by [`IndexedPoints::rim_mask`] in non-rigid ICP.
-pub const RIM_NEIGHBOURS: usize = 12;
+pub(crate) const RIM_NEIGHBOURS: usize = 12;
 /// Centroid offset ratio of [`IndexedPoints::rim_mask`] in non-rigid ICP.
-pub const RIM_RATIO: f64 = 0.4;
+pub(crate) const RIM_RATIO: f64 = 0.4;
 
 /// The imposed displacements of one ICP iteration.
 #[derive(Debug, Clone, PartialEq)]
@@ -273,7 +273,7 @@ pub fn robust_threshold(d: &[f64], sigma: f64) -> f64 {
 /// vertices) the tangential part of `d(i)` is mostly sampling noise — the nearest sample lies
 /// anywhere within half the sample spacing — and pulling along it distorts the surface.
 /// Sources with a zero normal are dropped.
-pub fn pair(
+pub(crate) fn pair(
     x: &[Point3<f64>],
     normals: Option<&[Vector3<f64>]>,
     candidates: &[usize],

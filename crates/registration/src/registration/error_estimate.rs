@@ -24,7 +24,7 @@
 /// 0.3 bounds the true mean node error in 99 % of frames at a median estimate of 2.6× the
 /// true error (0.25: 98 %, 2.1×; 0.5: 100 %, 4.3×; 0.2: 96 %, 1.7×), leaving a margin for
 /// classes it was not chosen on.
-pub const UNSEEN_SHARE: f64 = 0.3;
+pub(crate) const UNSEEN_SHARE: f64 = 0.3;
 
 /// What a frame's registration shows about its own error, metres.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]

@@ -13,15 +13,15 @@ use rayon::prelude::*;
 use super::correspondences::{robust_threshold, IndexedPoints};
 
 /// Neighbours whose mean distance measures a point's spacing.
-pub const ISOLATION_NEIGHBOURS: usize = 8;
+pub(crate) const ISOLATION_NEIGHBOURS: usize = 8;
 
 /// A point is isolated when its spacing exceeds median + this × 1.4826 MAD of all spacings …
-pub const ISOLATION_SIGMA: f64 = 3.0;
+pub(crate) const ISOLATION_SIGMA: f64 = 3.0;
 
 /// … and also this multiple of the median spacing: a cloud whose density varies (a camera
 /// sees far surfaces sparser) keeps its sparse parts unless they are this much sparser than
 /// the typical point.
-pub const ISOLATION_MEDIAN_FACTOR: f64 = 2.5;
+pub(crate) const ISOLATION_MEDIAN_FACTOR: f64 = 2.5;
 
 /// Mean distance of every point to its `k` nearest other points, metres (0 for a cloud with
 /// a single point).

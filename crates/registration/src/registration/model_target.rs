@@ -4,7 +4,7 @@
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Point3, Vector3};
 
-use crate::geometry::closest_point::closest_point_on_triangle;
+use crate::geometry::closest_point_on_triangle;
 use crate::mesh::TriSurface;
 use crate::registration::IcpError;
 

@@ -101,7 +101,7 @@ pub struct NonRigidSettings {
     /// [`NewtonSolver::with_factor_reuse`]); 1 refactorises at every step.
     pub factor_reuse: usize,
     /// Point-to-plane springs: each source is pulled along its current surface normal only,
-    /// by the normal component of its blended displacement (see [`pair`]); otherwise
+    /// by the normal component of its blended displacement; otherwise
     /// point-to-point springs as in the thesis.
     pub point_to_plane: bool,
     /// With `factor_reuse > 1`: refactorisations run on a helper thread and are swapped in
@@ -359,7 +359,7 @@ const MIN_OUTLIER_DISTANCE_CELLS: f64 = 0.05;
 /// Without it a cloud that shows more than the camera model predicts (a full-surface cloud,
 /// or a camera placed by guess) pulls every such point onto the nearest visible triangle:
 /// 1,500 noise-free points on the whole phantom surface at rest ended 21 mm RMS from it.
-pub fn hidden_match_tolerance(cloud_noise: Option<f64>, h: f64) -> f64 {
+pub(crate) fn hidden_match_tolerance(cloud_noise: Option<f64>, h: f64) -> f64 {
     (3.0 * cloud_noise.unwrap_or(0.0)).max(MIN_OUTLIER_DISTANCE_CELLS * h)
 }
 
@@ -373,7 +373,7 @@ pub fn hidden_match_tolerance(cloud_noise: Option<f64>, h: f64) -> f64 {
 /// the dent 4.5 → 1.0 mm, node error 1.41 → 1.07 mm);
 /// on the bundled tool-indentation class (1.5 mm noise, 50–70 mm displacement-driven dents)
 /// they made the registration drift (press-slide linear 1.08 → 5.9 mm).
-pub const COHERENT_MAX_NOISE: f64 = 0.5e-3;
+pub(crate) const COHERENT_MAX_NOISE: f64 = 0.5e-3;
 
 /// The cloud a registration pulls towards, prepared once per call: indexed, its rim points
 /// flagged, and the pairing rule.
@@ -555,8 +555,8 @@ impl NonRigidIcp {
     /// documented fallback). Stops at `deadline` (checked before each ICP iteration) with the
     /// state reached so far and `deadline_reached` set.
     ///
-    /// The stages: the cloud's preparation ([`Target`]), the penalty ramp
-    /// ([`NonRigidIcp::penalty_ramp`]: per step, ICP iterations of visibility, pairing, the
+    /// The stages: the cloud's preparation, the penalty ramp (per step, ICP iterations of
+    /// visibility, pairing, the
     /// convergence check, spring building and Newton), then the contact force of the last
     /// springs. The model is not modified: the data term's springs are passed to the solver.
     pub fn register(

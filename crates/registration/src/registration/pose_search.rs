@@ -349,7 +349,7 @@ pub fn trimmed_score(
 }
 
 /// The mean of `points` (the origin when empty).
-pub fn centroid(points: &[Point3<f64>]) -> Point3<f64> {
+pub(crate) fn centroid(points: &[Point3<f64>]) -> Point3<f64> {
     let n = points.len().max(1) as f64;
     Point3::from(points.iter().map(|p| p.coords).sum::<Vector3<f64>>() / n)
 }

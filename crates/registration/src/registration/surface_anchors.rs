@@ -11,7 +11,7 @@ use rayon::prelude::*;
 
 use super::correspondences::{IndexedPoints, PairingRule};
 use super::correspondences::{RIM_NEIGHBOURS, RIM_RATIO};
-use crate::geometry::closest_point::closest_barycentric;
+use crate::geometry::closest_barycentric;
 
 /// A point of the model surface: a triangle and barycentric weights of its corners.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -72,7 +72,7 @@ pub fn incident_triangles(vertices: usize, triangles: &[[usize; 3]]) -> Vec<Vec<
 
 /// Vertices examined per cloud point: the closest surface point lies on a triangle around one
 /// of the nearest few vertices on any mesh whose triangles are not much longer than wide.
-pub const SEARCH_VERTICES: usize = 4;
+pub(crate) const SEARCH_VERTICES: usize = 4;
 
 /// The closest point to `q` on the triangles around the vertices `near` of a surface whose
 /// vertices are at `x` (`incident`: [`incident_triangles`]), and its squared distance (m²).
@@ -80,7 +80,7 @@ pub const SEARCH_VERTICES: usize = 4;
 /// no such triangle gives a finite point. With `near` the [`SEARCH_VERTICES`] nearest
 /// vertices, it is the closest point of the whole surface on any mesh whose triangles are not
 /// much longer than wide.
-pub fn closest_anchor(
+pub(crate) fn closest_anchor(
     q: &Point3<f64>,
     x: &[Point3<f64>],
     triangles: &[[usize; 3]],
@@ -137,7 +137,7 @@ pub struct AnchoredPairs {
 
 /// Cloud neighbours whose pair lengths decide whether a long pair is a deformation the model
 /// has not followed yet or an outlier ([`CoherentPairs`]).
-pub const COHERENCE_NEIGHBOURS: usize = 8;
+pub(crate) const COHERENCE_NEIGHBOURS: usize = 8;
 
 /// The pair length of every cloud point, to tell a long pair that belongs to a coherent
 /// region of long pairs (the cloud shows the surface somewhere the model has not reached: a
@@ -187,7 +187,7 @@ impl<'a> CoherentPairs<'a> {
 /// (the vertices the camera sees), except that with [`PairingRule::hidden_match`] a point
 /// lying on a hidden part of the surface pairs there. Pairs farther than the rule's threshold
 /// (mean + kσ, or median + k·1.4826 MAD, of the pair distances) are dropped unless their cloud
-/// neighbours lie as far off the surface ([`CoherentPairs`]); pairs farther than
+/// neighbours lie as far off the surface; pairs farther than
 /// `max_pair_distance` always. `None` when fewer than 3 pairs remain.
 pub fn pair_cloud_to_surface(
     x: &[Point3<f64>],

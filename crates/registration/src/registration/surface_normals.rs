@@ -37,7 +37,7 @@ use crate::geometry::Aabb;
 use crate::mechanics::loads::samples_by_triangle;
 use crate::mesh::TriSurface;
 
-use crate::geometry::closest_point::closest_barycentric;
+use crate::geometry::closest_barycentric;
 
 /// The radius as a fraction of the cube root of the surface's enclosed volume.
 pub const RADIUS_PER_VOLUME_ROOT: f64 = 0.125;

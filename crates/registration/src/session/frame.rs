@@ -224,7 +224,7 @@ pub struct FrameResult {
     /// and a wrong pose basin are not in it.
     pub pose_uncertainty: Option<f64>,
     /// The registration's estimate of the mean error of the structures in this frame, and its
-    /// parts, scene units ([`crate::registration::error_estimate`]); a failed frame carries
+    /// parts, scene units ([`expected_error`](crate::registration::expected_error)); a failed frame carries
     /// the last good state's. `None` before any frame succeeded.
     pub expected_error: Option<crate::registration::ErrorEstimate>,
 }

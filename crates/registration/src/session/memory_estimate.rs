@@ -64,21 +64,21 @@ pub struct ModelSize {
 }
 
 /// Bytes per value of the direct factor `L`.
-pub const BYTES_PER_FACTOR_VALUE: f64 = 20.0;
+pub(crate) const BYTES_PER_FACTOR_VALUE: f64 = 20.0;
 /// Bytes per active grid cell.
-pub const BYTES_PER_CELL: f64 = 20.0 * 1024.0;
+pub(crate) const BYTES_PER_CELL: f64 = 20.0 * 1024.0;
 /// Bytes per embedded point (surface vertex, structure point, probe).
-pub const BYTES_PER_EMBEDDED_POINT: f64 = 420.0;
+pub(crate) const BYTES_PER_EMBEDDED_POINT: f64 = 420.0;
 /// Bytes per surface or structure triangle.
-pub const BYTES_PER_TRIANGLE: f64 = 600.0;
+pub(crate) const BYTES_PER_TRIANGLE: f64 = 600.0;
 /// Bytes per value of the rest compliance's factor (one f64).
-pub const BYTES_PER_REST_FACTOR_VALUE: f64 = 8.0;
+pub(crate) const BYTES_PER_REST_FACTOR_VALUE: f64 = 8.0;
 /// Bytes per entry of the rest compliance's tangent (an f64 value and a row index).
-pub const BYTES_PER_REST_TANGENT_ENTRY: f64 = 16.0;
+pub(crate) const BYTES_PER_REST_TANGENT_ENTRY: f64 = 16.0;
 
 /// Bytes per point of a still window's union of clouds, beyond what the fitted weights hold
 /// (module doc).
-pub const BYTES_PER_WINDOW_POINT: f64 = 800.0;
+pub(crate) const BYTES_PER_WINDOW_POINT: f64 = 800.0;
 
 /// What a still window of up to `max_cloud_points` points adds to a session's peak, bytes
 /// (module doc); 0 when frames are registered alone (`still_frames` ≤ 1).

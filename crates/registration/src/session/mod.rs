@@ -6,22 +6,25 @@
 //! optional per-frame time budget. A frame that fails leaves the session exactly as it was, and
 //! its [`FrameResult`] carries the last good state, flagged, with the cause.
 
-pub mod frame;
-pub mod frame_files;
-pub mod frame_flag;
-pub mod memory_estimate;
-pub mod observer;
-pub mod registration_session;
-pub mod settings;
-pub mod still_window;
+pub(crate) mod frame;
+pub(crate) mod frame_files;
+pub(crate) mod frame_flag;
+pub(crate) mod memory_estimate;
+pub(crate) mod observer;
+pub(crate) mod registration_session;
+pub(crate) mod settings;
+pub(crate) mod still_window;
 
 pub use frame::{Frame, FrameError, FrameResult, StageTimes};
 pub use frame_files::{frame_files, FrameFiles};
 pub use frame_flag::{flag_texts, FrameFlag};
-pub use memory_estimate::ModelSize;
+pub use memory_estimate::{still_window_bytes, ModelSize};
 pub use observer::FrameObserver;
 pub use registration_session::{
     damped_newton, recovery_ladder, recovery_settings, RecoveryRung, Session, BEFORE_RECOVERY,
 };
-pub use settings::{PoseUpdate, RigidMode, SessionSettings};
+pub use settings::{
+    PoseUpdate, RigidMode, SessionSettings, BACKGROUND_FACTORIZATION_LAG, DEFAULT_CONTACT_RADIUS,
+    DEFAULT_STILL_FRAMES,
+};
 pub use still_window::StillWindow;

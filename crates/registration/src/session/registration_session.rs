@@ -11,8 +11,9 @@ mod refit;
 use change::{CloudNoise, StillData, SAME_VIEW_FIT_RATIO, SAME_VIEW_FIT_SLACK};
 use outcome::Done;
 use recovery::solver_failed;
+pub(crate) use recovery::RUNG_NAMES;
 pub use recovery::{
-    damped_newton, recovery_ladder, recovery_settings, RecoveryRung, BEFORE_RECOVERY, RUNG_NAMES,
+    damped_newton, recovery_ladder, recovery_settings, RecoveryRung, BEFORE_RECOVERY,
 };
 
 use std::sync::Arc;
@@ -171,7 +172,7 @@ impl Session {
     }
 
     /// Sizes of the models this session registers with, the fine model first, then the coarse
-    /// one of a coarse-to-fine start (see [`super::memory_estimate`]).
+    /// one of a coarse-to-fine start.
     pub fn model_sizes(&self) -> Result<Vec<ModelSize>, String> {
         let mut sizes = vec![ModelSize::of(&self.model, self.model.newton.linear_solver)?];
         sizes[0].normal_bytes = self.normals.as_ref().map_or(0, |n| n.heap_bytes());

@@ -63,7 +63,7 @@ pub struct SessionSettings {
     /// that holds it (`registration.max_pose_uncertainty`, default 2 mm;
     /// docs/pose.md#pose-uncertainty).
     pub max_pose_uncertainty: f64,
-    /// A frame whose expected error ([`crate::registration::error_estimate`]) exceeds this,
+    /// A frame whose expected error ([`expected_error`](crate::registration::expected_error)) exceeds this,
     /// metres, is flagged `expected_error_high`: a display should dim its overlay
     /// (`registration.max_expected_error`, default 5 mm: a tumour margin's order).
     pub max_expected_error: f64,
@@ -121,7 +121,7 @@ pub struct SessionSettings {
     /// frame is flagged `decimated`.
     pub max_cloud_points: usize,
     /// Remove isolated cloud points (far from every other point) before both stages
-    /// ([`isolated_mask`](crate::registration::isolated_points::isolated_mask)); the frame
+    /// ([`isolated_mask`](crate::registration::isolated_mask)); the frame
     /// is flagged `isolated_removed` when it removed any (default true).
     pub remove_isolated_points: bool,
     /// When a frame's non-rigid stage reports a solver failure (diverged, inverted element,
@@ -156,7 +156,7 @@ pub const DEFAULT_CONTACT_RADIUS: f64 = 0.035;
 /// gives TRE 1.36 mm, to 2,000: 0.98 mm, to 1,000: 0.88 mm (the next normal frame then 0.52
 /// against 0.44 mm); the normal ~700-point cloud of that frame: 0.45 mm
 /// (`cargo test --test registration bad_frames:: -- --nocapture`).
-pub const DEFAULT_MAX_CLOUD_POINTS: usize = 2_000;
+pub(crate) const DEFAULT_MAX_CLOUD_POINTS: usize = 2_000;
 
 /// Default of [`SessionSettings::still_frames`]: the most still frames registered together.
 pub const DEFAULT_STILL_FRAMES: usize = 4;

@@ -1,10 +1,10 @@
 //! Outputs for evaluation: the `results.jsonl` and truth line formats, and target
 //! registration error (TRE) per frame, per structure and in summary.
 
-pub mod error;
-pub mod jsonl;
-pub mod records;
-pub mod tre;
+pub(crate) mod error;
+pub(crate) mod jsonl;
+pub(crate) mod records;
+pub(crate) mod tre;
 
 pub use error::EvalError;
 pub use jsonl::{read_jsonl, read_results, read_truth, JsonlWriter};

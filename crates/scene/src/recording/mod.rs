@@ -19,19 +19,19 @@
 //! [`ResultRecord`]: crate::evaluation::ResultRecord
 
 mod base64;
-pub mod messages;
-pub mod reader;
+pub(crate) mod messages;
+pub(crate) mod reader;
 pub mod retention;
-pub mod scene_files;
-pub mod schema;
-pub mod writer;
+pub(crate) mod scene_files;
+pub(crate) mod schema;
+pub(crate) mod writer;
 
 pub use messages::{
     CameraMessage, FrameMessage, ResultMessage, SceneFileEntry, SceneMessage, SessionMessage,
 };
 pub use reader::Recording;
 pub use scene_files::SceneFiles;
-pub use writer::{Recorder, RecorderStats, RecordingMeta};
+pub use writer::{Recorder, RecorderStats, RecordingMeta, DEFAULT_FSYNC_INTERVAL};
 
 use std::path::PathBuf;
 

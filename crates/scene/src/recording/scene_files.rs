@@ -24,7 +24,7 @@ pub struct SceneFiles {
 }
 
 /// Files by the names a self-contained scene document gives them, with their bytes.
-pub type NamedFiles<'a> = Vec<(String, &'a [u8])>;
+pub(crate) type NamedFiles<'a> = Vec<(String, &'a [u8])>;
 
 impl SceneFiles {
     /// Reads the scene file of `loaded` and every file it names (surface, structures, point
@@ -183,7 +183,7 @@ impl SceneFiles {
 
 /// Every file a loaded scene names, with the key naming it (paths absolute):
 /// [`crate::scene::Scene::file_keys`].
-pub fn scene_file_keys(loaded: &LoadedScene) -> Vec<(String, PathBuf)> {
+pub(crate) fn scene_file_keys(loaded: &LoadedScene) -> Vec<(String, PathBuf)> {
     loaded.scene.file_keys()
 }
 

@@ -5,13 +5,13 @@
 use serde_json::{json, Value};
 
 /// Schema name of [`super::TOPIC_SESSION`].
-pub const SESSION_SCHEMA: &str = "livereg.Session";
+pub(crate) const SESSION_SCHEMA: &str = "livereg.Session";
 /// Schema name of [`super::TOPIC_SCENE`].
-pub const SCENE_SCHEMA: &str = "livereg.Scene";
+pub(crate) const SCENE_SCHEMA: &str = "livereg.Scene";
 /// Schema name of [`super::TOPIC_FRAMES`].
-pub const FRAME_SCHEMA: &str = "livereg.Frame";
+pub(crate) const FRAME_SCHEMA: &str = "livereg.Frame";
 /// Schema name of [`super::TOPIC_RESULTS`].
-pub const RESULT_SCHEMA: &str = "livereg.Result";
+pub(crate) const RESULT_SCHEMA: &str = "livereg.Result";
 
 fn vec3() -> Value {
     json!({"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3})
@@ -26,7 +26,7 @@ fn flat_points(what: &str) -> Value {
 }
 
 /// The JSON Schema of `/session`.
-pub fn session() -> Value {
+pub(crate) fn session() -> Value {
     json!({
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "title": SESSION_SCHEMA,
@@ -49,7 +49,7 @@ pub fn session() -> Value {
 }
 
 /// The JSON Schema of `/scene`.
-pub fn scene() -> Value {
+pub(crate) fn scene() -> Value {
     json!({
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "title": SCENE_SCHEMA,
@@ -79,7 +79,7 @@ pub fn scene() -> Value {
 }
 
 /// The JSON Schema of `/frames`.
-pub fn frame() -> Value {
+pub(crate) fn frame() -> Value {
     json!({
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "title": FRAME_SCHEMA,
@@ -102,7 +102,7 @@ pub fn frame() -> Value {
 }
 
 /// The JSON Schema of `/results`: the `results.jsonl` line (contracts.md) plus the surface.
-pub fn result() -> Value {
+pub(crate) fn result() -> Value {
     let matrix = json!({"type": "array", "items": vec3(), "minItems": 3, "maxItems": 3});
     json!({
         "$schema": "https://json-schema.org/draft/2020-12/schema",

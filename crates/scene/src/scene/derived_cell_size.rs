@@ -12,10 +12,10 @@
 use crate::mesh::TriSurface;
 
 /// Cells across the cube root of the enclosed volume.
-pub const CELLS_PER_CUBE_ROOT: f64 = 9.0;
+pub(crate) const CELLS_PER_CUBE_ROOT: f64 = 9.0;
 
 /// The derived cell size of `surface` (its units), or `None` when it encloses no volume.
-pub fn derived_cell_size(surface: &TriSurface) -> Option<f64> {
+pub(crate) fn derived_cell_size(surface: &TriSurface) -> Option<f64> {
     let v = surface.signed_volume().abs();
     (v.is_finite() && v > 0.0).then(|| v.cbrt() / CELLS_PER_CUBE_ROOT)
 }

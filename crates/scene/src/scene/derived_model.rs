@@ -20,12 +20,12 @@ use crate::segmentation::{
 };
 
 /// Where derived models are kept inside a scene's directory.
-pub const DERIVED_DIR: &str = ".livereg-derived";
+pub(crate) const DERIVED_DIR: &str = ".livereg-derived";
 
 /// Derives the model of `scene` (paths resolved against `dir`) from its
 /// `model.segmentation` and rewrites the scene to name the derived files; the error is a
 /// one-line message for the `model.segmentation` key.
-pub fn derive_into(scene: &mut Scene, dir: &Path) -> Result<(), String> {
+pub(crate) fn derive_into(scene: &mut Scene, dir: &Path) -> Result<(), String> {
     let Some(labelmap) = scene.model.segmentation.clone() else {
         return Ok(());
     };

@@ -270,8 +270,8 @@ fn path_is_empty(p: &std::path::Path) -> bool {
 #[serde(deny_unknown_fields)]
 pub struct GridSpec {
     /// Edge of a cubic cell, in scene units; finite and > 0. Optional: when omitted it is
-    /// derived from the surface when the scene is loaded
-    /// ([`derived_cell_size`](super::derived_cell_size::derived_cell_size)).
+    /// derived from the surface when the scene is loaded (the cube root of the volume it
+    /// encloses, over 9).
     #[serde(default = "defaults::cell_size_derived")]
     pub cell_size: f64,
     /// Octree levels used on cut cells to compute inside volume fractions (finite-cell:
@@ -760,7 +760,7 @@ pub mod defaults {
     }
     /// `registration.still_frames`.
     pub fn still_frames() -> u32 {
-        livereg_registration::session::settings::DEFAULT_STILL_FRAMES as u32
+        livereg_registration::session::DEFAULT_STILL_FRAMES as u32
     }
     /// `registration.robust_pruning`.
     pub fn robust_pruning() -> bool {

@@ -22,7 +22,7 @@ pub const MAX_STEP_STABILIZATION: f64 = 1e4;
 pub const MAX_LOAD_STEPS: u32 = 10_000;
 /// Largest `registration.still_frames`: the union of that many clouds is registered, so the
 /// pairing's cost grows with it.
-pub const MAX_STILL_FRAMES: u32 = 16;
+pub(super) const MAX_STILL_FRAMES: u32 = 16;
 /// Largest `solver.max_bisections` (an increment halved 30 times is ~1e-9 of a load step).
 pub const MAX_BISECTIONS: u32 = 30;
 

@@ -181,7 +181,7 @@ fn table() -> &'static Table {
 }
 
 /// A binary voxel mask (x fastest); voxels on the border must be 0 so the surface closes.
-pub struct BinaryGrid<'a> {
+pub(crate) struct BinaryGrid<'a> {
     /// Sizes.
     pub dims: [usize; 3],
     /// 0 = outside, anything else = inside.
@@ -191,7 +191,7 @@ pub struct BinaryGrid<'a> {
 /// Marching cubes on `grid`: vertices in grid index coordinates (voxel centres at integers),
 /// triangles counter-clockwise seen from outside (for a right-handed index frame). The result
 /// is closed and manifold when the border voxels are outside.
-pub fn marching_cubes(grid: &BinaryGrid<'_>) -> (Vec<Point3<f64>>, Vec<[usize; 3]>) {
+pub(crate) fn marching_cubes(grid: &BinaryGrid<'_>) -> (Vec<Point3<f64>>, Vec<[usize; 3]>) {
     let table = table();
     let [nx, ny, nz] = grid.dims;
     let mut vertices = Vec::new();

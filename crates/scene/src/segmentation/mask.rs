@@ -10,13 +10,13 @@
 use super::labelmap::{LabelSet, Labelmap};
 
 /// Background margin around the bounding box, in voxels (≥ 1 closes the surface).
-pub const PADDING: usize = 2;
+pub(crate) const PADDING: usize = 2;
 
 /// A binary crop of a labelmap: `data[i + dims[0] * (j + dims[1] * k)]` is 1 inside, 0
 /// outside; mask voxel `(i, j, k)` is labelmap voxel `(i, j, k) + origin` (which may lie
 /// outside the labelmap in the margin).
 #[derive(Debug, Clone)]
-pub struct Mask {
+pub(crate) struct Mask {
     /// Sizes.
     pub dims: [usize; 3],
     /// Labelmap index of mask voxel (0, 0, 0).
@@ -28,7 +28,7 @@ pub struct Mask {
 impl Mask {
     /// The voxels of `labelmap` whose label is in `labels`, cropped to their bounding box with
     /// [`PADDING`] voxels of background around it; `None` if there is none.
-    pub fn from_labels(labelmap: &Labelmap, labels: &[u16]) -> Option<Self> {
+    pub(crate) fn from_labels(labelmap: &Labelmap, labels: &[u16]) -> Option<Self> {
         let (lo, hi) = labelmap.bounding_box(labels)?;
         let set = LabelSet::new(labels);
         let dims = [0, 1, 2].map(|a| hi[a] - lo[a] + 1 + 2 * PADDING);
@@ -53,13 +53,13 @@ impl Mask {
     }
 
     /// Number of inside voxels.
-    pub fn count(&self) -> usize {
+    pub(crate) fn count(&self) -> usize {
         self.data.iter().filter(|&&v| v != 0).count()
     }
 
     /// Keeps only the largest 6-connected component of inside voxels; returns the number of
     /// voxels removed.
-    pub fn keep_largest_component(&mut self) -> usize {
+    pub(crate) fn keep_largest_component(&mut self) -> usize {
         let n = self.data.len();
         let steps = self.steps6();
         let mut queue: Vec<u32> = Vec::new();
@@ -88,7 +88,7 @@ impl Mask {
 
     /// Fills background regions not 18-connected to the margin (cavities); returns the number
     /// of voxels filled.
-    pub fn fill_cavities(&mut self) -> usize {
+    pub(crate) fn fill_cavities(&mut self) -> usize {
         let steps = self.steps18();
         let mut queue = Vec::new();
         // The margin is background and connected: one flood from voxel 0 reaches all of it.

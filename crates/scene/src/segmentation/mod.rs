@@ -12,23 +12,25 @@
 //! livereg_fem::mesh::write_obj("liver.obj".as_ref(), &liver).unwrap();
 //! ```
 //!
-//! One concept per file: [`labelmap`] (the grid, affine, segment names), [`nifti`], [`nrrd`],
-//! [`samples`] (stored values → labels), [`mask`] (crop and voxel clean-up), [`isosurface`]
-//! (marching cubes), [`taubin`], [`decimate`], [`structure`] (labels → surfaces and points),
-//! [`voxelise`] (a closed surface → labels, for phantoms and tests), [`error`].
+//! What it offers: [`Labelmap`] (the grid, affine, segment names) read by [`read_labelmap`]
+//! ([`read_nifti`], [`read_nrrd`], [`read_nrrd_layers`]); labels turned into surfaces and points
+//! ([`organ_surface`], [`extract_surface`], [`tumour_mesh`], [`vessel_points`], with
+//! [`SurfaceOptions`]: crop and voxel clean-up, marching cubes, [`taubin_smooth`],
+//! [`decimate`]); a scene's model derived from a labelmap ([`derive_model`], [`DerivedModel`]);
+//! [`voxelise`] (a closed surface → labels, for phantoms and tests); [`SegmentationError`].
 
-pub mod decimate;
-pub mod error;
-pub mod isosurface;
-pub mod labelmap;
-pub mod mask;
-pub mod model;
-pub mod nifti;
-pub mod nrrd;
-pub mod samples;
-pub mod structure;
-pub mod taubin;
-pub mod voxelise;
+pub(crate) mod decimate;
+pub(crate) mod error;
+pub(crate) mod isosurface;
+pub(crate) mod labelmap;
+pub(crate) mod mask;
+pub(crate) mod model;
+pub(crate) mod nifti;
+pub(crate) mod nrrd;
+pub(crate) mod samples;
+pub(crate) mod structure;
+pub(crate) mod taubin;
+pub(crate) mod voxelise;
 
 #[cfg(test)]
 mod tests;

@@ -282,7 +282,7 @@ impl NiftiTransform {
 }
 
 /// RAS ↔ LPS: negate the first two rows (x and y) of an index → world affine.
-pub fn ras_to_lps(a: &Matrix4<f64>) -> Matrix4<f64> {
+pub(crate) fn ras_to_lps(a: &Matrix4<f64>) -> Matrix4<f64> {
     Matrix4::from_diagonal(&nalgebra::Vector4::new(-1.0, -1.0, 1.0, 1.0)) * a
 }
 

@@ -9,7 +9,7 @@ use crate::stored_scalar::{ByteOrder, StoredScalar};
 
 /// Linear value scaling `value = stored × slope + inter` (NIfTI's `scl_slope`/`scl_inter`).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Scaling {
+pub(crate) struct Scaling {
     /// Multiplier.
     pub slope: f64,
     /// Offset.
@@ -18,7 +18,7 @@ pub struct Scaling {
 
 /// Converts raw samples (first index fastest) into labels. `dims` only serves the error
 /// messages (voxel position of the first bad value).
-pub fn to_labels(
+pub(crate) fn to_labels(
     path: &Path,
     bytes: &[u8],
     ty: StoredScalar,
@@ -81,7 +81,7 @@ pub fn to_labels(
 }
 
 /// Parses ASCII samples (NRRD `encoding: ascii`): whitespace-separated numbers.
-pub fn ascii_to_labels(
+pub(crate) fn ascii_to_labels(
     path: &Path,
     text: &str,
     count: usize,

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Matrix4, Point3, Rotation3, Unit, Vector3};
 
 use super::*;
-use crate::geometry::closest_point::closest_point_on_triangle;
+use crate::geometry::closest_point_on_triangle;
 use crate::mesh::{validate, TriSurface};
 
 /// Unsigned distance from `p` to the nearest point of `surface` (brute force over all

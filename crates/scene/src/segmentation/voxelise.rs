@@ -6,7 +6,7 @@ use rayon::prelude::*;
 
 use super::error::SegmentationError;
 use super::labelmap::{check_affine, voxel_count, Labelmap, MAX_VOXELS};
-use crate::geometry::inside::InsideTest;
+use crate::geometry::InsideTest;
 use crate::mesh::TriSurface;
 
 /// Sets `label` on every voxel of `labelmap`-shaped `labels` whose centre is inside `surface`

@@ -7,9 +7,9 @@ use nalgebra::Point3;
 use super::model::{build_model, Model, ModelError};
 use crate::geometry::Camera;
 use crate::mechanics::LawKind;
-use crate::registration::non_rigid_icp::NormalScale;
+use crate::registration::NormalScale;
 use crate::scene::{DataTerm, LoadedScene, Scene};
-use crate::session::settings::BACKGROUND_FACTORIZATION_LAG;
+use crate::session::BACKGROUND_FACTORIZATION_LAG;
 use crate::session::{Session, SessionSettings};
 
 /// A value built from a loaded scene: its files read, its lengths in metres.
@@ -48,7 +48,7 @@ impl FromScene for Session {
                         p(c.position),
                         p(c.look_at),
                         nalgebra::Vector3::from(up),
-                        crate::geometry::camera::DEFAULT_FOV_DEG,
+                        crate::geometry::DEFAULT_FOV_DEG,
                     ),
                 }
                 .map_err(|e| ModelError::Invalid(format!("registration.camera: {e}")))?;

@@ -1,9 +1,9 @@
 //! From a scene file to a solved model: building the SI model, mapping the scene onto the
 //! registration's model, sessions and settings, and running `simulate`.
 
-pub mod from_scene;
-pub mod model;
-pub mod simulate;
+pub(crate) mod from_scene;
+pub(crate) mod model;
+pub(crate) mod simulate;
 
 pub use from_scene::{session_settings, FromScene};
 pub use model::{build_model, EmbeddedStructure, Model, ModelError, SceneModel};

@@ -14,16 +14,15 @@ use crate::mechanics::{
 use crate::mesh::{read_points, read_surface, validate, SurfaceReport, TriSurface};
 use crate::scene::{FixedRegion, LoadedScene, PointSource, Scene};
 
-pub use livereg_registration::model::{
-    EmbeddedStructure, Model, ModelError, DEFAULT_FIXED_PENALTY_FACTOR,
-};
+use livereg_registration::DEFAULT_FIXED_PENALTY_FACTOR;
+pub use livereg_registration::{EmbeddedStructure, Model, ModelError};
 
 /// The model of a scene: the registration crate's [`Model`], under the name the scene layer
 /// has always given it.
 pub type SceneModel = Model;
 
 /// Options of the grid from `[grid]`.
-pub fn grid_options(scene: &Scene, scale: f64) -> GridOptions {
+pub(crate) fn grid_options(scene: &Scene, scale: f64) -> GridOptions {
     GridOptions {
         cell_size: scene.grid.cell_size * scale,
         subdivisions: scene.grid.subdivisions,
@@ -34,7 +33,7 @@ pub fn grid_options(scene: &Scene, scale: f64) -> GridOptions {
 }
 
 /// Material from `[material]`.
-pub fn material(scene: &Scene) -> Result<(Material, VolumetricIntegration), ModelError> {
+pub(crate) fn material(scene: &Scene) -> Result<(Material, VolumetricIntegration), ModelError> {
     let m = Material::from_young_poisson(
         scene.material.law,
         scene.material.young_modulus,
@@ -45,7 +44,7 @@ pub fn material(scene: &Scene) -> Result<(Material, VolumetricIntegration), Mode
 }
 
 /// Newton settings from `[solver]`.
-pub fn newton_settings(scene: &Scene) -> NewtonSettings {
+pub(crate) fn newton_settings(scene: &Scene) -> NewtonSettings {
     let s = &scene.solver;
     NewtonSettings {
         load_steps: s.load_steps as usize,

@@ -18,9 +18,9 @@ use super::wire::{decode_fixed_str, put_fixed_str, Reader};
 /// Size of the header in bytes.
 pub const HEADER_SIZE: usize = 58;
 /// Size of the TYPE field in bytes (longest type name).
-pub const TYPE_NAME_SIZE: usize = 12;
+pub(crate) const TYPE_NAME_SIZE: usize = 12;
 /// Size of the DEVICE_NAME field in bytes (longest device name).
-pub const DEVICE_NAME_SIZE: usize = 20;
+pub(crate) const DEVICE_NAME_SIZE: usize = 20;
 
 /// The header version field (spec "Message Header", "Header version number"). It is not the
 /// protocol version: protocol versions 1 and 2 use header version 1, protocol version 3 uses

@@ -12,9 +12,9 @@ use super::error::IgtlError;
 use super::wire::Reader;
 
 /// IANA MIBenum of US-ASCII (ANSI_X3.4-1968), the spec's recommended value encoding.
-pub const ENCODING_US_ASCII: u16 = 3;
+pub(crate) const ENCODING_US_ASCII: u16 = 3;
 /// IANA MIBenum of UTF-8.
-pub const ENCODING_UTF8: u16 = 106;
+pub(crate) const ENCODING_UTF8: u16 = 106;
 /// Most entries a message can carry: the index size is a u16 (2 + 8 × 8191 ≤ 65535).
 pub const MAX_METADATA_ENTRIES: usize = (u16::MAX as usize - 2) / 8;
 

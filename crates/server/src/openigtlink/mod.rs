@@ -6,26 +6,28 @@
 //! point). Decoding never panics and bounds-checks every length before using it; see
 //! `docs/openigtlink.md` for the protocol subset, units and device names.
 //!
-//! - [`header`]: the header, [`HeaderVersion`], [`Timestamp`];
+//! - [`Header`], [`HeaderVersion`], [`Timestamp`]: the header;
 //! - [`crc64()`]: the body checksum (CRC-64/ECMA-182);
-//! - [`metadata`]: header version 2 key/value metadata;
-//! - [`message`]: [`Message`], [`Content`], the [`MessageContent`] trait, body layout;
-//! - [`transform`], [`point`], [`polydata`], [`status`]: the message contents;
-//! - [`framing`]: reading and writing messages, with a body size limit;
+//! - [`Metadata`]: header version 2 key/value metadata;
+//! - [`Message`], [`Content`], the [`MessageContent`] trait: a message and its body layout;
+//! - [`TransformMessage`], [`PointMessage`], [`PolyDataMessage`], [`StatusMessage`] (with
+//!   [`status_code`]): the message contents;
+//! - [`read_message`], [`write_message`], [`decode_message`] and the raw [`Frame`]s of
+//!   [`read_frame`] and [`decode_frame`]: reading and writing messages, with a body size limit;
 //! - [`conventions`]: livereg's device names and metadata keys;
-//! - [`IgtlError`], in [`error`].
+//! - [`IgtlError`]: what went wrong.
 
 pub mod conventions;
-pub mod crc64;
-pub mod error;
-pub mod framing;
-pub mod header;
-pub mod message;
-pub mod metadata;
-pub mod point;
-pub mod polydata;
-pub mod status;
-pub mod transform;
+pub(crate) mod crc64;
+pub(crate) mod error;
+pub(crate) mod framing;
+pub(crate) mod header;
+pub(crate) mod message;
+pub(crate) mod metadata;
+pub(crate) mod point;
+pub(crate) mod polydata;
+pub(crate) mod status;
+pub(crate) mod transform;
 mod wire;
 
 pub use crc64::crc64;
@@ -35,7 +37,7 @@ pub use framing::{
 };
 pub use header::{Header, HeaderVersion, Timestamp, HEADER_SIZE};
 pub use message::{Content, Message, MessageContent, EXTENDED_HEADER_SIZE};
-pub use metadata::Metadata;
+pub use metadata::{Metadata, MAX_METADATA_ENTRIES};
 pub use point::{PointElement, PointMessage};
 pub use polydata::{AttributeKind, PolyDataAttribute, PolyDataMessage};
 pub use status::{status_code, StatusMessage};

@@ -20,7 +20,7 @@ use super::message::MessageContent;
 use super::wire::{decode_fixed_str, finite, put_fixed_str, to_f32, Reader};
 
 /// Size of one POINT element in bytes.
-pub const POINT_ELEMENT_SIZE: usize = 136;
+pub(crate) const POINT_ELEMENT_SIZE: usize = 136;
 
 /// One point of a POINT message.
 #[derive(Debug, Clone, PartialEq)]

@@ -23,10 +23,8 @@ use crate::mesh::TriSurface;
 
 use super::wire::{finite, to_f32, to_u32, Reader};
 
-/// Size of the fixed POLYDATA header in bytes.
-pub const POLYDATA_HEADER_SIZE: usize = 40;
 /// Longest attribute name in bytes (spec: 255).
-pub const MAX_ATTRIBUTE_NAME: usize = 255;
+pub(crate) const MAX_ATTRIBUTE_NAME: usize = 255;
 
 /// What a data set attribute holds, with its number of components per point or cell.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

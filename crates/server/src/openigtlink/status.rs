@@ -8,7 +8,7 @@ use super::message::MessageContent;
 use super::wire::{check_text, decode_fixed_str, put_fixed_str, Reader};
 
 /// Size of the fixed part (code, sub-code, error name) of a STATUS content.
-pub const STATUS_FIXED_SIZE: usize = 30;
+pub(crate) const STATUS_FIXED_SIZE: usize = 30;
 
 /// The status codes of the spec ("Status Message", "Status codes"), with the names of the
 /// OpenIGTLink library's `IGTL_STATUS_*` constants.

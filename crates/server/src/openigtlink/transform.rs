@@ -11,7 +11,7 @@ use super::message::MessageContent;
 use super::wire::{finite, to_f32, Reader};
 
 /// Content size of a TRANSFORM in bytes.
-pub const TRANSFORM_CONTENT_SIZE: usize = 48;
+pub(crate) const TRANSFORM_CONTENT_SIZE: usize = 48;
 
 /// A TRANSFORM message's content: a homogeneous matrix whose translation is in millimetres.
 /// Values travel as float32 (about 7 significant digits).

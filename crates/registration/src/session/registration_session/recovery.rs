@@ -62,11 +62,11 @@ impl Session {
 pub const BEFORE_RECOVERY: &str = "before recovery: ";
 
 /// Name of the ladder's first rung (flag `recovered:smaller-steps`).
-pub const SMALLER_STEPS: &str = "smaller-steps";
+pub(super) const SMALLER_STEPS: &str = "smaller-steps";
 /// Name of the ladder's second rung (flag `recovered:damped-newton`).
-pub const DAMPED_NEWTON: &str = "damped-newton";
+pub(super) const DAMPED_NEWTON: &str = "damped-newton";
 /// Every rung's name, in the ladder's order.
-pub const RUNG_NAMES: [&str; 2] = [SMALLER_STEPS, DAMPED_NEWTON];
+pub(crate) const RUNG_NAMES: [&str; 2] = [SMALLER_STEPS, DAMPED_NEWTON];
 
 /// Whether the Newton solver reported a failure (diverged, inverted, iteration cap) during
 /// a non-rigid registration.

@@ -11,14 +11,14 @@ use crate::registration::contact_refit::{refit_at_contact, ContactRefitSettings,
 /// cloud at the contact within the noise and this for the refit to hold it there. The
 /// bundled tool-indentation class's noisy deep dents (`livereg bench --indentation`) miss it
 /// by 2–3 mm and are refused; the force-driven truths' dents are reached within 0.3 mm.
-pub const REFIT_ALLOWANCE_CELLS: f64 = 0.1;
+pub(super) const REFIT_ALLOWANCE_CELLS: f64 = 0.1;
 
 /// Largest share of the motion seen away from the contact the refit may leave unexplained
 /// ([`ContactRefit::unexplained_share`](crate::registration::contact_refit::ContactRefit::unexplained_share)).
 /// On the force-driven tuning set (a load at one patch) the share is 0.02–0.06; a load spread
 /// evenly over the seen half of a body leaves 0.77
 /// (`session::tests::the_contact_refit_is_refused_for_a_load_spread_over_the_liver`).
-pub const MAX_UNEXPLAINED_SHARE: f64 = 0.25;
+pub(super) const MAX_UNEXPLAINED_SHARE: f64 = 0.25;
 
 /// Newton iterations per solve of the refitted body (modified Newton, one factorisation per
 /// frame). A kept refit whose solve has not converged within them is flagged
