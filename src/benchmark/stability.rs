@@ -16,7 +16,7 @@ use super::workload::Workload;
 use crate::grid::IntegrationMode;
 use crate::mechanics::LawKind;
 use crate::scene::LoadedScene;
-use crate::synthetic::{generate_sequence, ScenarioKind, SequenceSpec};
+use crate::synthetic::{solve_truth, ScenarioKind, SequenceSpec, SolvedTruth};
 
 /// One disturbance the matrix varies (the others stay at the scenario's defaults). The
 /// phantom's matrix varies [`Axis::ALL`] ([`Axis::values`]); the tool-indentation class's
@@ -379,6 +379,9 @@ struct Matrix<'a> {
     scale: f64,
     /// The scenario's default sequence, with the options' frames and truth law.
     base_spec: SequenceSpec,
+    /// The default sequence's truth, which the cloud axes (noise, outliers, visible) share:
+    /// they change what the camera sees, not the liver.
+    base_truth: Result<SolvedTruth, String>,
     /// The default sequence's workload (or why it could not be simulated).
     base: Result<Workload, String>,
     /// The default sequence's largest surface displacement, mm (`None`: not simulated, or
@@ -395,7 +398,8 @@ impl<'a> Matrix<'a> {
         if let Some(law) = options.truth_law {
             base_spec.truth.law = law;
         }
-        let base = simulate(scene, &base_spec, scale);
+        let base_truth = solve(scene, &base_spec);
+        let base = with_clouds(&base_truth, &base_spec, scale);
         let base_disp = base
             .as_ref()
             .ok()
@@ -405,6 +409,7 @@ impl<'a> Matrix<'a> {
             scene,
             scale,
             base_spec,
+            base_truth,
             base,
             base_disp,
         }
@@ -431,10 +436,12 @@ impl<'a> Matrix<'a> {
                 }
             }
         }
-        if axis == Axis::Deformation && self.base_disp.is_none() {
-            Err("the default sequence could not be simulated".into())
-        } else {
-            simulate(self.scene, &spec, self.scale)
+        match axis {
+            Axis::Deformation if self.base_disp.is_none() => {
+                Err("the default sequence could not be simulated".into())
+            }
+            Axis::Deformation => with_clouds(&solve(self.scene, &spec), &spec, self.scale),
+            _ => with_clouds(&self.base_truth, &spec, self.scale),
         }
     }
 
@@ -519,17 +526,27 @@ impl<'a> Matrix<'a> {
     }
 }
 
-/// The workload of the sequence `spec` simulated on `scene` (`scale`: metres per scene
-/// unit); a panic while simulating becomes an error.
-fn simulate(scene: &LoadedScene, spec: &SequenceSpec, scale: f64) -> Result<Workload, String> {
-    catch_unwind(AssertUnwindSafe(|| generate_sequence(scene, spec)))
+/// The truth of `spec` solved on `scene`; a panic while solving becomes an error.
+fn solve(scene: &LoadedScene, spec: &SequenceSpec) -> Result<SolvedTruth, String> {
+    catch_unwind(AssertUnwindSafe(|| solve_truth(scene, spec)))
         .map_err(|p| format!("panic while simulating the truth: {}", panic_text(&p)))?
+        .map_err(|e| format!("truth: {e}"))
+}
+
+/// The workload of `truth` seen with `spec`'s clouds (`scale`: metres per scene unit); a
+/// panic while synthesizing becomes an error.
+fn with_clouds(
+    truth: &Result<SolvedTruth, String>,
+    spec: &SequenceSpec,
+    scale: f64,
+) -> Result<Workload, String> {
+    let truth = truth.as_ref().map_err(|e| e.clone())?;
+    catch_unwind(AssertUnwindSafe(|| truth.sequence(&spec.cloud)))
+        .map_err(|p| format!("panic while synthesizing the clouds: {}", panic_text(&p)))?
         .map(|s| Workload::from_sequence(&s, scale))
         .map_err(|e| format!("truth: {e}"))
 }
 
-/// `method` with the model axis `axis` set to `value` (grid offset in cells, Poisson's
-/// ratio, penalty factor); unchanged for an axis that changes the data.
 fn method_config(method: &ModelConfig, axis: Axis, value: f64) -> ModelConfig {
     match axis {
         Axis::GridOffset => ModelConfig {

@@ -34,6 +34,7 @@ pub use crate::random::Rng;
 pub use error::SynthError;
 pub use point_cloud::{synthesize_cloud, CloudSpec, SyntheticCloud, MAX_SAMPLES, OUTLIER_MARGIN};
 pub use sequence::{
-    frame_seed, generate_sequence, load_fraction, write_sequence, ScenarioKind, ScenarioLoad,
-    SequenceError, SequenceSpec, SyntheticFrame, SyntheticSequence, TruthModel,
+    frame_seed, generate_sequence, load_fraction, solve_truth, write_sequence, ScenarioKind,
+    ScenarioLoad, SequenceError, SequenceSpec, SolvedTruth, SyntheticFrame, SyntheticSequence,
+    TruthModel,
 };

@@ -772,12 +772,9 @@ fn continue_load(
 }
 
 /// Synthesizes the sequence `spec` for `scene` (for example the bundled phantom written by
-/// [`crate::phantom::write_phantom`]): builds the truth model ([`TruthModel::apply_to`]),
-/// resolves the scenario's load on its surface ([`ScenarioLoad::for_surface`]), solves the
-/// frames by continuation (each from the previous frame's equilibrium; a frame whose load
-/// fraction equals the previous one keeps its state exactly), and for each frame synthesizes
-/// the cloud the scene's camera sees of the true surface, with the frame's seed and the
-/// spec's rigid offset. Deterministic for a spec.
+/// [`crate::phantom::write_phantom`]): solves the truth ([`solve_truth`]), then synthesizes
+/// each frame's cloud with the spec's cloud settings ([`SolvedTruth::sequence`]).
+/// Deterministic for a spec.
 ///
 /// Errors: invalid spec, no camera in the scene, a scene that cannot be built with the truth
 /// discretisation, an empty load region, a truth solve that does not converge, or a cloud
@@ -786,6 +783,63 @@ pub fn generate_sequence(
     scene: &LoadedScene,
     spec: &SequenceSpec,
 ) -> Result<SyntheticSequence, SequenceError> {
+    solve_truth(scene, spec)?.sequence(&spec.cloud)
+}
+
+/// One frame of a solved truth, before any cloud: model frame, metres.
+#[derive(Debug, Clone)]
+struct TruthFrame {
+    /// Load fraction ([`load_fraction`]).
+    load_fraction: f64,
+    /// The deformed surface (model frame).
+    surface: TriSurface,
+    /// The deformed structures, in scene order (model frame).
+    structures: Vec<(String, Vec<Point3<f64>>)>,
+    /// Largest displacement of a surface vertex, m.
+    max_displacement: f64,
+    /// Newton iterations of the frame's solve.
+    newton_iterations: usize,
+    /// Wall time of the frame's solve, ms.
+    solve_ms: f64,
+}
+
+/// The truth of a sequence, solved once: every frame's deformed surface and structures in the
+/// model frame, before the camera sees them. [`SolvedTruth::sequence`] synthesizes the clouds
+/// of any [`CloudSpec`] from it, so that sequences differing only in their clouds (noise,
+/// outliers, the visible share, the camera offset, the seed) share one truth solve.
+#[derive(Debug, Clone)]
+pub struct SolvedTruth {
+    /// The specification the truth was solved for (its `cloud` is the default of
+    /// [`SolvedTruth::sequence`]'s callers, not used by the truth).
+    spec: SequenceSpec,
+    /// The scene's camera, model frame.
+    camera: Camera,
+    /// The resolved full load (model frame, metres).
+    load: ScenarioLoad,
+    /// The solved frames.
+    frames: Vec<TruthFrame>,
+    /// Triangles of the surface.
+    triangles: Vec<[usize; 3]>,
+    /// The undeformed surface vertices, model frame.
+    rest_surface: Vec<Point3<f64>>,
+    /// The undeformed structures, model frame, in scene order.
+    rest_structures: Vec<(String, Vec<Point3<f64>>)>,
+    /// Active nodes of the truth grid.
+    truth_nodes: usize,
+    /// Active cells of the truth grid.
+    truth_cells: usize,
+    /// Wall time of building the truth model and solving every frame, ms.
+    truth_ms: f64,
+}
+
+/// Solves the truth of `spec` on `scene`: builds the truth model ([`TruthModel::apply_to`]),
+/// resolves the scenario's load on its surface ([`ScenarioLoad::for_surface`]) and solves the
+/// frames by continuation (each from the previous frame's equilibrium; a frame whose load
+/// fraction equals the previous one keeps its state exactly).
+///
+/// Errors: invalid spec, no camera in the scene, a scene that cannot be built with the truth
+/// discretisation, an empty load region, or a truth solve that does not converge.
+pub fn solve_truth(scene: &LoadedScene, spec: &SequenceSpec) -> Result<SolvedTruth, SequenceError> {
     spec.validate()?;
     let camera = scene_camera(scene)?;
     let start = Instant::now();
@@ -798,13 +852,6 @@ pub fn generate_sequence(
         add_elastic_bed(&mut model, spec.truth.bed_stiffness)?;
     }
     let mut solver = NewtonSolver::new(model.newton);
-    let to_camera = spec.model_to_camera();
-    let camera_in_camera_frame = Camera::new(
-        to_camera.apply(&camera.position),
-        to_camera.apply(&camera.look_at),
-        to_camera.apply_vector(&camera.up),
-        camera.fov_deg,
-    )?;
 
     let mut u = vec![0.0; model.problem.dofs()];
     let mut previous = 0.0;
@@ -832,55 +879,102 @@ pub fn generate_sequence(
             .iter()
             .map(|d| d.norm())
             .fold(0.0, f64::max);
-        let deformed = TriSurface::new(surface_now, model.surface.triangles.clone());
-        let cloud_spec = CloudSpec {
-            seed: frame_seed(spec.cloud.seed, k),
-            ..spec.cloud
-        };
-        let cloud = synthesize_cloud(&deformed, &camera, &cloud_spec)
-            .map_err(|source| SequenceError::Cloud { frame: k, source })?;
-        let truth_structures = model
-            .structures
-            .iter()
-            .map(|st| {
-                (
-                    st.name.clone(),
-                    to_camera.apply_all(&st.embedding.positions(&u)),
-                )
-            })
-            .collect();
-        frames.push(SyntheticFrame {
+        frames.push(TruthFrame {
             load_fraction: s,
-            outliers: cloud.outlier_count(),
-            cloud: cloud.points,
-            is_outlier: cloud.is_outlier,
-            truth_structures,
-            truth_surface: to_camera.apply_all(&deformed.vertices),
+            surface: TriSurface::new(surface_now, model.surface.triangles.clone()),
+            structures: model
+                .structures
+                .iter()
+                .map(|st| (st.name.clone(), st.embedding.positions(&u)))
+                .collect(),
             max_displacement,
             newton_iterations,
             solve_ms,
         });
     }
-    let truth_ms = start.elapsed().as_secs_f64() * 1e3;
-    let rest_structures = model
-        .structures
-        .iter()
-        .map(|st| (st.name.clone(), st.embedding.rest.clone()))
-        .collect();
-    Ok(SyntheticSequence {
-        kind: spec.kind,
+    Ok(SolvedTruth {
         spec: spec.clone(),
+        camera,
         load,
         frames,
-        camera: camera_in_camera_frame,
-        model_to_camera: to_camera,
         triangles: model.surface.triangles.clone(),
         rest_surface: model.surface.vertices.clone(),
-        rest_structures,
+        rest_structures: model
+            .structures
+            .iter()
+            .map(|st| (st.name.clone(), st.embedding.rest.clone()))
+            .collect(),
         truth_nodes: model.problem.grid.node_count(),
         truth_cells: model.problem.grid.cells.len(),
-        truth_ms,
+        truth_ms: start.elapsed().as_secs_f64() * 1e3,
     })
+}
+
+impl SolvedTruth {
+    /// The specification the truth was solved for.
+    pub fn spec(&self) -> &SequenceSpec {
+        &self.spec
+    }
+
+    /// The sequence of this truth seen with the clouds of `cloud`: for each frame the cloud
+    /// the scene's camera sees of the true surface, with the frame's seed
+    /// ([`frame_seed`]`(cloud.seed, k)`) and the cloud's rigid offset; the truth moved into
+    /// the camera frame. The same as [`generate_sequence`] of the spec with `cloud`.
+    ///
+    /// Errors: `cloud` out of range, or a cloud that cannot be synthesized (e.g. nothing
+    /// visible).
+    pub fn sequence(&self, cloud: &CloudSpec) -> Result<SyntheticSequence, SequenceError> {
+        let spec = SequenceSpec {
+            cloud: *cloud,
+            ..self.spec.clone()
+        };
+        spec.validate()?;
+        let to_camera = spec.model_to_camera();
+        let camera_in_camera_frame = Camera::new(
+            to_camera.apply(&self.camera.position),
+            to_camera.apply(&self.camera.look_at),
+            to_camera.apply_vector(&self.camera.up),
+            self.camera.fov_deg,
+        )?;
+        let mut frames = Vec::with_capacity(self.frames.len());
+        for (k, truth) in self.frames.iter().enumerate() {
+            let cloud_spec = CloudSpec {
+                seed: frame_seed(spec.cloud.seed, k),
+                ..spec.cloud
+            };
+            let cloud = synthesize_cloud(&truth.surface, &self.camera, &cloud_spec)
+                .map_err(|source| SequenceError::Cloud { frame: k, source })?;
+            frames.push(SyntheticFrame {
+                load_fraction: truth.load_fraction,
+                outliers: cloud.outlier_count(),
+                cloud: cloud.points,
+                is_outlier: cloud.is_outlier,
+                truth_structures: truth
+                    .structures
+                    .iter()
+                    .map(|(name, p)| (name.clone(), to_camera.apply_all(p)))
+                    .collect(),
+                truth_surface: to_camera.apply_all(&truth.surface.vertices),
+                max_displacement: truth.max_displacement,
+                newton_iterations: truth.newton_iterations,
+                solve_ms: truth.solve_ms,
+            });
+        }
+        Ok(SyntheticSequence {
+            kind: spec.kind,
+            load: self.load,
+            spec,
+            frames,
+            camera: camera_in_camera_frame,
+            model_to_camera: to_camera,
+            triangles: self.triangles.clone(),
+            rest_surface: self.rest_surface.clone(),
+            rest_structures: self.rest_structures.clone(),
+            truth_nodes: self.truth_nodes,
+            truth_cells: self.truth_cells,
+            truth_ms: self.truth_ms,
+        })
+    }
 }
 
 /// Directory (inside the output directory) holding the frames' clouds.

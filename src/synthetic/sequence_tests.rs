@@ -178,6 +178,46 @@ fn truth_differs_from_the_registration_models_own_solution() {
     assert!(max_diff < 0.5 * last.max_displacement);
 }
 
+/// A truth solved once and seen with another cloud is the sequence generated from scratch with
+/// that cloud, bit for bit; the truth does not depend on the cloud, the clouds do.
+#[test]
+fn a_shared_truth_seen_with_another_cloud_is_that_clouds_sequence() {
+    let seq = shared();
+    let truth = solve_truth(phantom(), &seq.spec).unwrap();
+    let mut other = seq.spec.clone();
+    other.cloud.noise_sigma = 0.0;
+    other.cloud.outlier_fraction = 0.3;
+    other.cloud.visible_fraction = Some(0.2);
+    other.cloud.seed += 7;
+    let shared_truth = truth.sequence(&other.cloud).unwrap();
+    let from_scratch = generate_sequence(phantom(), &other).unwrap();
+    assert_eq!(shared_truth.spec, other);
+    assert_eq!(shared_truth.frames.len(), from_scratch.frames.len());
+    for (a, b) in shared_truth.frames.iter().zip(&from_scratch.frames) {
+        assert_eq!(a.cloud, b.cloud);
+        assert_eq!(a.is_outlier, b.is_outlier);
+        assert_eq!(a.truth_surface, b.truth_surface);
+        assert_eq!(a.truth_structures, b.truth_structures);
+        assert_eq!(a.max_displacement, b.max_displacement);
+    }
+    assert_eq!(shared_truth.camera, from_scratch.camera);
+    // The other cloud is another cloud: more outliers, no noise on the inliers.
+    let (a, b) = (&shared_truth.frames[3], &seq.frames[3]);
+    assert_ne!(a.cloud, b.cloud);
+    assert!(
+        a.outliers as f64 > 2.0 * b.outliers as f64,
+        "{} against {}",
+        a.outliers,
+        b.outliers
+    );
+    // The truth is the same liver.
+    assert_eq!(a.truth_surface, b.truth_surface);
+    // A cloud out of range is refused, naming what is wrong.
+    let mut bad = other.cloud;
+    bad.outlier_fraction = 1.5;
+    assert!(truth.sequence(&bad).is_err());
+}
+
 #[test]
 fn generation_is_deterministic() {
     let seq = shared();
