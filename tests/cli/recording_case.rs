@@ -1,5 +1,5 @@
-//! The small scene and frames the recording, replay and VTK tests share (`recording_cli.rs`,
-//! `replay_cli.rs`, `vtk_files.rs`).
+//! The small scene and frames the register, recording, replay and VTK tests share
+//! (`register_cli.rs`, `recording_cli.rs`, `replay_cli.rs`, `vtk_files.rs`).
 #![allow(dead_code)]
 
 use std::path::PathBuf;

@@ -4,66 +4,16 @@
 
 use std::path::PathBuf;
 
-use livereg::mesh::primitives::icosphere;
-use livereg::mesh::{write_obj, write_points};
-use nalgebra::{Point3, Vector3};
+use livereg::mesh::write_points;
 
 use crate::common;
+use crate::recording_case;
 use common::livereg;
 
-/// A clamped ellipsoid scene in mm with 3 targets and 4 frames bending it progressively; the
-/// third frame file is broken on line 2.
+/// The shared ellipsoid scene ([`recording_case::case`]) with 4 frames bending it
+/// progressively; the third frame file, `frames/f002.xyz`, is broken on line 2.
 fn case(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("livereg-register-{}-{tag}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(d.join("frames")).unwrap();
-    let mut s = icosphere(Point3::origin(), 1.0, 3);
-    for v in &mut s.vertices {
-        *v = Point3::new(50.0 * v.x, 37.5 * v.y, 25.0 * v.z);
-    }
-    write_obj(&d.join("body.obj"), &s).unwrap();
-    let targets = [
-        Point3::new(-20.0, 0.0, 0.0),
-        Point3::new(10.0, 5.0, 0.0),
-        Point3::new(35.0, 0.0, -3.0),
-    ];
-    write_points(&d.join("targets.xyz"), &targets).unwrap();
-    std::fs::write(
-        d.join("scene.toml"),
-        r#"units = "mm"
-[model]
-surface = "body.obj"
-[[model.structures]]
-name = "targets"
-points = "targets.xyz"
-[grid]
-cell_size = 20.0
-subdivisions = 2
-[material]
-law = "neo-hookean"
-young_modulus = 4500.0
-poisson_ratio = 0.45
-[[boundary.fixed]]
-box = [[-60.0, -60.0, -60.0], [-35.0, 60.0, 60.0]]
-[registration]
-rigid = "icp"
-"#,
-    )
-    .unwrap();
-    for k in 0..4 {
-        let a = 2.0 * k as f64;
-        let pts: Vec<Point3<f64>> = s
-            .vertices
-            .iter()
-            .map(|p| {
-                let t = ((p.x + 35.0) / 85.0).max(0.0);
-                p + Vector3::new(0.0, 0.0, a * t * t)
-            })
-            .collect();
-        write_points(&d.join(format!("frames/f{k:02}.xyz")), &pts).unwrap();
-    }
-    std::fs::write(d.join("frames/f02.xyz"), "1 2 3\n4 five 6\n").unwrap();
-    d
+    recording_case::case(&format!("register-{tag}"), 4)
 }
 
 #[test]
@@ -90,7 +40,7 @@ fn register_writes_one_contract_line_per_frame_and_survives_a_broken_file() {
     assert_eq!(lines.len(), 4);
     for (k, l) in lines.iter().enumerate() {
         assert_eq!(l["frame"], k);
-        assert_eq!(l["source"], format!("f{k:02}.xyz"));
+        assert_eq!(l["source"], format!("f{k:03}.xyz"));
         for key in ["wall_ms", "converged", "rigid", "diagnostics", "structures"] {
             assert!(l.get(key).is_some(), "frame {k} lacks {key}: {l}");
         }
@@ -101,7 +51,7 @@ fn register_writes_one_contract_line_per_frame_and_survives_a_broken_file() {
         assert_eq!(l["structures"]["targets"].as_array().unwrap().len(), 3);
     }
     let err = lines[2]["diagnostics"]["error"].as_str().unwrap();
-    assert!(err.contains("f02.xyz") && err.contains('2'), "{err}");
+    assert!(err.contains("f002.xyz") && err.contains('2'), "{err}");
     assert_eq!(lines[2]["converged"], false);
     // The broken frame carries the last good state; the next frame registers again.
     assert_eq!(lines[2]["structures"], lines[1]["structures"]);
@@ -230,7 +180,7 @@ fn register_rejects_a_missing_or_empty_frame_directory() {
 #[test]
 fn register_takes_vtk_and_vtp_frames_and_names_the_files_it_skips() {
     let d = case("vtk");
-    let points = livereg::mesh::read_points(&d.join("frames/f03.xyz")).unwrap();
+    let points = livereg::mesh::read_points(&d.join("frames/f003.xyz")).unwrap();
     let mut legacy = format!(
         "# vtk DataFile Version 4.2\nframe 3\nASCII\nDATASET POLYDATA\nPOINTS {} double\n",
         points.len()
