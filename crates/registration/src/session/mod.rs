@@ -5,6 +5,12 @@
 //! pose), then non-rigid ICP warm-started from the last good displacement field, within an
 //! optional per-frame time budget. A frame that fails leaves the session exactly as it was, and
 //! its [`FrameResult`] carries the last good state, flagged, with the cause.
+//!
+//! Inside, a session composes its parts, each a type of its own in
+//! `registration_session/`: the pose (`PoseTracker`), the tests of what changed and the still
+//! window (`ChangeTests`), the shape with its coarse start and recovery ladder
+//! (`NonRigidStage`), the contact force and refit (`ContactForceEstimator`), the model's
+//! surfaces for signed distances (`ModelSurfaces`) and the last good state (`GoodState`).
 
 pub(crate) mod frame;
 pub(crate) mod frame_files;

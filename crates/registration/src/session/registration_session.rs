@@ -1,22 +1,44 @@
-//! [`Session`]: one patient's model registered to a stream of frames. Its parts, each in its
-//! own file: [`pose`] (the pose), [`change`] (what changed since the last frame),
-//! [`recovery`] (the recovery ladder) and [`outcome`] (a frame's result).
+//! [`Session`]: one patient's model registered to a stream of frames. The session composes
+//! its parts, each a type in its own file, and runs a frame through them as named stages:
+//! - [`prepare_cloud`](cloud_preparation::prepare_cloud): the input checks, thinning and
+//!   isolated points;
+//! - [`PoseTracker`](pose_tracker::PoseTracker): the pose (held, followed or tracked,
+//!   re-acquired, searched) and its uncertainty, with the scene's camera and the rigid target;
+//! - [`ChangeTests`](change_tests::ChangeTests): what changed since the last frame (the rest
+//!   test, the still test and its window), on a cloud with its noise
+//!   ([`CloudNoise`](cloud_noise::CloudNoise)), giving the non-rigid stage its data
+//!   ([`StillData`](still_data::StillData));
+//! - [`NonRigidStage`](non_rigid_stage::NonRigidStage): the shape, from the last good state
+//!   or the [`CoarseStart`](coarse_start::CoarseStart), and the recovery ladder when its
+//!   solver failed ([`recover`](recovery_ladder::recover));
+//! - [`ContactForceEstimator`](contact_force_estimator::ContactForceEstimator): the contact
+//!   refit and the contact force;
+//! - then the gate on the registered fit, and the frame's
+//!   [`FrameSuccess`](frame_success::FrameSuccess) committed as the
+//!   [`GoodState`](good_state::GoodState).
+//!
+//! The parts read the session through a [`SessionView`](session_view::SessionView) (the
+//! model, the settings, the good state and the [`ModelSurfaces`](model_surfaces::ModelSurfaces)).
 
-mod change;
-mod outcome;
-mod pose;
-mod recovery;
-mod refit;
+mod change_tests;
+mod cloud_noise;
+mod cloud_preparation;
+mod coarse_start;
+mod contact_force_estimator;
+mod frame_success;
+mod good_state;
+mod model_surfaces;
+mod non_rigid_stage;
+mod pose_tracker;
+mod recovery_ladder;
+mod session_view;
+mod still_data;
 
-use change::{CloudNoise, StillData, SAME_VIEW_FIT_RATIO, SAME_VIEW_FIT_SLACK};
-use outcome::Done;
-use recovery::solver_failed;
-pub(crate) use recovery::RUNG_NAMES;
-pub use recovery::{
+pub(crate) use recovery_ladder::RUNG_NAMES;
+pub use recovery_ladder::{
     damped_newton, recovery_ladder, recovery_settings, RecoveryRung, BEFORE_RECOVERY,
 };
 
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use nalgebra::Point3;
@@ -25,68 +47,21 @@ use super::frame::{Frame, FrameError, FrameResult, StageTimes};
 use super::frame_flag::FrameFlag;
 use super::memory_estimate::{still_window_bytes, ModelSize};
 use super::settings::SessionSettings;
-use super::settings::{PoseUpdate, RigidMode};
-use super::still_window::StillWindow;
 use crate::geometry::Camera;
-use crate::linalg::SolverKind;
-use crate::mechanics::{NewtonSettings, NewtonSolver, PenaltySprings};
-use crate::mesh::TriSurface;
 use crate::model::{Model, ModelError};
-use crate::registration::change_evidence::{cloud_noise_sigma_near, ChangeTest};
-use crate::registration::isolated_points::{
-    isolated_mask, ISOLATION_MEDIAN_FACTOR, ISOLATION_NEIGHBOURS, ISOLATION_SIGMA,
-};
-use crate::registration::non_rigid_icp::{NonRigidReport, NonRigidTimings};
-use crate::registration::pose_search::centroid;
-use crate::registration::surface_normals::NormalsAtScale;
-use crate::registration::{expected_error, ErrorEstimate, ErrorEvidence};
-use crate::registration::{ContactForce, RestCompliance};
-use crate::registration::{
-    IcpResult, IndexedPoints, ModelTarget, NonRigidIcp, NonRigidSettings, Prolongation, RigidIcp,
-    RigidTransform, SurfaceDistances, SurfaceTopology,
-};
-
-/// The last state a frame ended in successfully.
-#[derive(Debug, Clone)]
-struct GoodState {
-    /// Grid displacements, m.
-    u: Vec<f64>,
-    /// Model → cloud pose.
-    model_to_cloud: RigidTransform,
-    /// Whether a frame has succeeded since the start or the last reset.
-    registered: bool,
-    /// The last good frame's cloud as registered (metres, cloud frame, after thinning): its
-    /// centroid and fit are where a lost pose is searched first ([`Session::reacquire_pose`]).
-    cloud: Option<Vec<Point3<f64>>>,
-    /// The surface loads the last good frame's registration needed (model frame, SI).
-    contact_force: Option<ContactForce>,
-    /// The pose was committed by a global search that found another pose about as good
-    /// (flag `pose_ambiguous`); every frame holding it says so too.
-    pose_ambiguous: bool,
-    /// The pose's uncertainty when it was fitted (m, [`Session::pose_uncertainty`]); `None`
-    /// when the pose was given (`rigid = "none"`) or its fit did not determine it.
-    pose_uncertainty: Option<f64>,
-    /// The expected error of the good state (m, [`Session::error_estimate`]); `None` before
-    /// the first good frame.
-    expected_error: Option<ErrorEstimate>,
-}
-
-impl GoodState {
-    /// The state before any frame: displacements `u` (m; the rest shape, zeros), the identity
-    /// pose, nothing registered or estimated.
-    fn at_rest(u: Vec<f64>) -> Self {
-        GoodState {
-            u,
-            model_to_cloud: RigidTransform::identity(),
-            registered: false,
-            cloud: None,
-            contact_force: None,
-            pose_ambiguous: false,
-            pose_uncertainty: None,
-            expected_error: None,
-        }
-    }
-}
+use crate::registration::non_rigid_icp::NonRigidReport;
+use crate::registration::{ErrorEstimate, RigidTransform, SurfaceDistances};
+use change_tests::ChangeTests;
+use cloud_noise::CloudNoise;
+use cloud_preparation::prepare_cloud;
+use contact_force_estimator::ContactForceEstimator;
+use frame_success::FrameSuccess;
+use good_state::GoodState;
+use model_surfaces::ModelSurfaces;
+use non_rigid_stage::{all_finite, NonRigidStage};
+use pose_tracker::PoseTracker;
+use session_view::SessionView;
+use still_data::StillData;
 
 /// Registers a stream of frames to one model, carrying the state from frame to frame.
 ///
@@ -101,58 +76,20 @@ pub struct Session {
     pub model: Model,
     /// Settings.
     pub settings: SessionSettings,
-    /// The scene's camera in the model frame, metres.
-    scene_camera: Option<Camera>,
-    non_rigid_cold: NonRigidIcp,
-    non_rigid_warm: NonRigidIcp,
+    /// The pose from frame to frame.
+    pose: PoseTracker,
+    /// What changed since the last frame, and the still window.
+    change: ChangeTests,
+    /// The shape: the non-rigid registration, its coarse start and recovery.
+    non_rigid: NonRigidStage,
+    /// The contact force and the contact refit.
+    contact: ContactForceEstimator,
+    /// The model's surfaces for signed distances (rest, last good state).
+    surfaces: ModelSurfaces,
+    /// The last good state.
     good: GoodState,
-    /// The clouds of the frames since the liver last moved ([`StillWindow`]).
-    still: StillWindow,
+    /// Frames seen so far (including rejected ones).
     frames: usize,
-    coarse: Option<CoarseStart>,
-    /// The rigid stage's target (samples and k-d tree of the deformed surface) and the
-    /// displacement it was built for: rebuilt only when the good state changed, so
-    /// rigid-only sessions (the state never changes) build it once.
-    rigid_target: Option<(Vec<f64>, ModelTarget)>,
-    /// The surface normals' averaging the non-rigid stages share (`None`: vertex normals).
-    normals: Option<std::sync::Arc<NormalsAtScale>>,
-    /// The rest surface's vertices and normals, built on the first frame that asks whether
-    /// the rest shape explains it ([`Session::rest_shape_if_unchanged`]): the same every
-    /// frame.
-    rest_surface: std::sync::OnceLock<Option<SurfaceDistances>>,
-    /// The model surface's triangles and the triangles around each vertex, which every
-    /// deformed surface of the session's signed distances shares.
-    surface_topology: std::sync::Arc<SurfaceTopology>,
-    /// The last good state's deformed surface index, which the next frame's held-pose check,
-    /// still-frame test and re-acquisition read: the one the frame's own fit built, kept with
-    /// the state it measured, or built on first use.
-    good_surface: std::sync::OnceLock<Option<SurfaceDistances>>,
-    /// The model's rest compliance for the contact force, factorised on the first frame that
-    /// estimates one (an error, kept, when it cannot be: no estimate then).
-    rest_compliance: Option<Result<RestCompliance, String>>,
-    /// The uncertainty (m) of a pose fitted by this frame's rigid stage; `None` when the
-    /// stage held the pose or fitted none.
-    fitted_pose_uncertainty: Option<f64>,
-    /// The contact refit's own Newton solver (its factorisation holds the contact region's
-    /// springs, not the data term's).
-    refit_solver: NewtonSolver,
-}
-
-/// The surface of `model` (of `topology`) deformed by `u` (m), for signed distances; `None`
-/// for an empty surface.
-fn deformed_surface(
-    model: &Model,
-    topology: &std::sync::Arc<SurfaceTopology>,
-    u: &[f64],
-) -> Option<SurfaceDistances> {
-    SurfaceDistances::new(model.surface_embedding.positions(u), topology.clone())
-}
-
-/// The coarse model of a coarse-to-fine start and its prolongation to the fine grid.
-struct CoarseStart {
-    model: Model,
-    icp: NonRigidIcp,
-    prolongation: Prolongation,
 }
 
 impl Session {
@@ -160,14 +97,8 @@ impl Session {
     /// body on a coarser grid, SI units) and the fine registration starts from its
     /// prolongated displacement, with one stiff penalty step.
     pub fn with_coarse_start(mut self, coarse: Model) -> Result<Self, ModelError> {
-        let prolongation = Prolongation::new(&coarse.problem.grid, &self.model.problem.grid)
-            .map_err(|e| ModelError::Invalid(format!("coarse-to-fine prolongation: {e}")))?;
-        self.coarse = Some(CoarseStart {
-            icp: NonRigidIcp::new(self.settings.cold, coarse.newton)
-                .with_normals(self.normals.clone()),
-            model: coarse,
-            prolongation,
-        });
+        self.non_rigid
+            .add_coarse_start(coarse, &self.model, self.settings.cold)?;
         Ok(self)
     }
 
@@ -175,10 +106,10 @@ impl Session {
     /// one of a coarse-to-fine start.
     pub fn model_sizes(&self) -> Result<Vec<ModelSize>, String> {
         let mut sizes = vec![ModelSize::of(&self.model, self.model.newton.linear_solver)?];
-        sizes[0].normal_bytes = self.normals.as_ref().map_or(0, |n| n.heap_bytes());
-        sizes[0].topology_bytes = self.surface_topology.heap_bytes();
-        if let Some(c) = &self.coarse {
-            sizes.push(ModelSize::of(&c.model, c.model.newton.linear_solver)?);
+        sizes[0].normal_bytes = self.non_rigid.normal_bytes();
+        sizes[0].topology_bytes = self.surfaces.topology().heap_bytes();
+        if let Some(c) = self.non_rigid.coarse_model() {
+            sizes.push(ModelSize::of(c, c.newton.linear_solver)?);
         }
         Ok(sizes)
     }
@@ -216,48 +147,23 @@ impl Session {
 
     /// Whether cold frames start on a coarse grid.
     pub fn has_coarse_start(&self) -> bool {
-        self.coarse.is_some()
+        self.non_rigid.coarse_model().is_some()
     }
 
     /// A session for `model` with `settings` and the camera (model frame, metres) used when a
     /// frame brings none.
     pub fn new(model: Model, settings: SessionSettings, camera: Option<Camera>) -> Self {
         let u = vec![0.0; model.problem.dofs()];
-        let model_newton = model.newton;
-        // One averaging of the surface normals for every stage (cold, warm, coarse, recovery).
-        let normals = settings
-            .cold
-            .normal_scale
-            .build(&model.surface.vertices, &model.surface.triangles)
-            .map(std::sync::Arc::new);
-        let surface_topology = std::sync::Arc::new(SurfaceTopology::new(
-            model.surface.vertices.len(),
-            &model.surface.triangles,
-        ));
         Self {
-            non_rigid_cold: NonRigidIcp::new(settings.cold, model.newton)
-                .with_normals(normals.clone()),
-            non_rigid_warm: NonRigidIcp::new(settings.warm, model.newton)
-                .with_normals(normals.clone()),
-            normals,
-            model,
-            settings,
-            scene_camera: camera,
+            pose: PoseTracker::new(camera),
+            change: ChangeTests::default(),
+            non_rigid: NonRigidStage::new(&model, &settings),
+            contact: ContactForceEstimator::new(model.newton),
+            surfaces: ModelSurfaces::new(&model),
             good: GoodState::at_rest(u),
             frames: 0,
-            coarse: None,
-            rigid_target: None,
-            still: StillWindow::default(),
-            rest_surface: std::sync::OnceLock::new(),
-            surface_topology,
-            good_surface: std::sync::OnceLock::new(),
-            rest_compliance: None,
-            fitted_pose_uncertainty: None,
-            refit_solver: NewtonSolver::new(NewtonSettings {
-                step_stabilization: 0.0,
-                mixed_precision: false,
-                ..model_newton
-            }),
+            model,
+            settings,
         }
     }
 
@@ -265,13 +171,9 @@ impl Session {
     /// registered cold.
     pub fn reset(&mut self) {
         self.good = GoodState::at_rest(vec![0.0; self.model.problem.dofs()]);
-        self.good_surface = std::sync::OnceLock::new();
-        self.non_rigid_cold.invalidate();
-        self.non_rigid_warm.invalidate();
-        self.still.clear();
-        if let Some(c) = &mut self.coarse {
-            c.icp.invalidate();
-        }
+        self.surfaces.forget_good();
+        self.non_rigid.reset();
+        self.change.clear();
     }
 
     /// Frames seen so far (including rejected ones).
@@ -325,28 +227,33 @@ impl Session {
         )
     }
 
-    /// One frame through the named stages: [`Session::prepare_cloud`] (checks, thinning,
-    /// isolated points), [`Session::rigid_stage`] (the pose), [`Session::non_rigid_stage`]
-    /// (coarse start, the registration, the recovery ladder), then the gate on the registered
-    /// fit.
+    /// One frame through the named stages: [`prepare_cloud`](cloud_preparation::prepare_cloud)
+    /// (checks, thinning, isolated points), the pose
+    /// ([`PoseTracker::rigid_stage`](pose_tracker::PoseTracker::rigid_stage)), then, with the
+    /// non-rigid stage on, the shape ([`Session::register_shape`]).
     fn try_register(
         &mut self,
         frame: &Frame,
         start: Instant,
         times: &mut StageTimes,
         flags: &mut Vec<FrameFlag>,
-    ) -> Result<Done, FrameError> {
+    ) -> Result<FrameSuccess, FrameError> {
         let t = Instant::now();
-        let scale = self.model.length_scale;
-        let cloud = self.prepare_cloud(frame, flags)?;
+        let cloud = prepare_cloud(frame, &self.settings, self.model.length_scale, flags)?;
         times.prepare_ms = ms(t);
 
         let t = Instant::now();
-        let (model_to_cloud, rigid_iterations) = self.rigid_stage(&cloud, flags)?;
+        let view = SessionView {
+            model: &self.model,
+            settings: &self.settings,
+            good: &self.good,
+            surfaces: &self.surfaces,
+        };
+        let (model_to_cloud, rigid_iterations) = self.pose.rigid_stage(&view, &cloud, flags)?;
         times.rigid_ms = ms(t);
 
         if !self.settings.non_rigid {
-            return Ok(Done::without_non_rigid(
+            return Ok(FrameSuccess::without_non_rigid(
                 self.good.u.clone(),
                 model_to_cloud,
                 rigid_iterations,
@@ -355,84 +262,101 @@ impl Session {
                 None,
             ));
         }
+        self.register_shape(
+            frame,
+            start,
+            cloud,
+            (model_to_cloud, rigid_iterations),
+            times,
+            flags,
+        )
+    }
 
+    /// The shape of a frame whose `cloud` (metres, cloud frame) the pose stage placed
+    /// (`pose`: the model → cloud transform and its rigid iterations), through the named
+    /// stages: what changed ([`ChangeTests`]: a cloud the rest shape explains ends here, the
+    /// still window gives the data), the non-rigid registration
+    /// ([`Session::non_rigid_stage`]), the contact refit ([`ContactForceEstimator::refit`]),
+    /// the check of a re-acquired pose ([`Session::check_reacquisition`]), the gate on the
+    /// registered fit ([`Session::fit_gate`]), and the contact force
+    /// ([`ContactForceEstimator::frame_force`]).
+    fn register_shape(
+        &mut self,
+        frame: &Frame,
+        start: Instant,
+        cloud: Vec<Point3<f64>>,
+        pose: (RigidTransform, usize),
+        times: &mut StageTimes,
+        flags: &mut Vec<FrameFlag>,
+    ) -> Result<FrameSuccess, FrameError> {
+        let (model_to_cloud, rigid_iterations) = pose;
+        let view = SessionView {
+            model: &self.model,
+            settings: &self.settings,
+            good: &self.good,
+            surfaces: &self.surfaces,
+        };
         // Non-rigid stage in the model frame.
         let cloud_to_model = model_to_cloud.inverse();
         let aligned: Vec<Point3<f64>> = cloud.iter().map(|p| cloud_to_model.apply(p)).collect();
         let t = Instant::now();
         let noise = CloudNoise::measure(&aligned, self.settings.rest_test.as_ref());
-        let at_rest = self.rest_shape_if_unchanged(&aligned, noise.as_ref(), flags);
+        let at_rest = self
+            .change
+            .rest_shape_if_unchanged(&view, &aligned, noise.as_ref(), flags);
         times.change_ms = ms(t);
         if let Some((u, fit, force)) = at_rest {
-            return Ok(Done {
+            // The solvers' warm state belongs to the shape left behind.
+            self.non_rigid.invalidate();
+            return Ok(FrameSuccess {
                 noise: noise.as_ref().map_or(0.0, |n| n.sigma),
-                ..Done::without_non_rigid(u, model_to_cloud, rigid_iterations, cloud, fit, force)
+                ..FrameSuccess::without_non_rigid(
+                    u,
+                    model_to_cloud,
+                    rigid_iterations,
+                    cloud,
+                    fit,
+                    force,
+                )
             });
         }
-        let camera = match &frame.camera {
-            Some(c) => Some(camera_to_model(c, scale, &cloud_to_model)?),
-            None => self.scene_camera,
-        };
+        let camera = self.pose.camera(
+            frame.camera.as_ref(),
+            self.model.length_scale,
+            &cloud_to_model,
+        )?;
         let deadline = self
             .settings
             .time_budget_ms
             .map(|b| start + Duration::from_secs_f64(b.max(0.0) * 1e-3));
         let t = Instant::now();
-        let (still, data) = self.still_frames(&aligned, frame.camera, noise.as_ref(), flags);
+        let (still, data) =
+            self.change
+                .still_frames(&view, &aligned, frame.camera, noise.as_ref(), flags);
         times.change_ms += ms(t);
-        let (u, report, spent) = self.non_rigid_stage(&data, camera.as_ref(), deadline, flags)?;
-        times.visibility_ms = spent.visibility_ms;
-        times.pairing_ms = spent.pairing_ms;
-        times.newton_ms = spent.newton_ms;
-        if !all_finite(&u) {
-            self.non_rigid_cold.invalidate();
-            self.non_rigid_warm.invalidate();
-            return Err(FrameError::NonFiniteState);
-        }
+        let (u, report) = self.non_rigid_stage(&data, camera.as_ref(), deadline, times, flags)?;
         let t = Instant::now();
-        let (u, refit_force) = self.contact_refit(&data, u, report.data_term.as_ref(), flags);
+        let (u, refit_force) = self.contact.refit(
+            &mut self.model,
+            &self.settings,
+            &self.surfaces,
+            &data,
+            u,
+            report.data_term.as_ref(),
+            flags,
+        );
         times.refit_ms = ms(t);
         if report.deadline_reached {
             flags.push(FrameFlag::TimeBudget);
         }
-        // A re-acquired pose must not need a new shape: measured on the phantom, a right
-        // re-acquisition changes the surface by 0.2 mm RMS, ordinary frames by 0.8–1.6 mm,
-        // and a 109° wrong minimum of rigid ICP by 25 mm
-        // (`tests/registration/bad_frames.rs`).
-        if flags.contains(&FrameFlag::PoseReacquired) {
-            let change = self.surface_change_rms(&u);
-            if change > self.settings.pose_reacquire_rms {
-                return Err(FrameError::ImplausibleReacquisition {
-                    change_mm: change * 1e3,
-                    limit_mm: self.settings.pose_reacquire_rms * 1e3,
-                });
-            }
-        }
-        // The gate on what the frame is: does the cloud lie on the registered surface?
+        self.check_reacquisition(&u, flags)?;
+        let (surface, fit) = self.fit_gate(&u, &aligned, times)?;
         let t = Instant::now();
-        let surface = deformed_surface(&self.model, &self.surface_topology, &u);
-        let fit = surface
-            .as_ref()
-            .map_or(f64::INFINITY, |s| s.fit_rms(&aligned));
-        times.gate_ms = ms(t);
-        if fit > self.settings.max_rigid_rms {
-            return Err(FrameError::NoFit {
-                rms_mm: fit * 1e3,
-                limit_mm: self.settings.max_rigid_rms * 1e3,
-            });
-        }
-        let t = Instant::now();
-        // The rest compliance is linear in the load, exact for the linear law; for the other
-        // laws a kept contact refit gives the load through the model's own law.
-        let contact_force = match refit_force {
-            Some(force) if !self.model.problem.material.is_linear() => Some(force),
-            _ => report
-                .data_term
-                .as_ref()
-                .and_then(|springs| self.contact_force(springs, &u)),
-        };
+        let contact_force =
+            self.contact
+                .frame_force(&mut self.model, refit_force, report.data_term.as_ref(), &u);
         times.force_ms = ms(t);
-        Ok(Done {
+        Ok(FrameSuccess {
             u,
             model_to_cloud,
             converged: report.converged,
@@ -453,257 +377,189 @@ impl Session {
         })
     }
 
-    /// The contact force the data term `springs` of the registered state `u` (m) imply
-    /// ([`RestCompliance::fit`]); the model's rest compliance is factorised on first use.
-    fn contact_force(&mut self, springs: &PenaltySprings, u: &[f64]) -> Option<ContactForce> {
-        let compliance = self
-            .rest_compliance
-            .get_or_insert_with(|| {
-                RestCompliance::new(
-                    &mut self.model.problem,
-                    self.model.newton.linear_solver,
-                    &self.model.point_holds,
-                )
-            })
-            .as_mut()
-            .ok()?;
-        compliance.fit(&self.model.problem, &self.model.surface, springs, u)
-    }
-
-    /// Input checks (empty, non-finite: rejected), thinning to `max_cloud_points` (flag
-    /// `decimated`) and isolated-point removal (flag `isolated_removed`): the cloud in metres,
-    /// cloud frame.
-    fn prepare_cloud(
-        &self,
-        frame: &Frame,
-        flags: &mut Vec<FrameFlag>,
-    ) -> Result<Vec<Point3<f64>>, FrameError> {
-        let scale = self.model.length_scale;
-        if frame.points.is_empty() {
-            return Err(FrameError::Empty);
-        }
-        if let Some(index) = crate::mesh::first_non_finite_point(&frame.points) {
-            let p = frame.points[index];
-            return Err(FrameError::NonFinite {
-                index,
-                x: p.x,
-                y: p.y,
-                z: p.z,
-            });
-        }
-        let stride = frame
-            .points
-            .len()
-            .div_ceil(self.settings.max_cloud_points.max(3));
-        if stride > 1 {
-            flags.push(FrameFlag::Decimated);
-        }
-        let cloud: Vec<Point3<f64>> = frame
-            .points
-            .iter()
-            .step_by(stride)
-            .map(|p| p * scale)
-            .collect();
-        let cloud = if self.settings.remove_isolated_points {
-            let (kept, removed) = without_isolated_points(cloud);
-            if removed > 0 {
-                flags.push(FrameFlag::IsolatedRemoved);
-            }
-            kept
-        } else {
-            cloud
-        };
-        if cloud.len() < 3 {
-            return Err(FrameError::Rigid(format!(
-                "{} points; at least 3 are needed",
-                cloud.len()
-            )));
-        }
-        Ok(cloud)
-    }
-
-    /// RMS distance (m) between the surface vertices at displacement `u` and at the last good
-    /// state's.
-    fn surface_change_rms(&self, u: &[f64]) -> f64 {
-        let now = self.model.surface_embedding.positions(u);
-        let last = self.model.surface_embedding.positions(&self.good.u);
-        let sum: f64 = now
-            .iter()
-            .zip(&last)
-            .map(|(p, q)| (p - q).norm_squared())
-            .sum();
-        (sum / now.len().max(1) as f64).sqrt()
-    }
-
-    /// The non-rigid stage of a frame (`data`: the clouds of the still window, model frame,
-    /// metres, with their springs' weight): the coarse-to-fine start of a cold frame, the
-    /// registration from the last good state, and the recovery ladder when the solver failed
-    /// (flags `coarse_start`, `recovered:…`, `recovery_failed`). Returns the displacement, the
-    /// report and the time spent by stage.
+    /// The non-rigid stage ([`NonRigidStage::register`]) of the still window's `data` seen by
+    /// `camera`, stopped at `deadline`, from the last good state, its time by stage into
+    /// `times`: the displacement (m) and the report; `non-finite-state` when the displacement
+    /// is not finite.
     fn non_rigid_stage(
         &mut self,
         data: &StillData,
         camera: Option<&Camera>,
         deadline: Option<Instant>,
+        times: &mut StageTimes,
         flags: &mut Vec<FrameFlag>,
-    ) -> Result<(Vec<f64>, NonRigidReport, NonRigidTimings), FrameError> {
-        let aligned = &data.points[..];
-        let warm = self.good.registered;
-        let mut settings = if warm {
-            self.settings.warm
-        } else {
-            self.settings.cold
-        };
-        settings.data_weight = data.weight;
-        settings.cloud_noise = data.noise;
-        // Coarse-to-fine start of a cold frame: the coarse registration's field, prolongated,
-        // is the fine stage's start, which then needs only the stiff end of the ramp.
-        let mut start_u = None;
-        let mut coarse_counts = (0, 0, 0);
-        let mut spent = NonRigidTimings::default();
-        if !warm {
-            if let Some(c) = &mut self.coarse {
-                let mut uc = vec![0.0; c.model.problem.dofs()];
-                c.icp.settings = NonRigidSettings {
-                    cloud_noise: data.noise,
-                    ..self.settings.cold
-                };
-                if let Ok(r) = c
-                    .icp
-                    .register(&mut c.model, aligned, camera, &mut uc, deadline)
-                {
-                    add_timings(&mut spent, &r.timings);
-                    if r.warnings.is_empty() && all_finite(&uc) {
-                        start_u = Some(c.prolongation.apply(&uc));
-                        settings.penalty_steps = 1;
-                        coarse_counts = (r.icp_iterations, r.newton_iterations, r.factorizations);
-                        flags.push(FrameFlag::CoarseStart);
-                    }
-                } else {
-                    c.icp.invalidate();
-                }
-            }
-        }
-        let (u, mut report) =
-            self.non_rigid_attempt(warm, settings, start_u, aligned, camera, deadline)?;
-        report.icp_iterations += coarse_counts.0;
-        report.newton_iterations += coarse_counts.1;
-        report.factorizations += coarse_counts.2;
-        add_timings(&mut spent, &report.timings);
-        if self.settings.recovery && (solver_failed(&report) || !all_finite(&u)) {
-            // The stage's kept factorisation and visible set are those of a failed attempt.
-            self.icp(warm).invalidate();
-            let (u, report) = self.recover(u, report, data, camera, deadline, &mut spent, flags)?;
-            return Ok((u, report, spent));
-        }
-        Ok((u, report, spent))
-    }
-}
-
-impl Session {
-    /// The non-rigid stage of warm frames (`warm`) or of cold ones.
-    fn icp(&mut self, warm: bool) -> &mut NonRigidIcp {
-        if warm {
-            &mut self.non_rigid_warm
-        } else {
-            &mut self.non_rigid_cold
-        }
-    }
-
-    /// One non-rigid attempt from `start` (default: the last good state) with `settings`
-    /// (the warm stage's solver when `warm`, else the cold one's). Returns the new
-    /// displacement and the report.
-    fn non_rigid_attempt(
-        &mut self,
-        warm: bool,
-        settings: NonRigidSettings,
-        start: Option<Vec<f64>>,
-        aligned: &[Point3<f64>],
-        camera: Option<&Camera>,
-        deadline: Option<Instant>,
     ) -> Result<(Vec<f64>, NonRigidReport), FrameError> {
-        let mut u = start.unwrap_or_else(|| self.good.u.clone());
-        let icp = if warm {
-            &mut self.non_rigid_warm
-        } else {
-            &mut self.non_rigid_cold
-        };
-        // The data term's weight changes as the still window fills and empties, and with
-        // each cloud's noise; the kept factorisation, a modified-Newton approximation of the
-        // tangent anyway, stays.
-        let same_but_weight = NonRigidSettings {
-            data_weight: settings.data_weight,
-            cloud_noise: settings.cloud_noise,
-            ..icp.settings
-        } == settings;
-        if !same_but_weight {
-            icp.invalidate();
-        }
-        icp.settings = settings;
-        let report = icp.register(&mut self.model, aligned, camera, &mut u, deadline);
+        let (u, report, spent) = self.non_rigid.register(
+            &mut self.model,
+            &self.settings,
+            &self.good.u,
+            self.good.registered,
+            data,
+            camera,
+            deadline,
+            flags,
+        )?;
+        times.visibility_ms = spent.visibility_ms;
+        times.pairing_ms = spent.pairing_ms;
+        times.newton_ms = spent.newton_ms;
         if !all_finite(&u) {
-            icp.invalidate();
+            self.non_rigid.invalidate();
+            return Err(FrameError::NonFiniteState);
         }
-        let report = report.map_err(|e| FrameError::NonRigid(e.to_string()))?;
         Ok((u, report))
     }
 
-    /// The last good state's deformed surface index ([`Session::good_surface`]'s cache);
-    /// `None` for an empty surface.
-    fn good_surface(&self) -> Option<&SurfaceDistances> {
-        self.good_surface
-            .get_or_init(|| deformed_surface(&self.model, &self.surface_topology, &self.good.u))
+    /// The gate on what the frame is: does the cloud `aligned` (model frame, m) lie on the
+    /// surface registered at `u` (m)? The surface and the cloud's fit RMS (m, after the mean +
+    /// 2σ outlier rule) when the fit is within [`SessionSettings::max_rigid_rms`], `no-fit`
+    /// otherwise; its time into `times`.
+    fn fit_gate(
+        &self,
+        u: &[f64],
+        aligned: &[Point3<f64>],
+        times: &mut StageTimes,
+    ) -> Result<(Option<SurfaceDistances>, f64), FrameError> {
+        let t = Instant::now();
+        let surface = self.surfaces.deformed(&self.model, u);
+        let fit = surface
             .as_ref()
+            .map_or(f64::INFINITY, |s| s.fit_rms(aligned));
+        times.gate_ms = ms(t);
+        if fit > self.settings.max_rigid_rms {
+            return Err(FrameError::NoFit {
+                rms_mm: fit * 1e3,
+                limit_mm: self.settings.max_rigid_rms * 1e3,
+            });
+        }
+        Ok((surface, fit))
+    }
+
+    /// A re-acquired pose (flag `pose_reacquired`) must not need a new shape: the frame's
+    /// registered displacement `u` (m) may move the surface from the last good state's by at
+    /// most [`SessionSettings::pose_reacquire_rms`] (RMS). Measured on the phantom, a right
+    /// re-acquisition changes the surface by 0.2 mm RMS, ordinary frames by 0.8–1.6 mm, and a
+    /// 109° wrong minimum of rigid ICP by 25 mm (`tests/registration/bad_frames.rs`).
+    fn check_reacquisition(&self, u: &[f64], flags: &[FrameFlag]) -> Result<(), FrameError> {
+        if flags.contains(&FrameFlag::PoseReacquired) {
+            let change = self.good.surface_change_rms(&self.model, u);
+            if change > self.settings.pose_reacquire_rms {
+                return Err(FrameError::ImplausibleReacquisition {
+                    change_mm: change * 1e3,
+                    limit_mm: self.settings.pose_reacquire_rms * 1e3,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// The result of frame `source` (`received` points, started at `start`, with its stage
+    /// `times` and `flags`) from its `outcome`: a success becomes the session's good state
+    /// ([`Session::accept`]); a failure leaves the state as it was, flagged `failed` with its
+    /// cause. Either way the result carries the good state's positions.
+    fn finish(
+        &mut self,
+        source: &str,
+        received: usize,
+        start: Instant,
+        times: StageTimes,
+        flags: Vec<FrameFlag>,
+        outcome: Result<FrameSuccess, FrameError>,
+    ) -> FrameResult {
+        let index = self.frames;
+        self.frames += 1;
+        let warm = self.good.registered;
+        let t = Instant::now();
+        let scale = self.model.length_scale;
+        let mut result = FrameResult {
+            frame: index,
+            source: source.to_string(),
+            wall_ms: 0.0,
+            converged: false,
+            model_to_cloud: self.good.model_to_cloud,
+            rigid_iterations: 0,
+            icp_iterations: 0,
+            newton_iterations: 0,
+            factorizations: 0,
+            surface_rms: 0.0,
+            cloud_points: (received, 0),
+            sources: 0,
+            warm,
+            flags,
+            warnings: Vec::new(),
+            error: None,
+            surface: Vec::new(),
+            structures: Vec::new(),
+            times,
+            contact_force: None,
+            pose_uncertainty: None,
+            expected_error: self.good.expected_error.map(|e| scaled_estimate(&e, scale)),
+        };
+        match outcome {
+            Ok(done) => self.accept(done, &mut result),
+            Err(e) => {
+                result.flags.push(FrameFlag::Failed);
+                result.error = Some(e);
+            }
+        }
+        self.good.write_positions(&self.model, &mut result);
+        result.times.output_ms = ms(t);
+        result.wall_ms = ms(start);
+        result
+    }
+
+    /// A frame that succeeded: its pose flags and uncertainty, its expected error, and its
+    /// state as the session's new good state, written into `result`.
+    fn accept(&mut self, done: FrameSuccess, result: &mut FrameResult) {
+        let scale = self.model.length_scale;
+        let held = self.good.registered && done.model_to_cloud == self.good.model_to_cloud;
+        let (pose_ambiguous, pose_uncertainty) =
+            self.pose
+                .pose_flags(&self.settings, scale, &self.good, held, result);
+        let estimate = done.error_estimate(&self.model, pose_uncertainty);
+        if estimate.expected > self.settings.max_expected_error {
+            result.flags.push(FrameFlag::ExpectedErrorHigh);
+        }
+        result.expected_error = Some(scaled_estimate(&estimate, scale));
+        if let Some(surface) = done.surface {
+            self.surfaces.keep_good(surface);
+        } else if done.u != self.good.u {
+            self.surfaces.forget_good();
+        }
+        self.good = GoodState {
+            u: done.u,
+            model_to_cloud: done.model_to_cloud,
+            registered: true,
+            cloud: Some(done.cloud),
+            contact_force: done.contact_force,
+            pose_ambiguous,
+            pose_uncertainty,
+            expected_error: Some(estimate),
+        };
+        self.change.keep(done.still);
+        result.model_to_cloud = done.model_to_cloud;
+        result.converged = done.converged;
+        result.rigid_iterations = done.rigid_iterations;
+        result.icp_iterations = done.icp_iterations;
+        result.newton_iterations = done.newton_iterations;
+        result.factorizations = done.factorizations;
+        result.surface_rms = done.surface_rms / scale;
+        result.cloud_points.1 = done.used_points;
+        result.sources = done.sources;
+        result.warnings = done.warnings;
+        if !done.converged && !result.flags.contains(&FrameFlag::TimeBudget) {
+            result.flags.push(FrameFlag::IcpNotConverged);
+        }
     }
 }
 
-/// `cloud` without its isolated points ([`isolated_mask`] with the module's constants), and
-/// how many were removed.
-fn without_isolated_points(cloud: Vec<Point3<f64>>) -> (Vec<Point3<f64>>, usize) {
-    let n = cloud.len();
-    let Some(indexed) = IndexedPoints::new(cloud.clone()) else {
-        return (cloud, 0);
-    };
-    let mask = isolated_mask(
-        &indexed,
-        ISOLATION_NEIGHBOURS,
-        ISOLATION_SIGMA,
-        ISOLATION_MEDIAN_FACTOR,
-    );
-    let kept: Vec<Point3<f64>> = cloud
-        .into_iter()
-        .zip(&mask)
-        .filter(|(_, &m)| !m)
-        .map(|(p, _)| p)
-        .collect();
-    let removed = n - kept.len();
-    (kept, removed)
-}
-
-fn all_finite(u: &[f64]) -> bool {
-    u.iter().all(|v| v.is_finite())
-}
-
-fn add_timings(a: &mut NonRigidTimings, b: &NonRigidTimings) {
-    a.visibility_ms += b.visibility_ms;
-    a.pairing_ms += b.pairing_ms;
-    a.newton_ms += b.newton_ms;
-}
-
-/// The frame's camera (cloud frame, scene units) moved into the model frame, metres.
-fn camera_to_model(
-    c: &Camera,
-    scale: f64,
-    cloud_to_model: &RigidTransform,
-) -> Result<Camera, FrameError> {
-    let cam = Camera::new(
-        cloud_to_model.apply(&(c.position * scale)),
-        cloud_to_model.apply(&(c.look_at * scale)),
-        cloud_to_model.apply_vector(&c.up),
-        c.fov_deg,
-    )
-    .map_err(|e| FrameError::Rigid(format!("camera: {e}")))?;
-    Ok(cam)
+/// `e` (m) in scene units (`scale`: metres per scene unit).
+fn scaled_estimate(e: &ErrorEstimate, scale: f64) -> ErrorEstimate {
+    ErrorEstimate {
+        expected: e.expected / scale,
+        pose: e.pose / scale,
+        unseen: e.unseen / scale,
+        residual: e.residual / scale,
+    }
 }
 
 fn ms(t: Instant) -> f64 {

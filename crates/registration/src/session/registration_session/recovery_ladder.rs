@@ -1,61 +1,77 @@
 //! The recovery ladder: a frame whose solver failed is registered again with gentler
-//! settings before it is given up (docs/registration.md, step 8).
+//! settings before it is given up (docs/registration.md, step 8): its rungs
+//! ([`RecoveryRung`], [`recovery_ladder`]) and the climb ([`recover`]).
 
-use super::*;
+use std::sync::Arc;
+use std::time::Instant;
 
-impl Session {
-    /// The recovery ladder ([`recovery_ladder`]) after a first attempt that ended with
-    /// `first_u` and `first` (a solver failure or a non-finite state): each rung registers
-    /// the frame again from the last good state, with the scene's own material law, until one
-    /// ends without a solver failure and with a finite state (flag `recovered:<rung>`; the
-    /// first attempt's warnings are kept, prefixed [`BEFORE_RECOVERY`]). When none does, or
-    /// the deadline passes first, the first attempt stands, flagged `recovery_failed`, with
-    /// its warnings (the causes).
-    #[allow(clippy::too_many_arguments)]
-    pub(super) fn recover(
-        &mut self,
-        first_u: Vec<f64>,
-        first: NonRigidReport,
-        data: &StillData,
-        camera: Option<&Camera>,
-        deadline: Option<Instant>,
-        spent: &mut NonRigidTimings,
-        flags: &mut Vec<FrameFlag>,
-    ) -> Result<(Vec<f64>, NonRigidReport), FrameError> {
-        for rung in recovery_ladder(&self.settings.cold, &self.model.newton) {
-            if deadline.is_some_and(|d| Instant::now() >= d) {
-                break;
-            }
-            let settings = NonRigidSettings {
-                data_weight: data.weight,
-                cloud_noise: data.noise,
-                ..rung.settings
-            };
-            let mut icp =
-                NonRigidIcp::new(settings, rung.newton).with_normals(self.normals.clone());
-            let mut u = self.good.u.clone();
-            let r = icp
-                .register(&mut self.model, &data.points, camera, &mut u, deadline)
-                .map_err(|e| FrameError::NonRigid(e.to_string()))?;
-            add_timings(spent, &r.timings);
-            if !solver_failed(&r) && all_finite(&u) {
-                flags.push(FrameFlag::Recovered(rung.name));
-                let mut r = r;
-                r.warnings = first
-                    .warnings
-                    .iter()
-                    .map(|w| format!("{BEFORE_RECOVERY}{w}"))
-                    .chain(r.warnings)
-                    .collect();
-                r.icp_iterations += first.icp_iterations;
-                r.newton_iterations += first.newton_iterations;
-                r.factorizations += first.factorizations;
-                return Ok((u, r));
-            }
+use super::super::frame::FrameError;
+use super::super::frame_flag::FrameFlag;
+use super::non_rigid_stage::{add_timings, all_finite};
+use super::still_data::StillData;
+use crate::geometry::Camera;
+use crate::linalg::SolverKind;
+use crate::mechanics::NewtonSettings;
+use crate::model::Model;
+use crate::registration::non_rigid_icp::{NonRigidReport, NonRigidTimings};
+use crate::registration::surface_normals::NormalsAtScale;
+use crate::registration::{NonRigidIcp, NonRigidSettings};
+
+/// The recovery ladder ([`recovery_ladder`] of the `cold` settings and `model`'s solver) after
+/// a first attempt that ended with the displacement and report `first` (a solver failure or a
+/// non-finite state): each rung registers the frame's `data` (seen by `camera`) on `model`
+/// again from the last good displacement `good_u` (m), with the scene's own material law and
+/// the shared surface `normals`, until one ends without a solver failure and with a finite
+/// state (flag `recovered:<rung>`; the first attempt's warnings are kept, prefixed
+/// [`BEFORE_RECOVERY`]). When none does, or the `deadline` passes first, the first attempt
+/// stands, flagged `recovery_failed`, with its warnings (the causes). The rungs' time is added
+/// to `spent`.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn recover(
+    model: &mut Model,
+    cold: &NonRigidSettings,
+    normals: Option<Arc<NormalsAtScale>>,
+    good_u: &[f64],
+    first: (Vec<f64>, NonRigidReport),
+    data: &StillData,
+    camera: Option<&Camera>,
+    deadline: Option<Instant>,
+    spent: &mut NonRigidTimings,
+    flags: &mut Vec<FrameFlag>,
+) -> Result<(Vec<f64>, NonRigidReport), FrameError> {
+    let (first_u, first) = first;
+    for rung in recovery_ladder(cold, &model.newton) {
+        if deadline.is_some_and(|d| Instant::now() >= d) {
+            break;
         }
-        flags.push(FrameFlag::RecoveryFailed);
-        Ok((first_u, first))
+        let settings = NonRigidSettings {
+            data_weight: data.weight,
+            cloud_noise: data.noise,
+            ..rung.settings
+        };
+        let mut icp = NonRigidIcp::new(settings, rung.newton).with_normals(normals.clone());
+        let mut u = good_u.to_vec();
+        let r = icp
+            .register(model, &data.points, camera, &mut u, deadline)
+            .map_err(|e| FrameError::NonRigid(e.to_string()))?;
+        add_timings(spent, &r.timings);
+        if !solver_failed(&r) && all_finite(&u) {
+            flags.push(FrameFlag::Recovered(rung.name));
+            let mut r = r;
+            r.warnings = first
+                .warnings
+                .iter()
+                .map(|w| format!("{BEFORE_RECOVERY}{w}"))
+                .chain(r.warnings)
+                .collect();
+            r.icp_iterations += first.icp_iterations;
+            r.newton_iterations += first.newton_iterations;
+            r.factorizations += first.factorizations;
+            return Ok((u, r));
+        }
     }
+    flags.push(FrameFlag::RecoveryFailed);
+    Ok((first_u, first))
 }
 
 /// Prefix of the warnings of a failed attempt that a recovery then rescued.
