@@ -809,8 +809,8 @@ struct TruthFrame {
 /// outliers, the visible share, the camera offset, the seed) share one truth solve.
 #[derive(Debug, Clone)]
 pub struct SolvedTruth {
-    /// The specification the truth was solved for (its `cloud` is the default of
-    /// [`SolvedTruth::sequence`]'s callers, not used by the truth).
+    /// The specification the truth was solved for; [`SolvedTruth::sequence`] replaces its
+    /// `cloud`, which the truth does not use.
     spec: SequenceSpec,
     /// The scene's camera, model frame.
     camera: Camera,
@@ -911,11 +911,6 @@ pub fn solve_truth(scene: &LoadedScene, spec: &SequenceSpec) -> Result<SolvedTru
 }
 
 impl SolvedTruth {
-    /// The specification the truth was solved for.
-    pub fn spec(&self) -> &SequenceSpec {
-        &self.spec
-    }
-
     /// The sequence of this truth seen with the clouds of `cloud`: for each frame the cloud
     /// the scene's camera sees of the true surface, with the frame's seed
     /// ([`frame_seed`]`(cloud.seed, k)`) and the cloud's rigid offset; the truth moved into

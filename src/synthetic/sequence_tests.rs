@@ -178,6 +178,22 @@ fn truth_differs_from_the_registration_models_own_solution() {
     assert!(max_diff < 0.5 * last.max_displacement);
 }
 
+/// `a` and `b` are the same sequence, bit for bit: every frame's cloud, outlier marks, truth
+/// and load, and the camera and its pose (the truth solve's wall times aside).
+fn assert_same_sequence(a: &SyntheticSequence, b: &SyntheticSequence) {
+    assert_eq!(a.frames.len(), b.frames.len());
+    for (a, b) in a.frames.iter().zip(&b.frames) {
+        assert_eq!(a.cloud, b.cloud);
+        assert_eq!(a.is_outlier, b.is_outlier);
+        assert_eq!(a.truth_surface, b.truth_surface);
+        assert_eq!(a.truth_structures, b.truth_structures);
+        assert_eq!(a.max_displacement, b.max_displacement);
+        assert_eq!(a.load_fraction, b.load_fraction);
+    }
+    assert_eq!(a.camera, b.camera);
+    assert_eq!(a.model_to_camera, b.model_to_camera);
+}
+
 /// A truth solved once and seen with another cloud is the sequence generated from scratch with
 /// that cloud, bit for bit; the truth does not depend on the cloud, the clouds do.
 #[test]
@@ -192,15 +208,7 @@ fn a_shared_truth_seen_with_another_cloud_is_that_clouds_sequence() {
     let shared_truth = truth.sequence(&other.cloud).unwrap();
     let from_scratch = generate_sequence(phantom(), &other).unwrap();
     assert_eq!(shared_truth.spec, other);
-    assert_eq!(shared_truth.frames.len(), from_scratch.frames.len());
-    for (a, b) in shared_truth.frames.iter().zip(&from_scratch.frames) {
-        assert_eq!(a.cloud, b.cloud);
-        assert_eq!(a.is_outlier, b.is_outlier);
-        assert_eq!(a.truth_surface, b.truth_surface);
-        assert_eq!(a.truth_structures, b.truth_structures);
-        assert_eq!(a.max_displacement, b.max_displacement);
-    }
-    assert_eq!(shared_truth.camera, from_scratch.camera);
+    assert_same_sequence(&shared_truth, &from_scratch);
     // The other cloud is another cloud: more outliers, no noise on the inliers.
     let (a, b) = (&shared_truth.frames[3], &seq.frames[3]);
     assert_ne!(a.cloud, b.cloud);
@@ -215,24 +223,15 @@ fn a_shared_truth_seen_with_another_cloud_is_that_clouds_sequence() {
     // A cloud out of range is refused, naming what is wrong.
     let mut bad = other.cloud;
     bad.outlier_fraction = 1.5;
-    assert!(truth.sequence(&bad).is_err());
+    let e = truth.sequence(&bad).unwrap_err().to_string();
+    assert!(e.contains("outlier"), "{e}");
 }
 
 #[test]
 fn generation_is_deterministic() {
     let seq = shared();
     let again = generate_sequence(phantom(), &seq.spec).unwrap();
-    assert_eq!(again.frames.len(), seq.frames.len());
-    for (a, b) in seq.frames.iter().zip(&again.frames) {
-        assert_eq!(a.cloud, b.cloud);
-        assert_eq!(a.is_outlier, b.is_outlier);
-        assert_eq!(a.truth_surface, b.truth_surface);
-        assert_eq!(a.truth_structures, b.truth_structures);
-        assert_eq!(a.max_displacement, b.max_displacement);
-        assert_eq!(a.load_fraction, b.load_fraction);
-    }
-    assert_eq!(seq.camera, again.camera);
-    assert_eq!(seq.model_to_camera, again.model_to_camera);
+    assert_same_sequence(seq, &again);
     // Every frame has its own noise and outliers.
     for w in seq.frames.windows(2) {
         assert_ne!(w[0].cloud, w[1].cloud);
