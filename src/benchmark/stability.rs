@@ -547,6 +547,8 @@ fn with_clouds(
         .map_err(|e| format!("truth: {e}"))
 }
 
+/// `method` with the model axis `axis` set to `value` (grid offset in cells, Poisson's
+/// ratio, penalty factor); unchanged for an axis that changes the data.
 fn method_config(method: &ModelConfig, axis: Axis, value: f64) -> ModelConfig {
     match axis {
         Axis::GridOffset => ModelConfig {
