@@ -272,6 +272,38 @@ fn background_refactorisation_reaches_plain_newtons_equilibrium_deterministicall
 }
 
 #[test]
+fn a_factorisation_budget_stops_the_solve_at_its_last_iterate() {
+    let mut p = column(60.0);
+    let (reference, scale) = equilibrium(&mut p);
+    let plain = || NewtonSolver::new(NewtonSettings::default());
+    let rest = vec![0.0; p.dofs()];
+
+    // Plain Newton refactorises every step: a budget of two stops it after two steps, where
+    // an iteration cap of two stops it too, at the same state bit for bit.
+    let mut budgeted = plain();
+    budgeted.set_factorization_budget(Some(2));
+    let mut u = rest.clone();
+    let report = budgeted.improve(&mut p, &[], &mut u, 20);
+    assert!(report.budget_spent && !report.converged, "{report:?}");
+    assert!(report.failure.is_none(), "{:?}", report.failure);
+    assert_eq!((report.iterations, budgeted.factorizations()), (2, 2));
+    let mut capped = rest.clone();
+    let cap = plain().improve(&mut p, &[], &mut capped, 2);
+    assert!(!cap.budget_spent && !cap.converged, "{cap:?}");
+    assert!(u == capped, "the budget's last iterate is the capped solve's");
+    assert!(
+        relative_distance(&u, &reference, scale) > 1e-3,
+        "two steps are short of the equilibrium: the budget bit"
+    );
+
+    // Lifted, the same solver goes on from there to the equilibrium.
+    budgeted.set_factorization_budget(None);
+    let report = budgeted.improve(&mut p, &[], &mut u, 20);
+    assert!(report.converged && !report.budget_spent, "{report:?}");
+    assert!(relative_distance(&u, &reference, scale) < 1e-8);
+}
+
+#[test]
 fn step_stabilisation_keeps_the_equilibrium_and_slows_only_badly_cut_cells() {
     // The stabilisation enters only the kept factorisations' matrix, never the energy: the
     // equilibrium is a fixed point of the stabilised steps, and from rest they approach it,

@@ -49,6 +49,9 @@ pub struct NewtonSettings {
     pub step_stabilization: f64,
 }
 
+/// The message of a solve stopped by [`NewtonSolver::set_factorization_budget`].
+const FACTORIZATION_BUDGET_SPENT: &str = "factorisation budget spent";
+
 /// Relative residual to which solves with a single-precision factorisation are refined:
 /// measured (`livereg bench`) to leave the registration's TRE unchanged, where 10⁻⁶ did not.
 pub const MIXED_PRECISION_TOLERANCE: f64 = 1e-10;
@@ -138,6 +141,9 @@ pub struct ImproveReport {
     /// A failure other than the iteration cap (inversion no step avoided, linear solve), with
     /// its message; the state is still the last valid one.
     pub failure: Option<(Outcome, String)>,
+    /// Whether the solve stopped because a step needed a factorisation beyond the budget
+    /// ([`NewtonSolver::set_factorization_budget`]); the state is the last iterate.
+    pub budget_spent: bool,
 }
 
 /// One Newton iteration, for diagnostics.
@@ -263,6 +269,8 @@ pub struct NewtonSolver {
     /// Helper-thread factorisations swapped in since the solver was made (also counted in
     /// `factorizations`; kept here so the counts never go back when a helper is replaced).
     helper_factorizations: usize,
+    /// Fresh factorisations [`NewtonSolver::improve`] may still make (`None`: no limit).
+    factorization_budget: Option<usize>,
 }
 
 impl NewtonSolver {
@@ -283,6 +291,7 @@ impl NewtonSolver {
             background: None,
             improve_steps: 0,
             helper_factorizations: 0,
+            factorization_budget: None,
         }
     }
 
@@ -359,6 +368,15 @@ impl NewtonSolver {
     pub fn factorization_springs(&self) -> Option<&[PenaltySprings]> {
         self.reuses_factorization()
             .then_some(self.factored_with.as_slice())
+    }
+
+    /// Limits the fresh factorisations [`NewtonSolver::improve`] may make from now on to
+    /// `budget` (`None`: no limit). A step that would need one more stops the solve at its
+    /// last iterate, as the iteration cap does ([`ImproveReport::budget_spent`]): a bound on a
+    /// solve's time where its iteration cap alone is not one, since every iteration may
+    /// refactorise.
+    pub fn set_factorization_budget(&mut self, budget: Option<usize>) {
+        self.factorization_budget = budget;
     }
 
     /// Factorisations of the tangent done so far (each costs far more than a step),
@@ -480,11 +498,13 @@ impl NewtonSolver {
                 failure: None,
                 shifted_steps,
                 steps,
+                budget_spent: false,
             },
             Err(f) => ImproveReport {
                 iterations,
                 relative_residual: last,
                 converged: false,
+                budget_spent: f.message == FACTORIZATION_BUDGET_SPENT,
                 failure: (f.outcome != Outcome::IterationCap).then_some((f.outcome, f.message)),
                 shifted_steps,
                 steps,
@@ -648,10 +668,21 @@ impl NewtonSolver {
                     message: format!("residual grew to {rel:.3e} times its initial value"),
                 });
             }
-            *iterations += 1;
             let regularization = if reuse {
+                *iterations += 1;
                 0.0
             } else {
+                match &mut self.factorization_budget {
+                    Some(0) => {
+                        return Err(StepFailure {
+                            outcome: Outcome::IterationCap,
+                            message: FACTORIZATION_BUDGET_SPENT.into(),
+                        })
+                    }
+                    Some(left) => *left -= 1,
+                    None => {}
+                }
+                *iterations += 1;
                 self.factorize_for_step(k, extra)?
             };
             let stats = self.newton_direction(k, work)?;

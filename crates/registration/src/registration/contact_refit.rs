@@ -43,6 +43,10 @@ pub struct ContactRefitSettings {
     pub hold_stiffness: f64,
     /// Newton iterations per solve of the refitted body (each bounded).
     pub newton_iterations: usize,
+    /// Fresh factorisations of the refitted body's tangent one refit may make, over all its
+    /// solves: a solve whose step would need one more stops at its last iterate (not
+    /// converged). Every iteration of a modified-Newton solve may otherwise refactorise.
+    pub factorizations: usize,
     /// Gauss–Newton steps on the slide.
     pub slide_steps: usize,
     /// What the grid cannot shape (m, RMS): the registration must have reached the cloud at
@@ -389,10 +393,16 @@ pub fn refit_at_contact(
         plane,
     };
     // One factorisation of the refitted body's tangent serves every solve of this frame: the
-    // springs are the same in all of them, only their targets move.
+    // springs are the same in all of them, only their targets move. The budget bounds the
+    // frame's time where line searches that fail with the kept factorisation would
+    // refactorise again and again.
     body.solver.invalidate_factorization();
     body.solver.set_factor_reuse(REFIT_FACTOR_USES);
-    let (best, best_slide) = fit_slide(&mut body, settings)?;
+    body.solver
+        .set_factorization_budget(Some(settings.factorizations));
+    let fitted = fit_slide(&mut body, settings);
+    body.solver.set_factorization_budget(None);
+    let (best, best_slide) = fitted?;
     let (contact_force, force_centre) = body.reaction(&best_slide, &best.u);
     let refit = ContactRefit {
         converged: best.converged,

@@ -49,8 +49,8 @@ pub enum FrameFlag {
     /// `contact_refit`: the field was explained again by a load at the contact alone
     /// (`registration.contact_refit`).
     ContactRefit,
-    /// `refit_not_converged`: the kept contact refit's solve stopped at its iteration cap off
-    /// balance; its field is the solve's last iterate.
+    /// `refit_not_converged`: the kept contact refit's solve stopped at its iteration cap or its
+    /// factorisation budget off balance; its field is the solve's last iterate.
     RefitNotConverged,
 }
 

@@ -27,13 +27,20 @@ const REFIT_ALLOWANCE_CELLS: f64 = 0.1;
 const MAX_UNEXPLAINED_SHARE: f64 = 0.25;
 
 /// Newton iterations per solve of the refitted body (modified Newton, one factorisation per
-/// frame). A kept refit whose solve has not converged within them is flagged
-/// `refit_not_converged`: on the force-driven tuning set (`livereg bench --force-truths --set
-/// tuning`) that is 41 of 118 kept refits, the deep neo-Hookean frames (relative residual up to
-/// 8e-2). Iterating to convergence (30 iterations, refusing the 8 refits still unconverged)
-/// gives the same node error there (1.07 against 1.09 mm) and a p95 frame time several times
-/// longer, from line-search backtracking on those frames.
+/// frame: [`REFIT_FACTORIZATIONS`]). A kept refit whose solve has not converged within them
+/// or within the factorisation is flagged `refit_not_converged`: on the force-driven tuning
+/// set (`livereg bench --force-truths --set tuning`) that is 28 of 103 kept refits, all on the
+/// deep neo-Hookean frames.
 const REFIT_NEWTON_ITERATIONS: usize = 8;
+
+/// Fresh factorisations one refit may make: the one its solves share. A step the kept
+/// factorisation cannot make (its line search fails) ends that solve at its last iterate
+/// instead of refactorising; the refit is then flagged `refit_not_converged`, or refused when
+/// the state leaves the motion away from the contact unexplained. On the force-driven tuning
+/// set (`livereg bench --force-truths --set tuning`) a budget of 1 gives mean node error
+/// 1.07 mm and warm p95 210–260 ms on the neo-Hookean cases; 2 gives 1.09 mm and 280–370 ms;
+/// no budget (up to 33 factorisations on the deepest frames) 1.09 mm and 390–470 ms.
+const REFIT_FACTORIZATIONS: usize = 1;
 
 /// Gauss–Newton steps on the contact region's slide.
 const REFIT_SLIDE_STEPS: usize = 2;
@@ -140,6 +147,7 @@ impl ContactForceEstimator {
                 * model.problem.material.young_modulus()
                 * h,
             newton_iterations: REFIT_NEWTON_ITERATIONS,
+            factorizations: REFIT_FACTORIZATIONS,
             slide_steps: REFIT_SLIDE_STEPS,
             allowance: REFIT_ALLOWANCE_CELLS * h,
             max_unexplained_share: MAX_UNEXPLAINED_SHARE,
