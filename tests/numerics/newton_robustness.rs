@@ -290,7 +290,10 @@ fn a_factorisation_budget_stops_the_solve_at_its_last_iterate() {
     let mut capped = rest.clone();
     let cap = plain().improve(&mut p, &[], &mut capped, 2);
     assert!(!cap.budget_spent && !cap.converged, "{cap:?}");
-    assert!(u == capped, "the budget's last iterate is the capped solve's");
+    assert!(
+        u == capped,
+        "the budget's last iterate is the capped solve's"
+    );
     assert!(
         relative_distance(&u, &reference, scale) > 1e-3,
         "two steps are short of the equilibrium: the budget bit"
