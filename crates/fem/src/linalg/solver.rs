@@ -372,6 +372,30 @@ impl SparseSolver {
     /// an error nothing is factorised and `solve` returns
     /// [`LinalgError::NotFactorized`].
     pub fn factorize(&mut self, k: &SymmetricCsc) -> Result<(), LinalgError> {
+        self.factorize_with(k, true).map(|_| ())
+    }
+
+    /// [`SparseSolver::factorize`] for a caller that makes an indefinite matrix definite
+    /// itself (a diagonal shift) rather than use the Bunch–Kaufman factorisation: where
+    /// Cholesky is the chosen method and the matrix is not positive definite, nothing is
+    /// factorised and `Ok(false)` is returned, without the `LBLᵀ` factorisation
+    /// [`SparseSolver::factorize`] would make and the caller would throw away. `Ok(true)`
+    /// when a factorisation is in place (every other method behaves as
+    /// [`SparseSolver::factorize`] does, with `Ok(true)`).
+    pub fn factorize_if_positive_definite(
+        &mut self,
+        k: &SymmetricCsc,
+    ) -> Result<bool, LinalgError> {
+        self.factorize_with(k, false)
+    }
+
+    /// [`SparseSolver::factorize`], falling back to `LBLᵀ` on an indefinite matrix when
+    /// `indefinite_fallback`, else leaving nothing factorised (`Ok(false)`).
+    fn factorize_with(
+        &mut self,
+        k: &SymmetricCsc,
+        indefinite_fallback: bool,
+    ) -> Result<bool, LinalgError> {
         let t0 = Instant::now();
         self.active = None;
         self.factorized_key = None;
@@ -383,14 +407,18 @@ impl SparseSolver {
         }
         let key = pattern_key(k);
         let result = match self.chosen_method(k.n) {
-            SolverKind::JacobiCg => self.prepare_cg(k, key).map(|_| Active::Cg),
-            _ => self.factorize_direct(k, key).map(|_| Active::Direct),
+            SolverKind::JacobiCg => self.prepare_cg(k, key).map(|_| Some(Active::Cg)),
+            _ => self
+                .factorize_direct(k, key, indefinite_fallback)
+                .map(|done| done.then_some(Active::Direct)),
         };
         self.factor_ms = ms_since(t0);
-        let active = result?;
+        let Some(active) = result? else {
+            return Ok(false);
+        };
         self.active = Some(active);
         self.factorized_key = Some(key);
-        Ok(())
+        Ok(true)
     }
 
     fn prepare_cg(&mut self, k: &SymmetricCsc, key: PatternKey) -> Result<(), LinalgError> {
@@ -451,7 +479,14 @@ impl SparseSolver {
         Ok(())
     }
 
-    fn factorize_direct(&mut self, k: &SymmetricCsc, key: PatternKey) -> Result<(), LinalgError> {
+    /// The direct factorisation of `k`: `Ok(false)` (nothing factorised) when Cholesky found
+    /// it indefinite and `indefinite_fallback` is off.
+    fn factorize_direct(
+        &mut self,
+        k: &SymmetricCsc,
+        key: PatternKey,
+        indefinite_fallback: bool,
+    ) -> Result<bool, LinalgError> {
         if self.direct.as_ref().is_none_or(|d| d.key != key) {
             self.analyse_direct(k, key)?;
         }
@@ -472,14 +507,17 @@ impl SparseSolver {
         grow_scratch(&mut d.mem, req)?;
         if want_llt && self.single_precision.is_some() && d.factorize_f32(k, par)? {
             d.factor = Some(DirectFactor::LltF32);
-            return Ok(());
+            return Ok(true);
         }
         let a = faer_view(k);
         if want_llt {
             let ok = llt_numeric(&d.symbolic, &mut d.l_values, a, &mut d.mem, par);
             if ok && d.l_values.iter().all(|v| v.is_finite()) {
                 d.factor = Some(DirectFactor::Llt);
-                return Ok(());
+                return Ok(true);
+            }
+            if !indefinite_fallback {
+                return Ok(false);
             }
         }
         d.symbolic.factorize_numeric_intranode_lblt::<f64>(
@@ -495,7 +533,7 @@ impl SparseSolver {
         );
         check_lblt_pivots(&d.symbolic, &d.l_values, &d.subdiag)?;
         d.factor = Some(DirectFactor::Lblt);
-        Ok(())
+        Ok(true)
     }
 
     /// Solves `K x = b` with the last factorised matrix; `x` is overwritten

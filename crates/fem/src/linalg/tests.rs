@@ -412,6 +412,31 @@ fn cholesky_falls_back_on_indefinite_matrix() {
 }
 
 #[test]
+fn a_positive_definite_only_factorisation_leaves_an_indefinite_matrix_unfactorised() {
+    // Indefinite: no factorisation (no Bunch–Kaufman fallback), and a solve says so.
+    let k = indefinite_matrix();
+    let b = random_vector(k.n, 7);
+    let mut s = SparseSolver::new(SolverKind::Cholesky);
+    assert_eq!(s.factorize_if_positive_definite(&k), Ok(false));
+    assert_eq!(s.factorized_method(), None);
+    let mut x = vec![0.0; k.n];
+    assert_eq!(s.solve(&k, &b, &mut x), Err(LinalgError::NotFactorized));
+    // The same solver then factorises a positive definite matrix of the same pattern as
+    // `factorize` does: Cholesky, and the dense reference's solution.
+    let spd = elasticity_grid_matrix(5);
+    assert_eq!(s.factorize_if_positive_definite(&spd), Ok(true));
+    assert_eq!(s.factorized_method(), Some("cholesky"));
+    let stats = s.solve(&spd, &b, &mut x).unwrap();
+    assert_eq!(stats.method, "cholesky");
+    assert!(rel_diff(&x, &dense_solve(&spd, &b)) < 1e-9);
+    // An explicit LDLᵀ solver factorises the indefinite matrix as `factorize` does.
+    let mut l = SparseSolver::new(SolverKind::Ldlt);
+    assert_eq!(l.factorize_if_positive_definite(&k), Ok(true));
+    l.solve(&k, &b, &mut x).unwrap();
+    assert!(rel_diff(&x, &dense_solve(&k, &b)) < 1e-7);
+}
+
+#[test]
 fn cg_detects_indefinite_matrix_with_positive_diagonal() {
     // K − σ I with σ below the smallest diagonal entry but far above λ_min:
     // positive diagonal, yet indefinite (like geometric stiffness far from

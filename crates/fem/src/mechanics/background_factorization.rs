@@ -111,9 +111,13 @@ impl BackgroundFactorizer {
                         )
                         .map(|_| own.add_cut_cell_stabilization(stabilization, &mut matrix))
                         .map_err(|f| format!("cell {}: {}", f.cell, f.error))
-                        .and_then(|_| linear.factorize(&matrix).map_err(|e| e.to_string()))
-                        .and_then(|()| {
-                            if linear.fell_back_to_indefinite() {
+                        .and_then(|_| {
+                            linear
+                                .factorize_if_positive_definite(&matrix)
+                                .map_err(|e| e.to_string())
+                        })
+                        .and_then(|definite| {
+                            if !definite {
                                 Err("the projected tangent was not positive definite".into())
                             } else {
                                 Ok(Made {

@@ -271,6 +271,8 @@ pub struct NewtonSolver {
     helper_factorizations: usize,
     /// Fresh factorisations [`NewtonSolver::improve`] may still make (`None`: no limit).
     factorization_budget: Option<usize>,
+    /// Whether the last call of [`NewtonSolver::improve`] stopped because the budget was spent.
+    budget_stopped: bool,
 }
 
 impl NewtonSolver {
@@ -292,6 +294,7 @@ impl NewtonSolver {
             improve_steps: 0,
             helper_factorizations: 0,
             factorization_budget: None,
+            budget_stopped: false,
         }
     }
 
@@ -475,6 +478,7 @@ impl NewtonSolver {
     ) -> ImproveReport {
         self.prepare_for(problem);
         self.linear.set_single_precision(self.single_precision());
+        self.budget_stopped = false;
         let mut iterations = 0;
         let mut history = Vec::new();
         let result = self.iterate(
@@ -504,7 +508,7 @@ impl NewtonSolver {
                 iterations,
                 relative_residual: last,
                 converged: false,
-                budget_spent: f.message == FACTORIZATION_BUDGET_SPENT,
+                budget_spent: self.budget_stopped,
                 failure: (f.outcome != Outcome::IterationCap).then_some((f.outcome, f.message)),
                 shifted_steps,
                 steps,
@@ -674,10 +678,11 @@ impl NewtonSolver {
             } else {
                 match &mut self.factorization_budget {
                     Some(0) => {
+                        self.budget_stopped = true;
                         return Err(StepFailure {
                             outcome: Outcome::IterationCap,
                             message: FACTORIZATION_BUDGET_SPENT.into(),
-                        })
+                        });
                     }
                     Some(left) => *left -= 1,
                     None => {}
@@ -924,11 +929,18 @@ impl NewtonSolver {
     /// (Levenberg–Marquardt) until the Cholesky factorisation succeeds, which makes the step a
     /// descent direction. Near equilibrium the tangent is positive definite and the iteration is
     /// plain Newton, with its quadratic convergence. Returns the shift τ used (0 when none).
+    ///
+    /// Every attempt but the last asks for Cholesky alone
+    /// ([`SparseSolver::factorize_if_positive_definite`]): the Bunch–Kaufman factorisation of
+    /// a matrix about to be shifted would be thrown away.
     fn factorize_descent(&mut self, k: &mut SymmetricCsc) -> Result<f64, LinalgError> {
         self.factorizations += 1;
-        self.linear.factorize(k)?;
-        if !self.linear.fell_back_to_indefinite() || self.settings.linear_solver == SolverKind::Ldlt
-        {
+        if self.settings.linear_solver == SolverKind::Ldlt {
+            self.linear.factorize(k)?;
+            self.last_shift /= 10.0;
+            return Ok(0.0);
+        }
+        if self.linear.factorize_if_positive_definite(k)? {
             self.last_shift /= 10.0;
             return Ok(0.0);
         }
@@ -939,13 +951,19 @@ impl NewtonSolver {
         // Start one decade below the shift that worked last time (neighbouring states of one
         // solve tend to need similar shifts): fewer refactorisations.
         let mut tau = (self.last_shift / 10.0).clamp(1e-3, 1e2);
-        for _ in 0..7 {
+        const SHIFTS: usize = 7;
+        for attempt in 1..=SHIFTS {
             for (&p, &d) in diag.iter().zip(&original) {
                 k.values[p] = d + tau * d.abs();
             }
             self.factorizations += 1;
-            self.linear.factorize(k)?;
-            if !self.linear.fell_back_to_indefinite() {
+            let definite = if attempt < SHIFTS {
+                self.linear.factorize_if_positive_definite(k)?
+            } else {
+                self.linear.factorize(k)?;
+                !self.linear.fell_back_to_indefinite()
+            };
+            if definite {
                 self.last_shift = tau;
                 return Ok(tau);
             }

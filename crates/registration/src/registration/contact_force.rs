@@ -118,10 +118,10 @@ impl RestCompliance {
             .map_err(|e| format!("rest tangent: cell {}: {}", e.cell, e.error))?;
         let mut solver =
             SparseSolver::new(kind).with_node_coordinates(problem.grid.node_coords.clone());
-        solver
-            .factorize(&stiffness)
+        let definite = solver
+            .factorize_if_positive_definite(&stiffness)
             .map_err(|e| format!("rest tangent: {e}"))?;
-        if solver.fell_back_to_indefinite() {
+        if !definite {
             return Err(
                 "rest tangent is not positive definite: the body is held nowhere (no fixed region or support)"
                     .into(),
