@@ -1,0 +1,80 @@
+//! A warm frame of the force-driven deep indentation (`fixtures/liver_force`, tuning liver
+//! `indentation-liver`, 4,539 unknowns at the derived 11.5 mm cells, 500-point clouds on 15 %
+//! of the surface), where the contact refit runs: `Session::register` alternating between the
+//! press's frames 24 and 25 (about 2 mm apart at the tool) after the session has followed
+//! frames 0–25, for the linear and the neo-Hookean truth with each law's own scene. The
+//! stage times of one such frame are printed first (the refit's share: docs/frames.md, "The
+//! cost of a warm frame").
+//!
+//! Run: `cargo bench --bench force_driven_frame` (about a minute; `-- --quick` for a rough
+//! number).
+
+use std::hint::black_box;
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, SamplingMode};
+use livereg::benchmark::force_truths::{
+    force_truth_cases, force_truth_scene, force_truths_dir, ForceTruthOptions, TruthSet,
+};
+use livereg::session::{frame_files, Frame, Session};
+use livereg::simulation::FromScene;
+
+/// The frames followed before the bench's pair, and the pair.
+const FOLLOWED: usize = 26;
+const PAIR: (usize, usize) = (24, 25);
+
+fn bench_force_driven_frame(c: &mut Criterion) {
+    let cases = force_truth_cases(&force_truths_dir(), TruthSet::Tuning).unwrap();
+    let mut group = c.benchmark_group("force_driven_frame");
+    group.sample_size(10);
+    group.sampling_mode(SamplingMode::Flat);
+    group.warm_up_time(std::time::Duration::from_secs(2));
+    group.measurement_time(std::time::Duration::from_secs(8));
+    for name in [
+        "indentation-liver/press_linear",
+        "indentation-liver/press_neo-hookean",
+    ] {
+        let case = cases.iter().find(|c| c.name == name).unwrap();
+        let scene = force_truth_scene(case, &ForceTruthOptions::default()).unwrap();
+        let files = frame_files(&case.dir.join("frames")).unwrap().frames;
+        let frames: Vec<Frame> = files
+            .iter()
+            .map(|f| Frame {
+                source: f.display().to_string(),
+                points: livereg::mesh::read_points(f).unwrap(),
+                camera: None,
+            })
+            .collect();
+        let mut session = Session::from_scene(&scene).unwrap();
+        let mut last = None;
+        for f in &frames[..FOLLOWED] {
+            let r = session.register(f);
+            assert!(r.error.is_none(), "{name}: {:?}", r.error);
+            last = Some(r);
+        }
+        let r = last.unwrap();
+        eprintln!(
+            "{name}: {} unknowns; a warm frame {:.1} ms, {} factorisations, flags {:?}, \
+             stages {:?}",
+            session.model.problem.dofs(),
+            r.wall_ms,
+            r.factorizations,
+            r.flags,
+            r.times
+        );
+        let (a, b) = (&frames[PAIR.0], &frames[PAIR.1]);
+        let mut flip = false;
+        group.bench_function(BenchmarkId::new("warm_frame", name), |bench| {
+            bench.iter(|| {
+                flip = !flip;
+                let f = if flip { a } else { b };
+                let r = session.register(black_box(f));
+                assert!(r.error.is_none(), "{:?}", r.error);
+                r
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_force_driven_frame);
+criterion_main!(benches);
