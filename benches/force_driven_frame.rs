@@ -9,14 +9,17 @@
 //! Run: `cargo bench --bench force_driven_frame` (about a minute; `-- --quick` for a rough
 //! number).
 
-use std::hint::black_box;
-
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, SamplingMode};
 use livereg::benchmark::force_truths::{
     force_truth_cases, force_truth_scene, force_truths_dir, ForceTruthOptions, TruthSet,
 };
+use livereg::cli::register::FrameInput;
 use livereg::session::{frame_files, Frame, Session};
 use livereg::simulation::FromScene;
+
+#[path = "support/alternating_frames.rs"]
+mod alternating_frames;
+use alternating_frames::bench_alternating_frames;
 
 /// The frames followed before the bench's pair, and the pair.
 const FOLLOWED: usize = 26;
@@ -38,11 +41,7 @@ fn bench_force_driven_frame(c: &mut Criterion) {
         let files = frame_files(&case.dir.join("frames")).unwrap().frames;
         let frames: Vec<Frame> = files
             .iter()
-            .map(|f| Frame {
-                source: f.display().to_string(),
-                points: livereg::mesh::read_points(f).unwrap(),
-                camera: None,
-            })
+            .map(|f| FrameInput::File(f.clone()).read().unwrap())
             .collect();
         let mut session = Session::from_scene(&scene).unwrap();
         let mut last = None;
@@ -61,17 +60,13 @@ fn bench_force_driven_frame(c: &mut Criterion) {
             r.flags,
             r.times
         );
-        let (a, b) = (&frames[PAIR.0], &frames[PAIR.1]);
-        let mut flip = false;
-        group.bench_function(BenchmarkId::new("warm_frame", name), |bench| {
-            bench.iter(|| {
-                flip = !flip;
-                let f = if flip { a } else { b };
-                let r = session.register(black_box(f));
-                assert!(r.error.is_none(), "{:?}", r.error);
-                r
-            })
-        });
+        bench_alternating_frames(
+            &mut group,
+            BenchmarkId::new("warm_frame", name),
+            &mut session,
+            &frames[PAIR.0],
+            &frames[PAIR.1],
+        );
     }
     group.finish();
 }

@@ -13,7 +13,6 @@
 //! Run: `cargo bench --bench warm_frame` (a few minutes; `-- --quick` for a rough number).
 
 use livereg::simulation::FromScene;
-use std::hint::black_box;
 use std::time::Instant;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, SamplingMode};
@@ -21,6 +20,10 @@ use livereg::benchmark::workload::Workload;
 use livereg::scene::load_scene;
 use livereg::session::Session;
 use livereg::synthetic::{generate_sequence, ScenarioKind, SequenceSpec};
+
+#[path = "support/alternating_frames.rs"]
+mod alternating_frames;
+use alternating_frames::bench_alternating_frames;
 
 /// Frames of the sequence; frames 5 and 6 are the bench's pair (load 0.94 and 1.0).
 const FRAMES: usize = 10;
@@ -92,7 +95,6 @@ fn bench_warm_frame(c: &mut Criterion) {
              stages {:?}",
             r.wall_ms, r.icp_iterations, r.newton_iterations, r.factorizations, r.sources, r.times
         );
-        let mut flip = false;
         let id = match (background, mixed, stabilised) {
             (_, _, false) => "unstabilised_nodes",
             (true, true, _) => "background_mixed_nodes",
@@ -100,15 +102,7 @@ fn bench_warm_frame(c: &mut Criterion) {
             (false, true, _) => "mixed_nodes",
             (false, false, _) => "phantom_nodes",
         };
-        group.bench_function(BenchmarkId::new(id, nodes), |bench| {
-            bench.iter(|| {
-                flip = !flip;
-                let f = if flip { a } else { b };
-                let r = session.register(black_box(f));
-                assert!(r.error.is_none(), "{:?}", r.error);
-                r
-            })
-        });
+        bench_alternating_frames(&mut group, BenchmarkId::new(id, nodes), &mut session, a, b);
     }
     group.finish();
 }

@@ -57,16 +57,14 @@ fn force_workloads(part: &str) -> Result<(LoadedScene, Vec<Workload>), String> {
     let mut workloads = Vec::new();
     for case in cases.iter().filter(|c| c.law == first.law) {
         let files = livereg::session::frame_files(&case.dir.join("frames"))?.frames;
-        let mut frames = Vec::new();
-        for f in &files {
-            let points =
-                livereg::mesh::read_points(f).map_err(|e| format!("{}: {e}", f.display()))?;
-            frames.push(livereg::session::Frame {
-                source: f.display().to_string(),
-                points,
-                camera: None,
-            });
-        }
+        let frames = files
+            .iter()
+            .map(|f| {
+                livereg::cli::register::FrameInput::File(f.clone())
+                    .read()
+                    .map_err(|(source, e)| format!("{source}: {e}"))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
         workloads.push(Workload {
             name: case.name.clone(),
             frames,

@@ -932,14 +932,10 @@ impl NewtonSolver {
     ///
     /// Every attempt but the last asks for Cholesky alone
     /// ([`SparseSolver::factorize_if_positive_definite`]): the Bunch–Kaufman factorisation of
-    /// a matrix about to be shifted would be thrown away.
+    /// a matrix about to be shifted would be thrown away. An LDLᵀ solver asked for explicitly
+    /// factorises any matrix there, unshifted.
     fn factorize_descent(&mut self, k: &mut SymmetricCsc) -> Result<f64, LinalgError> {
         self.factorizations += 1;
-        if self.settings.linear_solver == SolverKind::Ldlt {
-            self.linear.factorize(k)?;
-            self.last_shift /= 10.0;
-            return Ok(0.0);
-        }
         if self.linear.factorize_if_positive_definite(k)? {
             self.last_shift /= 10.0;
             return Ok(0.0);
