@@ -288,6 +288,9 @@ pub struct ForceTruthMetrics {
     /// Median relative force error over the frames whose true force is at least
     /// [`FORCE_FLOOR_SHARE`] of the largest and which have an estimate.
     pub force_error_median: Option<f64>,
+    /// Largest relative force error over the same frames: a median hides the frame whose
+    /// force is off by orders of magnitude.
+    pub force_error_max: Option<f64>,
     /// Share of those frames with an estimate.
     pub force_estimated_share: f64,
     /// Share of frames over [`POSE_FAR_MM`] that carry `pose_uncertain` (`None`: no such
@@ -636,6 +639,7 @@ fn summarise(
             expected.iter().map(|(e, t)| e / t.max(1e-9)).collect(),
         ),
         force_error_median: median(force_errors.clone()),
+        force_error_max: force_errors.iter().copied().reduce(f64::max),
         force_estimated_share: force_errors.len() as f64 / loaded.len().max(1) as f64,
         pose_uncertain_when_far: pose_share(&|m| m > POSE_FAR_MM),
         pose_uncertain_when_near: pose_share(&|m| m <= POSE_NEAR_MM),
@@ -653,12 +657,12 @@ pub fn force_truths_table(rows: &[ForceTruthMetrics]) -> String {
         None => "—".to_string(),
     };
     let mut s = String::from(
-        "| case | set | none | mean | p95 | dent mean / max | near tool | bounded | est./true | force error | pose error mean / max | seen rigid motion max | pose_uncertain far / near | warm p50 / p95 ms |\n\
+        "| case | set | none | mean | p95 | dent mean / max | near tool | bounded | est./true | force error median / max | pose error mean / max | seen rigid motion max | pose_uncertain far / near | warm p50 / p95 ms |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         s.push_str(&format!(
-            "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} / {:.2} | {:.2} | {} | {} | {} | {:.2} / {:.2} | {:.1} | {} / {} | {:.0} / {:.0} |\n",
+            "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} / {:.2} | {:.2} | {} | {} | {} / {} | {:.2} / {:.2} | {:.1} | {} / {} | {:.0} / {:.0} |\n",
             r.case,
             r.set.name(),
             r.none_mm,
@@ -670,6 +674,7 @@ pub fn force_truths_table(rows: &[ForceTruthMetrics]) -> String {
             opt(r.expected_error_bounded, true),
             opt(r.expected_error_ratio_median, false),
             opt(r.force_error_median, true),
+            opt(r.force_error_max, true),
             r.pose_error_mm,
             r.pose_error_max_mm,
             r.seen_rigid_motion_max_mm,

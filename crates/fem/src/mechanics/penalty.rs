@@ -174,6 +174,22 @@ impl PenaltySprings {
         }
     }
 
+    /// The resultant (N) of the forces these springs apply to the body at grid displacements
+    /// `u` (m) and load factor `load`: `−Σ_j k_j (u_j − s d_j)` (along `n_j` for point-to-plane
+    /// springs). The negated sum over the grid of the force [`PenaltySprings::accumulate`]
+    /// adds, since each point's weights sum to 1.
+    pub fn resultant(&self, u: &[f64], load: f64) -> Vector3<f64> {
+        let mut total = Vector3::zeros();
+        for (j, e) in self.embedding.points.iter().enumerate() {
+            let mut diff = interpolate_one(e, u) - self.imposed(j, load);
+            if let Some(n) = self.normals.as_ref().map(|n| n[j]) {
+                diff = n * n.dot(&diff);
+            }
+            total -= diff * self.stiffness[j];
+        }
+        total
+    }
+
     /// Spring energy (J) at grid displacements `u`; adds the grid forces `H S` to `force`
     /// (N) and the stiffness to `tangent` when given.
     pub fn accumulate(
@@ -249,6 +265,45 @@ mod tests {
             .expect("the bottom face is in the box");
         p.springs.push(support);
         p
+    }
+
+    /// The resultant is the negated sum of the grid force `accumulate` adds, for isotropic
+    /// and point-to-plane springs, with and without a load-following target.
+    #[test]
+    fn the_resultant_is_the_negated_sum_of_the_grid_force() {
+        let (s, p) = cut_box(0.076);
+        let points: Vec<Point3<f64>> = s.vertices.iter().step_by(3).copied().collect();
+        let embedding = Embedding::new(&p.grid, &points).unwrap();
+        let n = embedding.len();
+        let u: Vec<f64> = (0..p.dofs())
+            .map(|i| 1e-3 * ((i as f64) * 0.37).sin())
+            .collect();
+        for (normals, follows_load) in [(false, false), (true, true)] {
+            let springs = PenaltySprings {
+                target: (0..n)
+                    .map(|j| Vector3::new(1e-3, -2e-3, 0.5e-3 * j as f64))
+                    .collect(),
+                stiffness: (0..n).map(|j| 100.0 + j as f64).collect(),
+                follows_load,
+                normals: normals.then(|| {
+                    (0..n)
+                        .map(|j| Vector3::new(1.0, j as f64, 2.0).normalize())
+                        .collect()
+                }),
+                embedding: embedding.clone(),
+            };
+            let mut force = vec![0.0; p.dofs()];
+            springs.accumulate(p.assembler(), &u, 0.6, Some(&mut force), None);
+            let mut sum = Vector3::zeros();
+            for node in force.chunks(3) {
+                sum += Vector3::new(node[0], node[1], node[2]);
+            }
+            let r = springs.resultant(&u, 0.6);
+            assert!(
+                (r + sum).norm() <= 1e-12 * sum.norm(),
+                "resultant {r:?} against grid force sum {sum:?}"
+            );
+        }
     }
 
     /// Potential of a rigid translation `d` (the body stores no strain energy).

@@ -1,6 +1,8 @@
 //! The discrete static equilibrium problem on an immersed grid: total potential energy, its
 //! gradient (residual) and Hessian (tangent) — thesis eq. 4.9–4.11 and 4.22.
 
+use nalgebra::Vector3;
+
 use super::assembly::{Assembler, CellFailure};
 use super::cell_kernel::{Need, VolumetricIntegration};
 use super::cut_cell_stabilization::add_cut_cell_stabilization;
@@ -123,6 +125,24 @@ impl StaticProblem {
     /// The assembler (pattern and scatter maps).
     pub fn assembler(&self) -> &Assembler {
         &self.assembler
+    }
+
+    /// The resultant (N) of every force on the body other than a caller's extra springs at
+    /// grid displacements `u` (m) and load factor `load`: the body's own spring sets
+    /// ([`StaticProblem::springs`]: fixed regions, supports) and its dead loads. Internal
+    /// forces sum to zero, so at an equilibrium with extra springs `E` their resultant
+    /// ([`PenaltySprings::resultant`]) is exactly the negative of this: the load `E` applies
+    /// is what the holds and loads balance.
+    pub fn holds_and_loads_resultant(&self, u: &[f64], load: f64) -> Vector3<f64> {
+        let mut total = self
+            .springs
+            .iter()
+            .map(|s| s.resultant(u, load))
+            .sum::<Vector3<f64>>();
+        for node in self.external.chunks(3) {
+            total += Vector3::new(node[0], node[1], node[2]) * load;
+        }
+        total
     }
 
     /// Evaluates Π at displacements `u` (m) and load factor `load`; writes the residual
@@ -385,5 +405,56 @@ mod tests {
         let plain = evaluate(&mut p, None);
         assert_eq!(plain, evaluate(&mut untouched, None));
         assert_ne!(plain, given, "lumped holds differ from point holds");
+    }
+
+    /// Global balance, an independent conservation law: at the equilibrium Newton reaches, a
+    /// pull by extra springs is exactly what the body's holds and dead loads balance
+    /// (internal forces sum to zero); off equilibrium the two differ.
+    #[test]
+    fn at_equilibrium_extra_springs_balance_the_holds_and_loads() {
+        use crate::grid::Embedding;
+        use crate::mechanics::{NewtonSettings, NewtonSolver};
+        let (surface, mut p) = test_fixtures::cut_box(0.076);
+        let end = |keep: &dyn Fn(f64) -> bool| -> Vec<nalgebra::Point3<f64>> {
+            surface
+                .vertices
+                .iter()
+                .filter(|v| keep(v.x))
+                .copied()
+                .collect()
+        };
+        let held = end(&|x| x < 0.004);
+        let pulled = end(&|x| x > 0.102);
+        p.springs = vec![PenaltySprings::fixed(
+            Embedding::new(&p.grid, &held).unwrap(),
+            vec![1e4; held.len()],
+        )];
+        p.external = (0..p.dofs())
+            .map(|i| if i % 3 == 2 { -2e-4 } else { 0.0 })
+            .collect();
+        let pull = PenaltySprings {
+            embedding: Embedding::new(&p.grid, &pulled).unwrap(),
+            target: vec![Vector3::new(4e-3, 1e-3, 2e-3); pulled.len()],
+            stiffness: vec![50.0; pulled.len()],
+            follows_load: false,
+            normals: None,
+        };
+        let mut solver = NewtonSolver::new(NewtonSettings::default());
+        let mut u = vec![0.0; p.dofs()];
+        let report = solver.improve(&mut p, std::slice::from_ref(&pull), &mut u, 50);
+        assert!(report.converged, "{report:?}");
+        let applied = pull.resultant(&u, 1.0);
+        let balanced = p.holds_and_loads_resultant(&u, 1.0);
+        assert!(
+            applied.norm() > 1e-3,
+            "the pull must load the body: {applied:?}"
+        );
+        assert!(
+            (applied + balanced).norm() <= 1e-6 * applied.norm(),
+            "pull {applied:?} against holds and loads {balanced:?}"
+        );
+        let half: Vec<f64> = u.iter().map(|v| 0.5 * v).collect();
+        let off = pull.resultant(&half, 1.0) + p.holds_and_loads_resultant(&half, 1.0);
+        assert!(off.norm() > 0.1 * applied.norm(), "off balance: {off:?}");
     }
 }

@@ -75,11 +75,18 @@ pub struct ContactRefit {
     /// RMS signed distance (m) of the cloud's points at the contact to the registered
     /// surface: how well the registration reached the dent the refit holds.
     pub inner_rms_full: f64,
-    /// The force (N, model frame) the held contact region applies to the refitted body: the
-    /// sum of its springs' forces `k (d_j − u_j)`. With no load on the body but the contact and
-    /// its own holds, the body's equilibrium makes this the load the contact applied, through
-    /// the model's own law (not linearised).
+    /// The force (N, model frame) the held contact region applies to the refitted body, read
+    /// from what balances it: the negated resultant of the body's own holds and dead loads
+    /// ([`StaticProblem::holds_and_loads_resultant`]), through the model's own law (not
+    /// linearised). At the body's equilibrium it equals the held springs' summed force
+    /// `Σ k (d_j − u_j)`; off balance (a solve stopped short) that sum is `k` times the
+    /// springs' leftover gap, which the stiff holds make arbitrarily wrong (up to 4·10⁴ times
+    /// the true force on the force-driven truths' deep neo-Hookean frames), while the holds'
+    /// reaction stays with the body's state.
     pub contact_force: Vector3<f64>,
+    /// How far the refitted body is from global balance: `|Σ held springs' force −
+    /// contact_force| / |contact_force|` (0 at equilibrium).
+    pub imbalance: f64,
     /// Where it acts (m, deformed configuration): the held vertices' positions weighted by
     /// their springs' force magnitudes.
     pub force_centre: Point3<f64>,
@@ -403,10 +410,14 @@ pub fn refit_at_contact(
     let fitted = fit_slide(&mut body, settings);
     body.solver.set_factorization_budget(None);
     let (best, best_slide) = fitted?;
-    let (contact_force, force_centre) = body.reaction(&best_slide, &best.u);
+    let (held_force, force_centre) = body.reaction(&best_slide, &best.u);
+    let contact_force = -body.problem.holds_and_loads_resultant(&best.u, 1.0);
+    let imbalance =
+        (held_force - contact_force).norm() / contact_force.norm().max(f64::MIN_POSITIVE);
     let refit = ContactRefit {
         converged: best.converged,
         contact_force,
+        imbalance,
         force_centre,
         outer_rms: best.rms(),
         u: best.u,
