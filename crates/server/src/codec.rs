@@ -342,11 +342,15 @@ impl ResultMessage {
                 })
                 .collect(),
             surface: self.surface.iter().flatten().copied().collect(),
-            contact_force: rec.contact_force.as_ref().map(|c| proto::ContactForce {
-                resultant_n: c.resultant_n.to_vec(),
-                magnitude_n: c.magnitude_n,
-                centre: c.centre.to_vec(),
-            }),
+            contact_force: rec
+                .contact_force
+                .clone()
+                .flatten()
+                .map(|c| proto::ContactForce {
+                    resultant_n: c.resultant_n.to_vec(),
+                    magnitude_n: c.magnitude_n,
+                    centre: c.centre.to_vec(),
+                }),
             pose_uncertainty: rec.rigid.uncertainty,
             expected_error: rec.expected_error,
             skipped: self.skipped,

@@ -37,7 +37,9 @@ use serde::{Deserialize, Serialize};
 
 use super::codec::ResultMessage;
 use super::error::ApiError;
-use crate::evaluation::{ContactForceRecord, DiagnosticsRecord, ResultRecord, RigidRecord};
+use crate::evaluation::{
+    present_or_null, ContactForceRecord, DiagnosticsRecord, ResultRecord, RigidRecord,
+};
 
 /// How results are sent: `?results=json|binary` on the stream URL, or on a frame's POST.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -108,7 +110,7 @@ struct MetaOut<'a> {
     rigid: &'a RigidRecord,
     diagnostics: &'a DiagnosticsRecord,
     #[serde(skip_serializing_if = "Option::is_none")]
-    contact_force: Option<&'a ContactForceRecord>,
+    contact_force: Option<&'a Option<ContactForceRecord>>,
     expected_error: Option<f64>,
     structure_names: Vec<&'a str>,
 }
@@ -128,8 +130,8 @@ struct MetaIn {
     converged: bool,
     rigid: RigidRecord,
     diagnostics: DiagnosticsRecord,
-    #[serde(default)]
-    contact_force: Option<ContactForceRecord>,
+    #[serde(default, deserialize_with = "present_or_null")]
+    contact_force: Option<Option<ContactForceRecord>>,
     #[serde(default)]
     expected_error: Option<f64>,
     structure_names: Vec<String>,
@@ -345,11 +347,11 @@ mod tests {
                     expected_error_parts: None,
                 },
                 structures,
-                contact_force: Some(ContactForceRecord {
+                contact_force: Some(Some(ContactForceRecord {
                     resultant_n: [0.25, -3.5, 1.0],
                     magnitude_n: 3.648,
                     centre: [-12.5, 40.25, 8.0],
-                }),
+                })),
                 expected_error: Some(2.625),
             },
             surface: (0..50)

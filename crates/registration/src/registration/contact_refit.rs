@@ -114,6 +114,9 @@ pub enum RefitSkip {
     /// motion seen away from the contact unexplained (the share): the liver is loaded
     /// elsewhere too.
     LoadedElsewhere(f64),
+    /// The slide could not be fitted: the probes of its Jacobian could not move the body (the
+    /// frame's factorisation budget was spent on the first solve).
+    SlideNotFitted,
     /// A solve gave a state that is not finite, or a surface could not be built.
     Failed,
 }
@@ -472,9 +475,15 @@ fn fit_slide(
                 .sum::<f64>();
         }
     }
-    normal += Matrix2::identity() * (1e-9 * normal.trace()).max(f64::MIN_POSITIVE);
+    // Probes that could not move the body (the frame's factorisation budget spent on the
+    // relaxed solve, so their one step was refused) leave no Jacobian: the slide, the refit's
+    // check against the cloud away from the contact, cannot be fitted.
+    if normal.trace().is_nan() || normal.trace() <= 0.0 {
+        return Err(RefitSkip::SlideNotFitted);
+    }
+    normal += Matrix2::identity() * 1e-9 * normal.trace();
     let Some(inverse) = normal.try_inverse() else {
-        return Err(RefitSkip::Failed);
+        return Err(RefitSkip::SlideNotFitted);
     };
     let mut current = best.distances.clone();
     let mut from = base;

@@ -52,11 +52,15 @@ pub enum FrameFlag {
     /// `refit_not_converged`: the kept contact refit's solve stopped at its iteration cap or its
     /// factorisation budget off balance; its field is the solve's last iterate.
     RefitNotConverged,
+    /// `force_beyond_linear`: no contact force (null) because the only estimate left, the
+    /// first-order rest-compliance fit, is beyond where its linearisation holds for the
+    /// model's law (`StaticProblem::linearisation_share` over the limit).
+    ForceBeyondLinear,
 }
 
 impl FrameFlag {
     /// Every flag without a value, for [`FrameFlag::parse`].
-    const PLAIN: [FrameFlag; 16] = [
+    const PLAIN: [FrameFlag; 17] = [
         FrameFlag::Decimated,
         FrameFlag::IsolatedRemoved,
         FrameFlag::AtRest,
@@ -73,6 +77,7 @@ impl FrameFlag {
         FrameFlag::ExpectedErrorHigh,
         FrameFlag::ContactRefit,
         FrameFlag::RefitNotConverged,
+        FrameFlag::ForceBeyondLinear,
     ];
 
     /// The flag's name without its value (`still`, `recovered`, or the whole text).
@@ -96,6 +101,7 @@ impl FrameFlag {
             FrameFlag::ExpectedErrorHigh => "expected_error_high",
             FrameFlag::ContactRefit => "contact_refit",
             FrameFlag::RefitNotConverged => "refit_not_converged",
+            FrameFlag::ForceBeyondLinear => "force_beyond_linear",
         }
     }
 

@@ -352,9 +352,13 @@ impl Session {
         self.check_reacquisition(&u, flags)?;
         let (surface, fit) = self.fit_gate(&u, &aligned, times)?;
         let t = Instant::now();
-        let contact_force =
-            self.contact
-                .frame_force(&mut self.model, refit_force, report.data_term.as_ref(), &u);
+        let contact_force = self.contact.frame_force(
+            &mut self.model,
+            refit_force,
+            report.data_term.as_ref(),
+            &u,
+            flags,
+        );
         times.force_ms = ms(t);
         Ok(FrameSuccess {
             u,

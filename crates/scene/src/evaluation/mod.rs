@@ -9,7 +9,8 @@ pub(crate) mod tre;
 pub use error::EvalError;
 pub use jsonl::{read_jsonl, read_results, read_truth, JsonlWriter};
 pub use records::{
-    ContactForceRecord, DiagnosticsRecord, ErrorPartsRecord, ResultRecord, RigidRecord, TruthRecord,
+    present_or_null, ContactForceRecord, DiagnosticsRecord, ErrorPartsRecord, ResultRecord,
+    RigidRecord, TruthRecord,
 };
 pub use tre::{evaluate, percentile, EvalReport, FrameReport, StructureFrameTre, Summary};
 

@@ -115,9 +115,15 @@ pub struct ResultRecord {
     /// order, in the cloud's frame, scene units.
     pub structures: BTreeMap<String, Vec<[f64; 3]>>,
     /// The contact force the registration estimated (contracts.md: the surface loads it
-    /// needed), omitted when none was estimated (rigid-only registration, no frame yet).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub contact_force: Option<ContactForceRecord>,
+    /// needed): omitted (`None`) when none was estimated (rigid-only registration, no frame
+    /// yet); `null` (`Some(None)`) when the frame's estimate cannot be trusted, with a flag
+    /// saying why (`force_beyond_linear`, docs/contact-force.md).
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "present_or_null"
+    )]
+    pub contact_force: Option<Option<ContactForceRecord>>,
     /// The registration's estimate of the mean error of this frame's structures, scene units
     /// (contracts.md; `null` before any frame succeeded): a bound on the true mean error in
     /// most frames (docs/error-estimate.md#expected-error).
@@ -148,6 +154,17 @@ impl ContactForceRecord {
             centre: [c.centre.x, c.centre.y, c.centre.z],
         }
     }
+}
+
+/// Serde helper for a field that tells an absent key from `null`: a key that is present
+/// deserialises to `Some` of its value, `null` included (`Some(None)`); an absent key stays at
+/// the field's default (`None`). Use with `#[serde(default, deserialize_with = ...)]`.
+pub fn present_or_null<'de, D, T>(d: D) -> Result<Option<Option<T>>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    Option::<T>::deserialize(d).map(Some)
 }
 
 /// One line of a truth file: `frame` and `structures` are required, the rest is ignored.
@@ -200,10 +217,16 @@ impl ResultRecord {
                 .iter()
                 .map(|(name, pts)| (name.clone(), pts.iter().map(|p| [p.x, p.y, p.z]).collect()))
                 .collect(),
-            contact_force: r
-                .contact_force
-                .as_ref()
-                .map(ContactForceRecord::from_estimate),
+            contact_force: match &r.contact_force {
+                Some(force) => Some(Some(ContactForceRecord::from_estimate(force))),
+                None if r
+                    .flags
+                    .contains(&crate::session::FrameFlag::ForceBeyondLinear) =>
+                {
+                    Some(None)
+                }
+                None => None,
+            },
             expected_error: r.expected_error.map(|e| e.expected),
         }
     }

@@ -443,3 +443,32 @@ fn read_errors_name_file_and_line() {
     let err = JsonlWriter::create(dir.path("no-such-dir/out.jsonl")).unwrap_err();
     assert!(matches!(err, EvalError::Io { .. }));
 }
+
+/// `contact_force` keeps its three states through JSON: absent (none estimated), `null`
+/// (estimated but untrusted) and a force; an absent key is not written, a `null` one is.
+#[test]
+fn the_contact_force_tells_absent_from_null_from_a_force() {
+    let force = ContactForceRecord {
+        resultant_n: [0.5, -1.0, 2.0],
+        magnitude_n: 2.291_287_847_477_92,
+        centre: [1.0, 2.0, 3.0],
+    };
+    for (state, key) in [
+        (None, None),
+        (Some(None), Some("null")),
+        (Some(Some(force)), Some("{")),
+    ] {
+        let mut r = result(0, true, None, &[("a", vec![[1.0, 2.0, 3.0]])]);
+        r.contact_force = state.clone();
+        let line = serde_json::to_string(&r).unwrap();
+        match key {
+            None => assert!(!line.contains("contact_force"), "{line}"),
+            Some(start) => assert!(
+                line.contains(&format!("\"contact_force\":{start}")),
+                "{line}"
+            ),
+        }
+        let back: ResultRecord = serde_json::from_str(&line).unwrap();
+        assert_eq!(back.contact_force, state, "{line}");
+    }
+}
