@@ -147,7 +147,7 @@ fn schemas() -> Value {
           "diagnostics": {"$ref": "#/components/schemas/Diagnostics"},
           "structures": {"type": "object", "additionalProperties": {"type": "array", "items": {"$ref": "#/components/schemas/Point"}}},
           "surface": {"type": "array", "items": {"$ref": "#/components/schemas/Point"}},
-      "contact_force": {"$ref": "#/components/schemas/ContactForce"}
+      "contact_force": {"description": "Absent when no force was estimated; null when the estimate cannot be trusted (a diagnostics flag says why: force_beyond_linear).", "anyOf": [{"$ref": "#/components/schemas/ContactForce"}, {"type": "null"}]}
         }
       }
     })

@@ -147,8 +147,8 @@ pub(crate) fn result() -> Value {
                 "description": "deformed points of every structure, scene units, cloud frame"
             },
             "contact_force": {
-                "type": "object",
-                "description": "surface loads the registration needed: resultant (N) and centre (scene units), cloud frame",
+                "type": ["object", "null"],
+                "description": "surface loads the registration needed: resultant (N) and centre (scene units), cloud frame; absent when none was estimated, null when the estimate cannot be trusted (flag force_beyond_linear)",
                 "required": ["resultant_n", "magnitude_n", "centre"],
                 "properties": {"resultant_n": vec3(), "magnitude_n": {"type": "number"}, "centre": vec3()}
             },
