@@ -244,6 +244,8 @@ pub struct ForceTruthFrame {
     pub force_estimate_n: Option<f64>,
     /// |estimate − truth| / |truth| (`None`: no estimate).
     pub force_relative_error: Option<f64>,
+    /// The force estimate's own expected error, N (`contact_force.expected_error_n`).
+    pub force_expected_error_n: Option<f64>,
     /// Wall time, ms.
     pub wall_ms: f64,
     /// Whether the frame started from the previous frame's state.
@@ -293,6 +295,8 @@ pub struct ForceTruthMetrics {
     pub force_error_max: Option<f64>,
     /// Share of those frames with an estimate.
     pub force_estimated_share: f64,
+    /// Share of those frames with an estimate whose error is at most its expected error.
+    pub force_bounded: Option<f64>,
     /// Share of frames over [`POSE_FAR_MM`] that carry `pose_uncertain` (`None`: no such
     /// frame).
     pub pose_uncertain_when_far: Option<f64>,
@@ -529,12 +533,12 @@ fn grade_frame(g: &FrameToGrade<'_>) -> ForceTruthFrame {
             })
         })
         .flatten();
-    let estimate = g
+    let force = g
         .result
         .contact_force
         .as_ref()
-        .map(|c| c.resultant)
-        .filter(|f| f.iter().all(|v| v.is_finite()));
+        .filter(|c| c.resultant.iter().all(|v| v.is_finite()));
+    let estimate = force.map(|c| c.resultant);
     let pose = &g.result.model_to_cloud;
     let pose_error_mm = (g
         .rest
@@ -556,6 +560,7 @@ fn grade_frame(g: &FrameToGrade<'_>) -> ForceTruthFrame {
         force_true_n: g.force.norm(),
         force_estimate_n: estimate.map(|f| f.norm()),
         force_relative_error: estimate.map(|f| (f - g.force).norm() / g.force.norm().max(1e-12)),
+        force_expected_error_n: force.map(|c| c.expected_error),
         wall_ms: g.result.wall_ms,
         warm: g.result.warm,
         flags: g.result.flags.clone(),
@@ -641,6 +646,17 @@ fn summarise(
         force_error_median: median(force_errors.clone()),
         force_error_max: force_errors.iter().copied().reduce(f64::max),
         force_estimated_share: force_errors.len() as f64 / loaded.len().max(1) as f64,
+        force_bounded: {
+            let pairs: Vec<bool> = loaded
+                .iter()
+                .filter_map(|f| {
+                    let error = f.force_relative_error? * f.force_true_n;
+                    Some(error <= f.force_expected_error_n?)
+                })
+                .collect();
+            (!pairs.is_empty())
+                .then(|| pairs.iter().filter(|b| **b).count() as f64 / pairs.len() as f64)
+        },
         pose_uncertain_when_far: pose_share(&|m| m > POSE_FAR_MM),
         pose_uncertain_when_near: pose_share(&|m| m <= POSE_NEAR_MM),
         warm_ms_p50: warm_at(0.5),
@@ -657,12 +673,12 @@ pub fn force_truths_table(rows: &[ForceTruthMetrics]) -> String {
         None => "—".to_string(),
     };
     let mut s = String::from(
-        "| case | set | none | mean | p95 | dent mean / max | near tool | bounded | est./true | force error median / max | pose error mean / max | seen rigid motion max | pose_uncertain far / near | warm p50 / p95 ms |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "| case | set | none | mean | p95 | dent mean / max | near tool | bounded | est./true | force error median / max | force bounded | pose error mean / max | seen rigid motion max | pose_uncertain far / near | warm p50 / p95 ms |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         s.push_str(&format!(
-            "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} / {:.2} | {:.2} | {} | {} | {} / {} | {:.2} / {:.2} | {:.1} | {} / {} | {:.0} / {:.0} |\n",
+            "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} / {:.2} | {:.2} | {} | {} | {} / {} | {} | {:.2} / {:.2} | {:.1} | {} / {} | {:.0} / {:.0} |\n",
             r.case,
             r.set.name(),
             r.none_mm,
@@ -675,6 +691,7 @@ pub fn force_truths_table(rows: &[ForceTruthMetrics]) -> String {
             opt(r.expected_error_ratio_median, false),
             opt(r.force_error_median, true),
             opt(r.force_error_max, true),
+            opt(r.force_bounded, true),
             r.pose_error_mm,
             r.pose_error_max_mm,
             r.seen_rigid_motion_max_mm,
@@ -701,7 +718,7 @@ pub fn force_truths_table(rows: &[ForceTruthMetrics]) -> String {
             .filter_map(|f| f.expected_error_mm.map(|e| e >= f.mean_mm))
             .collect();
         s.push_str(&format!(
-            "| all {} ({} frames) | {} | {:.2} | {:.2} | | | {:.2} | {} | | | {:.2} | | | |\n",
+            "| all {} ({} frames) | {} | {:.2} | {:.2} | | | {:.2} | {} | | | | {:.2} | | | |\n",
             set.name(),
             frames.len(),
             set.name(),

@@ -350,6 +350,7 @@ impl ResultMessage {
                     resultant_n: c.resultant_n.to_vec(),
                     magnitude_n: c.magnitude_n,
                     centre: c.centre.to_vec(),
+                    expected_error_n: c.expected_error_n.unwrap_or(0.0),
                 }),
             pose_uncertainty: rec.rigid.uncertainty,
             expected_error: rec.expected_error,

@@ -120,7 +120,8 @@ fn schemas() -> Value {
         "description": "The one concentrated load at the dent that explains the registered deformation (docs/contact-force.md).",
         "properties": {"resultant_n": {"$ref": "#/components/schemas/Point"},
                        "magnitude_n": {"type": "number"},
-                       "centre": {"$ref": "#/components/schemas/Point"}}},
+                       "centre": {"$ref": "#/components/schemas/Point"},
+                       "expected_error_n": {"type": "number", "description": "The estimate's expected error, N: the length the error of resultant_n likely has (docs/contact-force.md#expected-error)."}}},
       "Diagnostics": {
         "type": "object", "required": ["icp_iterations", "newton_iterations", "surface_rms"],
         "properties": {

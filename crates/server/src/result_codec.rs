@@ -351,6 +351,7 @@ mod tests {
                     resultant_n: [0.25, -3.5, 1.0],
                     magnitude_n: 3.648,
                     centre: [-12.5, 40.25, 8.0],
+                    expected_error_n: Some(1.25),
                 })),
                 expected_error: Some(2.625),
             },

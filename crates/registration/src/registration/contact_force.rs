@@ -70,7 +70,26 @@ pub struct ContactForce {
     pub resultant: Vector3<f64>,
     /// Where it acts, m (deformed configuration).
     pub centre: Point3<f64>,
+    /// The estimate's own expected error: the length (N) of the error vector `resultant`
+    /// likely has, a bound on it in most frames ([`FIT_SHARE`], [`FIT_GRADIENT_SLOPE`],
+    /// docs/contact-force.md#expected-error).
+    pub expected_error: f64,
 }
+
+/// The rest-compliance fit's expected relative error at small strain: the model's compliance
+/// on the grid and the far field's misfit. Chosen on the force-driven tuning set
+/// (`livereg bench --force-truths --set tuning`: the linear law's fitted forces are 4–28 %
+/// off, 90 % of frames within 21 %) and the tuning liver's neo-Hookean press at 2 mm (29 %,
+/// `tests/registration/tool_indentation.rs::a_first_order_force_beyond_small_strain_is_null_and_flagged`).
+pub const FIT_SHARE: f64 = 0.35;
+
+/// How fast the fit's expected relative error grows with the registered field's displacement
+/// gradient (`StaticProblem::displacement_gradient_rms`) for a law that is not linear: the
+/// fit is first order. On the tuning liver's neo-Hookean press with the refit off, the fit's
+/// error at gradients 0.02 / 0.07 / 0.13 / 0.19 / 0.24 is 29 / 53 / 56 / 73 / 99 %; `FIT_SHARE +
+/// 2.7 g` bounds all five (40 / 54 / 70 / 86 / 100 %). Where it reaches 100 % (g ≈ 0.24) the
+/// force says nothing and is not reported (flag `force_beyond_linear`).
+pub const FIT_GRADIENT_SLOPE: f64 = 2.7;
 
 /// The model's rest compliance, factorised once: the responses to concentrated surface loads.
 pub struct RestCompliance {
@@ -137,8 +156,9 @@ impl RestCompliance {
 
     /// The concentrated load (module doc) that explains displacement `u` (m) at the points of
     /// the data term `springs` on `problem`, whose rest surface is `surface` (m); its centre is
-    /// where the registered state `u` put the loaded patch. `None` as
-    /// [`RestCompliance::fit_displacements`].
+    /// where the registered state `u` put the loaded patch; its expected error grows with the
+    /// displacement gradient of `u` for a law that is not linear ([`FIT_GRADIENT_SLOPE`]).
+    /// `None` as [`RestCompliance::fit_displacements`].
     pub fn fit(
         &mut self,
         problem: &StaticProblem,
@@ -163,9 +183,15 @@ impl RestCompliance {
             .zip(&fitted.weights)
             .map(|(p, w)| p.coords * *w)
             .sum::<Vector3<f64>>();
+        let gradient = if problem.material.is_linear() {
+            0.0
+        } else {
+            problem.displacement_gradient_rms(u)
+        };
         Some(ContactForce {
             resultant: fitted.resultant,
             centre: Point3::from(centre),
+            expected_error: (FIT_SHARE + FIT_GRADIENT_SLOPE * gradient) * fitted.resultant.norm(),
         })
     }
 

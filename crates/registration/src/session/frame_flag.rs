@@ -53,8 +53,8 @@ pub enum FrameFlag {
     /// factorisation budget off balance; its field is the solve's last iterate.
     RefitNotConverged,
     /// `force_beyond_linear`: no contact force (null) because the only estimate left, the
-    /// first-order rest-compliance fit, is beyond where its linearisation holds for the
-    /// model's law (`StaticProblem::linearisation_share` over the limit).
+    /// first-order rest-compliance fit, is so far beyond small strain for the model's law
+    /// that its expected error reaches the force itself.
     ForceBeyondLinear,
 }
 
@@ -201,10 +201,11 @@ mod tests {
             "expected_error_high",
             "contact_refit",
             "refit_not_converged",
+            "force_beyond_linear",
         ] {
             assert!(texts.iter().any(|t| t == expected), "{expected}");
         }
-        assert_eq!(texts.len(), 19);
+        assert_eq!(texts.len(), 20);
     }
 
     /// Unknown texts, a still window without a count and an unknown rung are not flags.

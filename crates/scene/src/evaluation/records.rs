@@ -143,6 +143,10 @@ pub struct ContactForceRecord {
     /// Where the load acts: the centre of the loaded surface patch in the registered state,
     /// scene units, cloud frame.
     pub centre: [f64; 3],
+    /// The estimate's expected error, N: the length the error of `resultant_n` likely has
+    /// (docs/contact-force.md#expected-error); absent in results written before it existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub expected_error_n: Option<f64>,
 }
 
 impl ContactForceRecord {
@@ -152,6 +156,7 @@ impl ContactForceRecord {
             resultant_n: [c.resultant.x, c.resultant.y, c.resultant.z],
             magnitude_n: c.resultant.norm(),
             centre: [c.centre.x, c.centre.y, c.centre.z],
+            expected_error_n: Some(c.expected_error),
         }
     }
 }

@@ -452,6 +452,7 @@ fn the_contact_force_tells_absent_from_null_from_a_force() {
         resultant_n: [0.5, -1.0, 2.0],
         magnitude_n: 2.291_287_847_477_92,
         centre: [1.0, 2.0, 3.0],
+        expected_error_n: Some(0.75),
     };
     for (state, key) in [
         (None, None),

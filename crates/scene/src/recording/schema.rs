@@ -150,7 +150,7 @@ pub(crate) fn result() -> Value {
                 "type": ["object", "null"],
                 "description": "surface loads the registration needed: resultant (N) and centre (scene units), cloud frame; absent when none was estimated, null when the estimate cannot be trusted (flag force_beyond_linear)",
                 "required": ["resultant_n", "magnitude_n", "centre"],
-                "properties": {"resultant_n": vec3(), "magnitude_n": {"type": "number"}, "centre": vec3()}
+                "properties": {"resultant_n": vec3(), "magnitude_n": {"type": "number"}, "centre": vec3(), "expected_error_n": {"type": "number"}}
             },
             "expected_error": {
                 "type": ["number", "null"],

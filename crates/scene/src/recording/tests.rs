@@ -71,6 +71,7 @@ fn result(k: usize) -> FrameResult {
         contact_force: (k == 1).then(|| crate::registration::ContactForce {
             resultant: nalgebra::Vector3::new(0.5, -1.25, 0.0625),
             centre: Point3::new(10.0, -20.5, 3.0),
+            expected_error: 0.375,
         }),
         pose_uncertainty: None,
         expected_error: Some(crate::registration::ErrorEstimate {

@@ -61,6 +61,7 @@ impl ChangeTests {
         let force = ContactForce {
             resultant: nalgebra::Vector3::zeros(),
             centre: centroid(aligned),
+            expected_error: 0.0,
         };
         Some((rest, rms, Some(force)))
     }

@@ -90,6 +90,7 @@ impl GoodState {
         result.contact_force = self.contact_force.map(|c| ContactForce {
             resultant: pose.apply_vector(&c.resultant),
             centre: out(&c.centre),
+            expected_error: c.expected_error,
         });
     }
 }
