@@ -71,8 +71,7 @@ pub struct ContactForce {
     /// Where it acts, m (deformed configuration).
     pub centre: Point3<f64>,
     /// The estimate's own expected error: the length (N) of the error vector `resultant`
-    /// likely has, a bound on it in most frames ([`FIT_SHARE`], [`FIT_GRADIENT_SLOPE`],
-    /// docs/contact-force.md#expected-error).
+    /// likely has, a bound on it in most frames (docs/contact-force.md#expected-error).
     pub expected_error: f64,
 }
 
@@ -81,7 +80,7 @@ pub struct ContactForce {
 /// (`livereg bench --force-truths --set tuning`: the linear law's fitted forces are 4–28 %
 /// off, 90 % of frames within 21 %) and the tuning liver's neo-Hookean press at 2 mm (29 %,
 /// `tests/registration/tool_indentation.rs::a_first_order_force_beyond_small_strain_is_null_and_flagged`).
-pub const FIT_SHARE: f64 = 0.35;
+pub(crate) const FIT_SHARE: f64 = 0.35;
 
 /// How fast the fit's expected relative error grows with the registered field's displacement
 /// gradient (`StaticProblem::displacement_gradient_rms`) for a law that is not linear: the
@@ -89,7 +88,7 @@ pub const FIT_SHARE: f64 = 0.35;
 /// error at gradients 0.02 / 0.07 / 0.13 / 0.19 / 0.24 is 29 / 53 / 56 / 73 / 99 %; `FIT_SHARE +
 /// 2.7 g` bounds all five (40 / 54 / 70 / 86 / 100 %). Where it reaches 100 % (g ≈ 0.24) the
 /// force says nothing and is not reported (flag `force_beyond_linear`).
-pub const FIT_GRADIENT_SLOPE: f64 = 2.7;
+pub(crate) const FIT_GRADIENT_SLOPE: f64 = 2.7;
 
 /// The model's rest compliance, factorised once: the responses to concentrated surface loads.
 pub struct RestCompliance {
@@ -157,7 +156,7 @@ impl RestCompliance {
     /// The concentrated load (module doc) that explains displacement `u` (m) at the points of
     /// the data term `springs` on `problem`, whose rest surface is `surface` (m); its centre is
     /// where the registered state `u` put the loaded patch; its expected error grows with the
-    /// displacement gradient of `u` for a law that is not linear ([`FIT_GRADIENT_SLOPE`]).
+    /// displacement gradient of `u` for a law that is not linear (`FIT_GRADIENT_SLOPE`).
     /// `None` as [`RestCompliance::fit_displacements`].
     pub fn fit(
         &mut self,
