@@ -84,9 +84,6 @@ pub struct ContactRefit {
     /// the true force on the force-driven truths' deep neo-Hookean frames), while the holds'
     /// reaction stays with the body's state.
     pub contact_force: Vector3<f64>,
-    /// How far the refitted body is from global balance: `|Σ held springs' force −
-    /// contact_force| / |contact_force|` (0 at equilibrium).
-    pub imbalance: f64,
     /// Where it acts (m, deformed configuration): the held vertices' positions weighted by
     /// their springs' force magnitudes.
     pub force_centre: Point3<f64>,
@@ -293,11 +290,10 @@ impl HeldBody<'_, '_> {
             .collect()
     }
 
-    /// The held springs' force on the body (N) for the slide `slide` (plane coordinates, m) at
-    /// grid displacements `u` (m), and where it acts ([`ContactRefit::force_centre`]).
-    fn reaction(&self, slide: &Vector2<f64>, u: &[f64]) -> (Vector3<f64>, Point3<f64>) {
+    /// Where the held springs load the body for the slide `slide` (plane coordinates, m) at
+    /// grid displacements `u` (m) ([`ContactRefit::force_centre`]).
+    fn force_centre(&self, slide: &Vector2<f64>, u: &[f64]) -> Point3<f64> {
         let moved = self.embedding.interpolate(u);
-        let mut force = Vector3::zeros();
         let mut weighted = Vector3::zeros();
         let mut weight = 0.0;
         for ((target, r), d) in self
@@ -306,12 +302,11 @@ impl HeldBody<'_, '_> {
             .zip(&self.embedding.rest)
             .zip(&moved)
         {
-            let f = (target - d) * self.hold_stiffness;
-            force += f;
-            weighted += (r.coords + d) * f.norm();
-            weight += f.norm();
+            let f = ((target - d) * self.hold_stiffness).norm();
+            weighted += (r.coords + d) * f;
+            weight += f;
         }
-        let centre = if weight > 0.0 {
+        if weight > 0.0 {
             Point3::from(weighted / weight)
         } else {
             Point3::from(
@@ -320,8 +315,7 @@ impl HeldBody<'_, '_> {
                     .fold(Vector3::zeros(), |a, x| a + x.coords)
                     / self.registered.len() as f64,
             )
-        };
-        (force, centre)
+        }
     }
 
     /// The body solved by at most `iterations` Newton iterations from `start` with the
@@ -413,15 +407,10 @@ pub fn refit_at_contact(
     let fitted = fit_slide(&mut body, settings);
     body.solver.set_factorization_budget(None);
     let (best, best_slide) = fitted?;
-    let (held_force, force_centre) = body.reaction(&best_slide, &best.u);
-    let contact_force = -body.problem.holds_and_loads_resultant(&best.u, 1.0);
-    let imbalance =
-        (held_force - contact_force).norm() / contact_force.norm().max(f64::MIN_POSITIVE);
     let refit = ContactRefit {
         converged: best.converged,
-        contact_force,
-        imbalance,
-        force_centre,
+        contact_force: -body.problem.holds_and_loads_resultant(&best.u, 1.0),
+        force_centre: body.force_centre(&best_slide, &best.u),
         outer_rms: best.rms(),
         u: best.u,
         slide: body.tangent(&best_slide),
