@@ -240,8 +240,12 @@ pub struct ForceTruthFrame {
     pub expected_error_mm: Option<f64>,
     /// The truth's applied force, N.
     pub force_true_n: f64,
+    /// The truth's applied force as a vector in the camera's frame (the cloud's), N.
+    pub force_true_vector_n: [f64; 3],
     /// The estimated contact force's magnitude, N (`None`: no estimate).
     pub force_estimate_n: Option<f64>,
+    /// The estimated contact force as a vector in the camera's frame, N (`None`: no estimate).
+    pub force_estimate_vector_n: Option<[f64; 3]>,
     /// |estimate − truth| / |truth| (`None`: no estimate).
     pub force_relative_error: Option<f64>,
     /// The force estimate's own expected error, N (`contact_force.expected_error_n`).
@@ -558,7 +562,9 @@ fn grade_frame(g: &FrameToGrade<'_>) -> ForceTruthFrame {
         near_tool_mm: mean(&near),
         expected_error_mm: g.result.expected_error.map(|e| e.expected),
         force_true_n: g.force.norm(),
+        force_true_vector_n: g.force.into(),
         force_estimate_n: estimate.map(|f| f.norm()),
+        force_estimate_vector_n: estimate.map(|f| f.into()),
         force_relative_error: estimate.map(|f| (f - g.force).norm() / g.force.norm().max(1e-12)),
         force_expected_error_n: force.map(|c| c.expected_error),
         wall_ms: g.result.wall_ms,
