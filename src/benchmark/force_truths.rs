@@ -746,23 +746,28 @@ pub fn force_truths_table(rows: &[ForceTruthMetrics]) -> String {
 mod tests {
     use super::*;
 
-    /// The split is SPLIT.md's: eight tuning cases on the indentation and bent livers, eight
-    /// test cases on the two others, no liver in both.
+    /// The split is SPLIT.md's: sixteen tuning cases on four livers, eight test cases on the
+    /// two others, no liver in both.
     #[test]
     fn the_split_is_read_from_the_fixture() {
         let root = force_truths_dir();
         let tuning = force_truth_cases(&root, TruthSet::Tuning).unwrap();
         let test = force_truth_cases(&root, TruthSet::Test).unwrap();
         let all = force_truth_cases(&root, TruthSet::All).unwrap();
-        assert_eq!(tuning.len(), 8);
+        assert_eq!(tuning.len(), 16);
         assert_eq!(test.len(), 8);
-        assert_eq!(all.len(), 16);
+        assert_eq!(all.len(), 24);
         let liver = |c: &ForceTruthCase| c.name.split_once('/').unwrap().0.to_string();
         let tuning_livers: std::collections::BTreeSet<String> = tuning.iter().map(liver).collect();
         let test_livers: std::collections::BTreeSet<String> = test.iter().map(liver).collect();
         assert_eq!(
             tuning_livers.iter().map(String::as_str).collect::<Vec<_>>(),
-            ["bent-liver", "indentation-liver"]
+            [
+                "bent-liver",
+                "indentation-liver",
+                "random-liver-1",
+                "random-liver-2"
+            ]
         );
         assert_eq!(
             test_livers.iter().map(String::as_str).collect::<Vec<_>>(),

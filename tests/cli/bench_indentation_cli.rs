@@ -74,12 +74,12 @@ fn the_force_truths_bench_grades_as_register_and_eval_do() {
         d.to_str().unwrap(),
     ]);
     assert_eq!(code, 0, "{stderr}");
-    assert!(stdout.contains("| all tuning (24 frames) |"), "{stdout}");
+    assert!(stdout.contains("| all tuning (48 frames) |"), "{stdout}");
     let rows: Value =
         serde_json::from_str(&std::fs::read_to_string(d.join("force-truths.json")).unwrap())
             .unwrap();
     let rows = rows.as_array().unwrap();
-    assert_eq!(rows.len(), 8, "the eight tuning cases");
+    assert_eq!(rows.len(), 16, "the sixteen tuning cases");
     let first = &rows[0];
     assert_eq!(first["set"], "tuning");
     let case = first["case"].as_str().unwrap();
