@@ -97,7 +97,7 @@ pub struct BenchArgs {
     /// that many of them.
     #[arg(long, value_name = "N", requires = "indentation", value_parser = clap::value_parser!(u32).range(1..))]
     pub frame_stride: Option<u32>,
-    /// Run the force-driven tetrahedral FE truths of `fixtures/liver_force` instead (three
+    /// Run the force-driven tetrahedral FE truths of `fixtures/liver_force` instead (six
     /// livers, a load on a small vertex patch pushing up to 63 mm deep, noise-free 500-point
     /// clouds of 15 % of the surface), each with its liver's scene of its law; writes
     /// force-truths.json and force-truths.md. `--frame-count` keeps the first N frames.
