@@ -31,6 +31,6 @@ pub use registration_session::{
 };
 pub use settings::{
     PoseUpdate, RigidMode, SessionSettings, BACKGROUND_FACTORIZATION_LAG, DEFAULT_CONTACT_RADIUS,
-    DEFAULT_STILL_FRAMES,
+    DEFAULT_REFIT_FACTORIZATIONS, DEFAULT_STILL_FRAMES,
 };
 pub use still_window::StillWindow;

@@ -142,6 +142,9 @@ pub struct SessionSettings {
     /// Radius (m, rest) of the contact region the refit holds around the dent's centre
     /// (`registration.contact_radius`, default [`DEFAULT_CONTACT_RADIUS`]).
     pub contact_radius: f64,
+    /// Fresh factorisations one contact refit may make over all its solves
+    /// (`registration.refit_factorizations`, default [`DEFAULT_REFIT_FACTORIZATIONS`]).
+    pub refit_factorizations: usize,
 }
 
 /// Default of [`SessionSettings::contact_radius`], m: a tool's contact and the dent around
@@ -154,6 +157,31 @@ pub struct SessionSettings {
 /// every warped-liver case worse. A gain this small against the spread between livers is not
 /// a reason to move the default.
 pub const DEFAULT_CONTACT_RADIUS: f64 = 0.035;
+
+/// Default of [`SessionSettings::refit_factorizations`]: fresh factorisations one contact refit
+/// may make over all its solves. A step the kept factorisation
+/// cannot make (its line search fails) refactorises while the budget lasts and otherwise ends
+/// that solve at its last iterate; the refit is then flagged `refit_not_converged`, or refused
+/// when the state leaves the motion away from the contact unexplained. Without a budget the
+/// deepest neo-Hookean frames refactorise up to 33 times. Chosen on the force-driven tuning set
+/// at the default cells and at 8 mm (`livereg bench --force-truths --set tuning [--cell-size
+/// 8]`), mean node error / neo-Hookean warm p95:
+///
+/// | budget | 11.5 mm cells | 8 mm cells |
+/// | --- | --- | --- |
+/// | 1 | 1.07 mm / 210–260 ms | 0.89 mm / 0.95–1.1 s |
+/// | **2** | **1.09 mm / 280–370 ms** | **0.81 mm / 1.1–1.5 s** |
+/// | none | 1.09 mm / 390–470 ms | 0.80 mm / 2.9–5.2 s |
+///
+/// One factorisation leaves the finer grid's refits unconverged (neo-Hookean force 23 → 78 %
+/// on the press); two keep the accuracy of none at both sizes. On the four-liver tuning set at
+/// the default cells, 3 and 4 give 1.447 and 1.461 mm against 1.449 mm, 4 at a slower
+/// neo-Hookean warm p50 (183 against 155 ms). At half the default cells (5.75 mm) two are too
+/// few: the release frames' refits spend them on the first solve, cannot fit their slide and are
+/// refused, and the registered field alone does not unwind the press; 4 take the test set from
+/// 1.62 to 1.41 mm (`--set test --cell-size 5.75` with `refit_factorizations = 4` in the
+/// scenes: the phantom liver's press-release neo-Hookean 2.41 → 0.61 mm).
+pub const DEFAULT_REFIT_FACTORIZATIONS: usize = 2;
 
 /// Default of [`SessionSettings::max_cloud_points`]: about twice a normal frame's cloud on the
 /// phantom. Denser clouds register worse there: a million-point frame thinned to 5,000 points
@@ -202,6 +230,7 @@ impl Default for SessionSettings {
             coarse_to_fine: None,
             contact_refit: true,
             contact_radius: DEFAULT_CONTACT_RADIUS,
+            refit_factorizations: DEFAULT_REFIT_FACTORIZATIONS,
         }
     }
 }

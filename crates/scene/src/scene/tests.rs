@@ -389,6 +389,29 @@ fn units_are_parsed_and_scaled() {
     );
 }
 
+/// The contact refit's scene keys reach the session's settings, lengths in metres; omitted,
+/// the session's defaults.
+#[test]
+fn the_contact_refit_keys_reach_the_session_settings() {
+    let dir = TempDir::with_model();
+    let text = format!(
+        "units = \"mm\"\n{}",
+        MINIMAL.replace(
+            "[material]",
+            "[registration]\ncontact_radius = 45\nrefit_factorizations = 4\n\n[material]"
+        )
+    );
+    let l = load_toml(&dir, &text).unwrap();
+    let s = crate::simulation::session_settings(&l.scene, l.length_scale());
+    assert!((s.contact_radius - 0.045).abs() < 1e-15);
+    assert_eq!(s.refit_factorizations, 4);
+    let l = load_toml(&dir, MINIMAL).unwrap();
+    let s = crate::simulation::session_settings(&l.scene, l.length_scale());
+    let d = livereg_registration::session::SessionSettings::default();
+    assert_eq!(s.contact_radius, d.contact_radius);
+    assert_eq!(s.refit_factorizations, d.refit_factorizations);
+}
+
 #[test]
 fn unknown_top_level_key() {
     let e = toml_error(&format!("colour = \"red\"\n{MINIMAL}"), &["colour", ":1:"]);
@@ -770,6 +793,11 @@ fn range_checks() {
             "contact_radius = -3",
             "registration",
             &["registration.contact_radius", "-3"],
+        ),
+        (
+            "refit_factorizations = 0",
+            "registration",
+            &["registration.refit_factorizations", ">= 1", "0"],
         ),
         (
             "camera = { position = [0, 0, 1], look_at = [0, 0, 1] }",

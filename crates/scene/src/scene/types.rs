@@ -659,6 +659,11 @@ pub struct RegistrationSpec {
     /// (docs/data-term.md#the-contact-refit).
     #[serde(default)]
     pub contact_radius: Option<f64>,
+    /// Fresh factorisations one contact refit may make over all its solves, ≥ 1. Omitted: 2,
+    /// chosen on the derived cells; grids finer than the derived one may need more
+    /// (docs/data-term.md#the-contact-refit).
+    #[serde(default)]
+    pub refit_factorizations: Option<u32>,
 }
 
 impl Default for RegistrationSpec {
@@ -689,6 +694,7 @@ impl Default for RegistrationSpec {
             normal_radius: None,
             contact_refit: defaults::contact_refit(),
             contact_radius: None,
+            refit_factorizations: None,
         }
     }
 }

@@ -450,6 +450,9 @@ fn check_registration(c: &mut Checker, r: &RegistrationSpec) {
     if let Some(d) = r.contact_radius {
         c.positive("registration.contact_radius", d, " scene units");
     }
+    if let Some(n) = r.refit_factorizations {
+        c.at_least_one("registration.refit_factorizations", n);
+    }
     if let Some(d) = r.normal_radius {
         if !(d.is_finite() && d >= 0.0) {
             c.fail(

@@ -121,6 +121,9 @@ pub fn session_settings(scene: &Scene, scale: f64) -> SessionSettings {
         if let Some(d) = r.contact_radius {
             s.contact_radius = d * scale;
         }
+        if let Some(n) = r.refit_factorizations {
+            s.refit_factorizations = n as usize;
+        }
     }
     if matches!(
         scene.material.law,

@@ -27,29 +27,12 @@ const REFIT_ALLOWANCE_CELLS: f64 = 0.1;
 const MAX_UNEXPLAINED_SHARE: f64 = 0.25;
 
 /// Newton iterations per solve of the refitted body (modified Newton on at most
-/// [`REFIT_FACTORIZATIONS`] factorisations per frame). A kept refit whose solve has not
-/// converged within them is flagged `refit_not_converged`: on the force-driven tuning set
+/// `registration.refit_factorizations` factorisations per frame,
+/// [`DEFAULT_REFIT_FACTORIZATIONS`](crate::session::DEFAULT_REFIT_FACTORIZATIONS) by default).
+/// A kept refit whose solve has not converged within them is flagged `refit_not_converged`: on the force-driven tuning set
 /// (`livereg bench --force-truths --set tuning`) that is 37 of 114 kept refits, all on the deep
 /// neo-Hookean frames.
 const REFIT_NEWTON_ITERATIONS: usize = 8;
-
-/// Fresh factorisations one refit may make over all its solves. A step the kept factorisation
-/// cannot make (its line search fails) refactorises while the budget lasts and otherwise ends
-/// that solve at its last iterate; the refit is then flagged `refit_not_converged`, or refused
-/// when the state leaves the motion away from the contact unexplained. Without a budget the
-/// deepest neo-Hookean frames refactorise up to 33 times. Chosen on the force-driven tuning set
-/// at the default cells and at 8 mm (`livereg bench --force-truths --set tuning [--cell-size
-/// 8]`), mean node error / neo-Hookean warm p95:
-///
-/// | budget | 11.5 mm cells | 8 mm cells |
-/// | --- | --- | --- |
-/// | 1 | 1.07 mm / 210–260 ms | 0.89 mm / 0.95–1.1 s |
-/// | **2** | **1.09 mm / 280–370 ms** | **0.81 mm / 1.1–1.5 s** |
-/// | none | 1.09 mm / 390–470 ms | 0.80 mm / 2.9–5.2 s |
-///
-/// One factorisation leaves the finer grid's refits unconverged (neo-Hookean force 23 → 78 %
-/// on the press); two keep the accuracy of none at both sizes.
-const REFIT_FACTORIZATIONS: usize = 2;
 
 /// Gauss–Newton steps on the contact region's slide.
 const REFIT_SLIDE_STEPS: usize = 2;
@@ -171,7 +154,7 @@ impl ContactForceEstimator {
                 * model.problem.material.young_modulus()
                 * h,
             newton_iterations: REFIT_NEWTON_ITERATIONS,
-            factorizations: REFIT_FACTORIZATIONS,
+            factorizations: settings.refit_factorizations,
             slide_steps: REFIT_SLIDE_STEPS,
             allowance: REFIT_ALLOWANCE_CELLS * h,
             max_unexplained_share: MAX_UNEXPLAINED_SHARE,
