@@ -757,11 +757,15 @@ mod tests {
         assert_eq!(tuning.len(), 16);
         assert_eq!(test.len(), 8);
         assert_eq!(all.len(), 24);
-        let liver = |c: &ForceTruthCase| c.name.split_once('/').unwrap().0.to_string();
-        let tuning_livers: std::collections::BTreeSet<String> = tuning.iter().map(liver).collect();
-        let test_livers: std::collections::BTreeSet<String> = test.iter().map(liver).collect();
+        let livers = |cases: &[ForceTruthCase]| -> Vec<String> {
+            let set: std::collections::BTreeSet<&str> = cases
+                .iter()
+                .map(|c| c.name.split_once('/').unwrap().0)
+                .collect();
+            set.into_iter().map(str::to_string).collect()
+        };
         assert_eq!(
-            tuning_livers.iter().map(String::as_str).collect::<Vec<_>>(),
+            livers(&tuning),
             [
                 "bent-liver",
                 "indentation-liver",
@@ -769,10 +773,7 @@ mod tests {
                 "random-liver-2"
             ]
         );
-        assert_eq!(
-            test_livers.iter().map(String::as_str).collect::<Vec<_>>(),
-            ["phantom-liver", "varied-liver"]
-        );
+        assert_eq!(livers(&test), ["phantom-liver", "varied-liver"]);
         assert!(all
             .iter()
             .all(|c| ["linear", "neo-hookean"].contains(&c.law.as_str())));

@@ -344,8 +344,8 @@ impl ResultMessage {
             surface: self.surface.iter().flatten().copied().collect(),
             contact_force: rec
                 .contact_force
-                .clone()
-                .flatten()
+                .as_ref()
+                .and_then(Option::as_ref)
                 .map(|c| proto::ContactForce {
                     resultant_n: c.resultant_n.to_vec(),
                     magnitude_n: c.magnitude_n,

@@ -21,17 +21,17 @@ const REFIT_ALLOWANCE_CELLS: f64 = 0.1;
 
 /// Largest share of the motion seen away from the contact the refit may leave unexplained
 /// ([`ContactRefit::unexplained_share`](crate::registration::contact_refit::ContactRefit::unexplained_share)).
-/// On the force-driven tuning set (a load at one patch) the share is 0.02–0.06; a load spread
-/// evenly over the seen half of a body leaves 0.77
+/// On the indentation liver's force-driven truths (a load at one patch) the share is
+/// 0.02–0.06; a load spread evenly over the seen half of a body leaves 0.77
 /// (`session::tests::the_contact_refit_is_refused_for_a_load_spread_over_the_liver`).
 const MAX_UNEXPLAINED_SHARE: f64 = 0.25;
 
 /// Newton iterations per solve of the refitted body (modified Newton on at most
 /// `registration.refit_factorizations` factorisations per frame,
 /// [`DEFAULT_REFIT_FACTORIZATIONS`](crate::session::DEFAULT_REFIT_FACTORIZATIONS) by default).
-/// A kept refit whose solve has not converged within them is flagged `refit_not_converged`: on the force-driven tuning set
-/// (`livereg bench --force-truths --set tuning`) that is 37 of 114 kept refits, all on the deep
-/// neo-Hookean frames.
+/// A kept refit whose solve has not converged within them is flagged `refit_not_converged`: on
+/// the indentation liver's force-driven truths (`livereg bench --force-truths --set tuning`)
+/// that is 37 of 114 kept refits, all on the deep neo-Hookean frames.
 const REFIT_NEWTON_ITERATIONS: usize = 8;
 
 /// Gauss–Newton steps on the contact region's slide.
