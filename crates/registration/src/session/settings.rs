@@ -163,9 +163,9 @@ pub const DEFAULT_CONTACT_RADIUS: f64 = 0.035;
 /// fails) refactorises while the budget lasts and otherwise ends that solve at its last
 /// iterate; the refit is then flagged `refit_not_converged`, or refused when the state leaves
 /// the motion away from the contact unexplained. Without a budget the deepest neo-Hookean
-/// frames refactorise up to 33 times. Chosen on the indentation liver's force-driven truths
-/// (then the whole tuning set) at the default cells and at 8 mm (`livereg bench --force-truths
-/// --set tuning [--cell-size 8]`), mean node error / neo-Hookean warm p95:
+/// frames refactorise up to 33 times. Chosen on the indentation liver's force-driven truths at
+/// the default cells and at 8 mm (`livereg bench --force-truths --set tuning [--cell-size 8]`),
+/// mean node error / neo-Hookean warm p95:
 ///
 /// | budget | 11.5 mm cells | 8 mm cells |
 /// | --- | --- | --- |
