@@ -39,13 +39,12 @@ fn bench_contact_force(c: &mut Criterion) {
         seen.len()
     );
 
-    let holds = session.model.point_holds.clone();
     let mut group = c.benchmark_group("contact_force");
     group.sample_size(20);
     group.bench_function("rest factorisation (once per session)", |b| {
-        b.iter(|| black_box(RestCompliance::new(&mut session.model.problem, kind, &holds).unwrap()))
+        b.iter(|| black_box(RestCompliance::new(&mut session.model.problem, kind).unwrap()))
     });
-    let mut compliance = RestCompliance::new(&mut session.model.problem, kind, &holds).unwrap();
+    let mut compliance = RestCompliance::new(&mut session.model.problem, kind).unwrap();
     let model = &session.model;
     group.bench_function("fit (every frame)", |b| {
         b.iter(|| {

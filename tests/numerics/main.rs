@@ -11,6 +11,7 @@ mod common;
 
 mod cylinder;
 mod determinism;
+mod ligament_hold;
 mod manufactured_solutions;
 mod newton_robustness;
 mod patch_test;

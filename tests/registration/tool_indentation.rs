@@ -150,31 +150,48 @@ fn the_sticking_truths_load_and_the_neo_hookean_one_goes_deep() {
 /// (11.5 mm cells). No registration error enters, so what is left is the model's compliance
 /// against the tetrahedral truth. Measured on the linear truth's frames deeper than 20 mm
 /// (force ratio, median over the frames):
-/// - the ligament's 100 fixed points held point by point, as the registration holds them:
-///   1.31 on press-slide, 1.18 on two-sites. Eight or more points in a cell clamp the whole
-///   cell, so the hold reaches up to a cell beyond the truth's fixed patch;
-/// - lumped per cell, as the fit holds them (`SceneModel::point_holds`): 1.09 and 1.09.
+/// - the ligament's 100 fixed points held per cell, as the scene model holds them: 1.09 on
+///   press-slide, 1.09 on two-sites;
+/// - held point by point: 1.31 and 1.18. Eight or more points in a cell clamp the whole cell,
+///   so the hold reaches up to a cell beyond the truth's fixed patch.
 ///
-/// Asserted: lumped within 15 % of the truth on both and closer to it than point by point;
+/// Asserted: per cell within 15 % of the truth on both and closer to it than point by point;
 /// the direction within 15°.
 #[test]
 fn the_fit_of_the_true_field_measures_the_models_compliance() {
     use livereg::grid::Embedding;
+    use livereg::mechanics::PenaltySprings;
+    use livereg::mesh::read_points;
     use livereg::registration::RestCompliance;
     use livereg::session::Session;
     use livereg::synthetic::indentation::IndentationTruth;
 
     let mut session = Session::from_scene(&scene(DataTerm::CloudToSurface)).expect("session");
-    let holds = session.model.point_holds.clone();
-    assert!(
-        !holds.is_empty(),
-        "the fixture holds its ligament by points"
-    );
     let kind = session.model.newton.linear_solver;
     let mut lumped =
-        RestCompliance::new(&mut session.model.problem, kind, &holds).expect("rest compliance");
-    let mut by_point =
-        RestCompliance::new(&mut session.model.problem, kind, &[]).expect("rest compliance");
+        RestCompliance::new(&mut session.model.problem, kind).expect("rest compliance");
+    // The same ligament held point by point: the fixture's points, each with its share of the
+    // model's hold (every point has the same stiffness).
+    let scale = session.model.length_scale;
+    let fixed: Vec<_> = read_points(&bundled_fixture_dir().join("fixed.xyz"))
+        .expect("the fixture's ligament")
+        .iter()
+        .map(|p| p * scale)
+        .collect();
+    let [hold] = session.model.problem.springs.as_slice() else {
+        panic!("the fixture holds one ligament")
+    };
+    assert!(
+        hold.stiffness.len() < fixed.len(),
+        "the model holds the ligament per cell"
+    );
+    let k = hold.stiffness.iter().sum::<f64>() / fixed.len() as f64;
+    let mut by_point_problem = session.model.problem.clone();
+    by_point_problem.springs = vec![PenaltySprings::fixed(
+        Embedding::new(&by_point_problem.grid, &fixed).expect("ligament embedded"),
+        vec![k; fixed.len()],
+    )];
+    let mut by_point = RestCompliance::new(&mut by_point_problem, kind).expect("rest compliance");
     let model = &session.model;
     let normals = model.surface.vertex_normals();
     let median = |mut v: Vec<f64>| {

@@ -33,7 +33,6 @@
 //!     probes: Embedding::new(&problem.grid, &[]).unwrap(),
 //!     surface: surface.clone(),
 //!     problem,
-//!     point_holds: Vec::new(),
 //!     newton: NewtonSettings::default(),
 //!     structures: Vec::new(),
 //! };

@@ -63,10 +63,6 @@ pub struct Model {
     pub surface_embedding: Embedding,
     /// The mechanical problem (grid, material, dead loads, fixed regions).
     pub problem: StaticProblem,
-    /// Indices into `problem.springs` of the fixed regions given as points, one spring per
-    /// point; the contact force's rest compliance lumps them per cell
-    /// ([`RestCompliance`](crate::registration::RestCompliance)).
-    pub point_holds: Vec<usize>,
     /// Newton settings of the model's solves.
     pub newton: NewtonSettings,
     /// Probe points, embedded.

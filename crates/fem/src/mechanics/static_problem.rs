@@ -204,41 +204,6 @@ impl StaticProblem {
         residual: Option<&mut [f64]>,
         tangent: Option<&mut SymmetricCsc>,
     ) -> Result<Evaluation, CellFailure> {
-        self.evaluate_sets(u, load, None, extra, need, residual, tangent)
-    }
-
-    /// [`StaticProblem::evaluate`] with the spring sets `springs` (N/m) in place of the
-    /// body's own ([`StaticProblem::springs`]) for this one evaluation, and no others: a
-    /// variant of the body's conditions (the contact-force fit's holds lumped per cell,
-    /// `livereg::registration::RestCompliance`) without
-    /// changing the problem. The cells are evaluated (and cached) as by
-    /// [`StaticProblem::evaluate_with`].
-    pub fn evaluate_with_springs(
-        &mut self,
-        u: &[f64],
-        load: f64,
-        springs: &[PenaltySprings],
-        need: Need,
-        residual: Option<&mut [f64]>,
-        tangent: Option<&mut SymmetricCsc>,
-    ) -> Result<Evaluation, CellFailure> {
-        self.evaluate_sets(u, load, Some(springs), &[], need, residual, tangent)
-    }
-
-    /// The evaluation behind [`StaticProblem::evaluate_with`] and
-    /// [`StaticProblem::evaluate_with_springs`]: the cells, then the spring sets `own` (the
-    /// body's own when `None`) followed by `extra`, then the dead loads.
-    #[allow(clippy::too_many_arguments)]
-    fn evaluate_sets(
-        &mut self,
-        u: &[f64],
-        load: f64,
-        own: Option<&[PenaltySprings]>,
-        extra: &[PenaltySprings],
-        need: Need,
-        residual: Option<&mut [f64]>,
-        tangent: Option<&mut SymmetricCsc>,
-    ) -> Result<Evaluation, CellFailure> {
         let mut residual = residual;
         let mut tangent = tangent;
         if let Some(r) = residual.as_deref_mut() {
@@ -286,8 +251,7 @@ impl StaticProblem {
             strain
         };
         let mut potential = strain;
-        let own = own.unwrap_or(&self.springs);
-        for s in own.iter().chain(extra) {
+        for s in self.springs.iter().chain(extra) {
             potential += s.accumulate(
                 &self.assembler,
                 u,
@@ -389,49 +353,6 @@ mod tests {
         let (_, expect) = force(&mut fresh, &u1, 1.0);
         assert_ne!(before, after);
         assert_eq!(after, expect);
-    }
-
-    /// Springs given for one evaluation in place of the body's own act exactly as a problem
-    /// holding them as its own (a clone, the independent reference), and leave the problem's
-    /// own springs as they were: energy, force and tangent, bit for bit.
-    #[test]
-    fn springs_in_place_of_the_bodys_own_leave_the_problem_unchanged() {
-        use crate::grid::Embedding;
-        let (surface, mut p) = test_fixtures::cut_box(0.076);
-        let end: Vec<nalgebra::Point3<f64>> = surface
-            .vertices
-            .iter()
-            .filter(|v| v.x < 0.004)
-            .copied()
-            .collect();
-        let embedding = Embedding::new(&p.grid, &end).unwrap();
-        let own = PenaltySprings::fixed(embedding, vec![1e4; end.len()]);
-        p.springs = vec![own.clone()];
-        let replaced = vec![own.lumped_per_cell()];
-        let u = field(&p, 1.0);
-        let mut reference = p.clone();
-        reference.springs = replaced.clone();
-        let evaluate = |q: &mut StaticProblem, springs: Option<&[PenaltySprings]>| {
-            let mut r = vec![0.0; q.dofs()];
-            let mut k = q.new_tangent();
-            let e = match springs {
-                Some(s) => {
-                    q.evaluate_with_springs(&u, 0.5, s, Need::Tangent, Some(&mut r), Some(&mut k))
-                }
-                None => q.evaluate(&u, 0.5, Need::Tangent, Some(&mut r), Some(&mut k)),
-            }
-            .unwrap();
-            (e.potential.to_bits(), r, k.values)
-        };
-        let given = evaluate(&mut p, Some(&replaced));
-        assert_eq!(given, evaluate(&mut reference, None));
-        // The body's own springs are untouched and still what a plain evaluation uses.
-        assert_eq!(p.springs.len(), 1);
-        let mut untouched = p.clone();
-        untouched.springs = vec![own];
-        let plain = evaluate(&mut p, None);
-        assert_eq!(plain, evaluate(&mut untouched, None));
-        assert_ne!(plain, given, "lumped holds differ from point holds");
     }
 
     /// Global balance, an independent conservation law: at the equilibrium Newton reaches, a

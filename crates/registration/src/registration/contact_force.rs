@@ -24,14 +24,9 @@
 //! pushed inwards by at least [`CENTRE_SHARE`] of the deepest one, weighted by their depth.
 //! Linear in the load: exact for the linear law, first order for the others.
 //!
-//! The rest tangent `K₀` holds each grid cell's fixed points by one spring on their mean
-//! displacement ([`PenaltySprings::lumped_per_cell`]). Held point by point, eight or more
-//! points clamp a whole cell, so a ligament given as 100 vertices holds up to a cell beyond
-//! itself and the model needs more force for the same displacement: given the truth's own
-//! displacements, 1.31 times the truth's force on press-slide and 1.18 on two-sites with the
-//! point-by-point hold, 1.08 and 1.10 lumped. Only the fit's compliance is lumped; the
-//! registration keeps its hold (lumping it there too cost press-slide neo-Hookean 13 % in node
-//! error; docs/contact-force.md).
+//! The rest tangent `K₀` is the model's: its fixed regions as the scene model holds them, a
+//! ligament given as points by one spring per grid cell on their mean displacement
+//! ([`PenaltySprings::lumped_per_cell`], docs/mechanics.md §4).
 //!
 //! Measured on the tool-indentation class (no camera; docs/contact-force.md):
 //! median vector error 19 / 70 / 38 / 31 % (press-slide linear, neo-Hookean, two-sites
@@ -98,37 +93,16 @@ pub struct RestCompliance {
 
 impl RestCompliance {
     /// Assembles and factorises, with the linear solver `kind` (the model's), the rest tangent
-    /// of `problem`: its cells and its own springs (the fixed regions), those listed in
-    /// `lumped_holds` (indices into `problem.springs`: the holds given as points,
-    /// [`Model::point_holds`](crate::model::Model::point_holds)) lumped per
-    /// cell (module doc), given to [`StaticProblem::evaluate_with_springs`] for this one
-    /// assembly: the problem's own springs are left as they are. Fails when the tangent
+    /// of `problem`: its cells and its own springs (the fixed regions). Fails when the tangent
     /// cannot be assembled or factorised, or is not positive definite (a body held nowhere).
-    pub fn new(
-        problem: &mut StaticProblem,
-        kind: SolverKind,
-        lumped_holds: &[usize],
-    ) -> Result<Self, String> {
+    pub fn new(problem: &mut StaticProblem, kind: SolverKind) -> Result<Self, String> {
         let n = problem.dofs();
         let mut stiffness = problem.new_tangent();
         let mut residual = vec![0.0; n];
-        let holds: Vec<PenaltySprings> = problem
-            .springs
-            .iter()
-            .enumerate()
-            .map(|(i, s)| {
-                if lumped_holds.contains(&i) {
-                    s.lumped_per_cell()
-                } else {
-                    s.clone()
-                }
-            })
-            .collect();
         problem
-            .evaluate_with_springs(
+            .evaluate(
                 &vec![0.0; n],
                 0.0,
-                &holds,
                 Need::Tangent,
                 Some(&mut residual),
                 Some(&mut stiffness),
@@ -358,7 +332,7 @@ mod tests {
     #[test]
     fn a_body_held_nowhere_has_no_rest_compliance() {
         let (s, mut free) = crate::mechanics::test_fixtures::cut_box(0.05);
-        let e = RestCompliance::new(&mut free, SolverKind::Cholesky, &[])
+        let e = RestCompliance::new(&mut free, SolverKind::Cholesky)
             .err()
             .expect("a floating body is refused");
         assert!(e.contains("held nowhere"), "{e}");
@@ -366,7 +340,7 @@ mod tests {
         let end: Vec<Point3<f64>> = s.vertices.iter().filter(|v| v.x < 0.004).copied().collect();
         let embedding = Embedding::new(&free.grid, &end).unwrap();
         free.springs = vec![PenaltySprings::fixed(embedding, vec![1e4; end.len()])];
-        assert!(RestCompliance::new(&mut free, SolverKind::Cholesky, &[]).is_ok());
+        assert!(RestCompliance::new(&mut free, SolverKind::Cholesky).is_ok());
     }
 
     #[test]

@@ -145,21 +145,23 @@ fn external_loads(
     Ok(external)
 }
 
-/// The penalty springs of `[[boundary.fixed]]`, one set per entry in order, and the indices
-/// of the sets given as points (the holds [`SceneModel::point_holds`] lists). A box holds its
-/// surface samples at a spring density of κE/h per unit area, points each get κ E h, unless
-/// the entry or `[solver]` gives a stiffness; a region that holds nothing is an error.
+/// The penalty springs of `[[boundary.fixed]]`, one set per entry in order. A box holds its
+/// surface samples at a spring density of κE/h per unit area; points each get κ E h, and the
+/// points that fall in one grid cell act as one spring on their mean displacement of their
+/// summed stiffness ([`PenaltySprings::lumped_per_cell`]): held point by point, eight or more
+/// points clamp the whole cell, so a ligament given as its vertices would hold up to a cell
+/// beyond itself (`tests/numerics/ligament_hold.rs`). The entry's or `[solver]`'s stiffness
+/// replaces the default per sample or point; a region that holds nothing is an error.
 fn fixed_regions(
     loaded: &LoadedScene,
     grid: &WeightedCellGrid,
     surface: &TriSurface,
-) -> Result<(Vec<PenaltySprings>, Vec<usize>), ModelError> {
+) -> Result<Vec<PenaltySprings>, ModelError> {
     let scene = &loaded.scene;
     let scale = loaded.length_scale();
     let young = scene.material.young_modulus;
     let h = grid.grid.cell_size;
     let mut springs = Vec::new();
-    let mut point_holds = Vec::new();
     for (i, f) in scene.boundary.fixed.iter().enumerate() {
         let key = format!("boundary.fixed[{i}]");
         let set = match f.region() {
@@ -185,8 +187,8 @@ fn fixed_regions(
                     .or(scene.solver.penalty_stiffness)
                     .unwrap_or(DEFAULT_FIXED_PENALTY_FACTOR * young * h);
                 let emb = embed(key.clone(), &pts, grid)?;
-                point_holds.push(springs.len());
-                (!pts.is_empty()).then(|| PenaltySprings::fixed(emb, vec![k; pts.len()]))
+                (!pts.is_empty())
+                    .then(|| PenaltySprings::fixed(emb, vec![k; pts.len()]).lumped_per_cell())
             }
             None => {
                 return Err(ModelError::Invalid(format!(
@@ -205,7 +207,7 @@ fn fixed_regions(
             }
         }
     }
-    Ok((springs, point_holds))
+    Ok(springs)
 }
 
 /// The springs of `[[boundary.support]]` (elastic beds), one set per entry in order; a box
@@ -301,7 +303,7 @@ pub fn build_model(loaded: &LoadedScene) -> Result<(Model, SurfaceReport), Model
         &grid,
     )?;
     let external = external_loads(loaded, &grid, &surface)?;
-    let (mut springs, point_holds) = fixed_regions(loaded, &grid, &surface)?;
+    let mut springs = fixed_regions(loaded, &grid, &surface)?;
     springs.extend(supports(loaded, &grid, &surface)?);
     let mut probe_points = Vec::new();
     for p in &scene.probe {
@@ -315,7 +317,6 @@ pub fn build_model(loaded: &LoadedScene) -> Result<(Model, SurfaceReport), Model
     problem.springs = springs;
     let model = Model {
         length_scale: scale,
-        point_holds,
         surface,
         surface_embedding,
         problem,

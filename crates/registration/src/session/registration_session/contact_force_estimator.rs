@@ -107,11 +107,7 @@ impl ContactForceEstimator {
         let compliance = self
             .rest_compliance
             .get_or_insert_with(|| {
-                RestCompliance::new(
-                    &mut model.problem,
-                    model.newton.linear_solver,
-                    &model.point_holds,
-                )
+                RestCompliance::new(&mut model.problem, model.newton.linear_solver)
             })
             .as_mut()
             .ok()?;
