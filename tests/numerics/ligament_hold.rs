@@ -22,20 +22,14 @@ fn force_truths() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/liver_force")
 }
 
-/// The mean node error (mm) of the forward solution of `liver`'s `case` at `frame`, with the
-/// ligament held as `hold` makes it from the point-by-point springs, and the truth's mean
-/// node displacement (mm).
-fn forward_error(
-    liver: &str,
-    case: &str,
-    frame: usize,
-    hold: impl Fn(PenaltySprings) -> PenaltySprings,
-) -> (f64, f64) {
+/// `liver`'s linear scene loaded and modelled, with its ligament (`fixed.xyz`) held point by
+/// point: one spring of the default stiffness `κ E h` per point, as the scene model makes them
+/// before lumping them per cell.
+fn model_and_point_hold(liver: &str) -> (PathBuf, livereg::simulation::SceneModel, PenaltySprings) {
     let dir = force_truths().join(liver);
     let loaded = livereg::scene::load_scene(&dir.join("scene_linear.toml")).expect("scene");
-    let mut model = livereg::simulation::SceneModel::from_scene(&loaded).expect("model");
+    let model = livereg::simulation::SceneModel::from_scene(&loaded).expect("model");
     let scale = model.length_scale;
-    // The ligament held point by point, then as `hold` makes it.
     let fixed: Vec<Point3<f64>> = read_points(&dir.join("fixed.xyz"))
         .expect("fixed points")
         .iter()
@@ -47,6 +41,20 @@ fn forward_error(
         * loaded.scene.material.young_modulus
         * model.problem.cell_size();
     let by_point = PenaltySprings::fixed(embedding, vec![k; fixed.len()]);
+    (dir, model, by_point)
+}
+
+/// The mean node error (mm) of the forward solution of `liver`'s `case` at `frame`, with the
+/// ligament held as `hold` makes it from the point-by-point springs, and the truth's mean
+/// node displacement (mm).
+fn forward_error(
+    liver: &str,
+    case: &str,
+    frame: usize,
+    hold: impl Fn(PenaltySprings) -> PenaltySprings,
+) -> (f64, f64) {
+    let (dir, mut model, by_point) = model_and_point_hold(liver);
+    let scale = model.length_scale;
     model.problem.springs = vec![hold(by_point)];
 
     let meta: serde_json::Value = serde_json::from_str(
@@ -151,30 +159,18 @@ fn a_ligament_held_per_cell_follows_the_tetrahedral_truth_closer_than_point_by_p
     }
 }
 
-/// The scene model holds a ligament given as points per cell: its forward solution is the
-/// per-cell one above, bit for bit.
+/// The scene model holds a ligament given as points per cell: its hold is the per-cell one
+/// above, spring for spring.
 #[test]
 fn the_scene_model_holds_points_per_cell() {
-    let dir = force_truths().join("random-liver-2");
-    let loaded = livereg::scene::load_scene(&dir.join("scene_linear.toml")).expect("scene");
-    let model = livereg::simulation::SceneModel::from_scene(&loaded).expect("model");
-    let scale = model.length_scale;
-    let fixed: Vec<Point3<f64>> = read_points(&dir.join("fixed.xyz"))
-        .expect("fixed points")
-        .iter()
-        .map(|p| p * scale)
-        .collect();
-    let embedding =
-        livereg::grid::Embedding::new(&model.problem.grid, &fixed).expect("fixed embedded");
-    let k = livereg::simulation::DEFAULT_FIXED_PENALTY_FACTOR
-        * loaded.scene.material.young_modulus
-        * model.problem.cell_size();
-    let per_cell = PenaltySprings::fixed(embedding, vec![k; fixed.len()]).lumped_per_cell();
+    let (_, model, by_point) = model_and_point_hold("random-liver-2");
+    let points = by_point.stiffness.len();
+    let per_cell = by_point.lumped_per_cell();
     let [hold] = model.problem.springs.as_slice() else {
         panic!("one hold");
     };
     assert!(
-        per_cell.stiffness.len() < fixed.len(),
+        per_cell.stiffness.len() < points,
         "cells hold several points"
     );
     assert_eq!(hold.stiffness, per_cell.stiffness);
