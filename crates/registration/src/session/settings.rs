@@ -176,11 +176,11 @@ pub const DEFAULT_CONTACT_RADIUS: f64 = 0.035;
 /// One factorisation leaves the finer grid's refits unconverged (neo-Hookean force 23 → 78 %
 /// on the press); two keep the accuracy of none at both sizes. On the four-liver tuning set at
 /// the default cells, 3 and 4 give 1.447 and 1.461 mm against 1.449 mm, 4 at a slower
-/// neo-Hookean warm p50 (183 against 155 ms). At half the default cells (5.75 mm) two are too
-/// few: the release frames' refits spend them on the first solve, cannot fit their slide and are
-/// refused, and the registered field alone does not unwind the press; 4 take the test set from
-/// 1.62 to 1.41 mm (`--set test --cell-size 5.75` with `refit_factorizations = 4` in the
-/// scenes: the phantom liver's press-release neo-Hookean 2.41 → 0.61 mm).
+/// neo-Hookean warm p50 (183 against 155 ms). At half the default cells (5.75 mm) some release
+/// frames' refits spend two on their first solve, cannot fit their slide and are refused; 4
+/// keep them, right on some livers and wrong on others: the tuning set at 5.75 mm is 1.03 mm
+/// with 2 and 1.12 mm with 4 (indentation liver's press-release neo-Hookean 1.27 → 0.92 mm,
+/// random liver 1's 2.96 → 4.90 mm; docs/data-term.md#the-contact-refit).
 pub const DEFAULT_REFIT_FACTORIZATIONS: usize = 2;
 
 /// Default of [`SessionSettings::max_cloud_points`]: about twice a normal frame's cloud on the
