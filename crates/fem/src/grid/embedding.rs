@@ -100,6 +100,15 @@ impl Embedding {
         (out, kept)
     }
 
+    /// The embedding of the points numbered `ids` (indices into this one, in that order): the
+    /// same rows of H, without locating the points again.
+    pub fn select(&self, ids: &[usize]) -> Self {
+        Self {
+            points: ids.iter().map(|&i| self.points[i]).collect(),
+            rest: ids.iter().map(|&i| self.rest[i]).collect(),
+        }
+    }
+
     /// Number of embedded points.
     pub fn len(&self) -> usize {
         self.points.len()
@@ -206,5 +215,24 @@ fn make(grid: &WeightedCellGrid, cell: usize, p: &Point3<f64>) -> EmbeddedPoint 
         cell,
         nodes: c.nodes,
         weights: shape_values(&xi),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mechanics::test_fixtures::cut_box;
+
+    /// Selecting points of an embedding gives what embedding those points afresh gives.
+    #[test]
+    fn a_selection_is_the_embedding_of_the_selected_points() {
+        let (surface, problem) = cut_box(0.05);
+        let all = Embedding::new(&problem.grid, &surface.vertices).unwrap();
+        let ids = [7, 2, 2, surface.vertices.len() - 1];
+        let chosen: Vec<Point3<f64>> = ids.iter().map(|&i| surface.vertices[i]).collect();
+        assert_eq!(
+            all.select(&ids),
+            Embedding::new(&problem.grid, &chosen).unwrap()
+        );
     }
 }

@@ -388,16 +388,7 @@ pub fn refit_at_contact(
         solver,
         input,
         hold_stiffness: settings.hold_stiffness,
-        embedding: Embedding {
-            points: held_ids
-                .iter()
-                .map(|&v| input.surface_embedding.points[v])
-                .collect(),
-            rest: held_ids
-                .iter()
-                .map(|&v| input.surface_embedding.rest[v])
-                .collect(),
-        },
+        embedding: input.surface_embedding.select(held_ids),
         registered: held_ids.iter().map(|&v| x[v]).collect(),
         outside: &split.outside,
         plane,
@@ -452,7 +443,6 @@ fn fit_slide(
     let mut probes = Vec::with_capacity(2);
     for axis in 0..2 {
         let probe = body.evaluate(&(slide + Vector2::ith(axis, h)), &base, 1)?;
-        probes.push(probe.u.clone());
         jacobian.push(
             probe
                 .distances
@@ -461,6 +451,7 @@ fn fit_slide(
                 .map(|(a, b)| (a - b) / h)
                 .collect::<Vec<f64>>(),
         );
+        probes.push(probe.u);
     }
     let mut normal = Matrix2::zeros();
     for a in 0..2 {
@@ -598,16 +589,7 @@ mod tests {
             solver: &mut solver,
             input: &input,
             hold_stiffness: 1e3,
-            embedding: Embedding {
-                points: held_ids
-                    .iter()
-                    .map(|&v| surface_embedding.points[v])
-                    .collect(),
-                rest: held_ids
-                    .iter()
-                    .map(|&v| surface_embedding.rest[v])
-                    .collect(),
-            },
+            embedding: surface_embedding.select(&held_ids),
             registered: held_ids
                 .iter()
                 .map(|&v| s.vertices[v] - Vector3::new(0.0, 0.005, 0.0))

@@ -939,10 +939,7 @@ impl Paired {
 /// embedding), towards their targets.
 fn vertex_springs(pairs: Correspondences, emb: &Embedding, k: f64) -> PenaltySprings {
     PenaltySprings {
-        embedding: Embedding {
-            points: pairs.sources.iter().map(|&i| emb.points[i]).collect(),
-            rest: pairs.sources.iter().map(|&i| emb.rest[i]).collect(),
-        },
+        embedding: emb.select(&pairs.sources),
         target: pairs
             .sources
             .iter()

@@ -148,10 +148,7 @@ impl NormalsAtScale {
     /// `triangles` encloses (m); `None` when the volume is not positive (an open or
     /// inside-out surface).
     pub fn default_radius(rest: &[Point3<f64>], triangles: &[[usize; 3]]) -> Option<f64> {
-        let volume: f64 = triangles
-            .iter()
-            .map(|&[a, b, c]| rest[a].coords.dot(&rest[b].coords.cross(&rest[c].coords)) / 6.0)
-            .sum();
+        let volume = crate::geometry::shapes::signed_volume(rest, triangles);
         (volume.is_finite() && volume > 0.0).then(|| RADIUS_PER_VOLUME_ROOT * volume.cbrt())
     }
 
