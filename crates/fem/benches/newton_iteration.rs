@@ -1,6 +1,7 @@
 //! One Newton iteration on liver-sized grids (tangent + residual assembly, factorisation,
 //! solve), split into its parts; and the tangent assembly cost of weighted-cell versus
-//! finite-cell integration at 0 and 4 subdivision levels.
+//! finite-cell integration at 0 and 4 subdivision levels; and the residual of a linear body
+//! through its kept stiffness against a neo-Hookean body's pass over its cells.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use livereg_fem::geometry::Aabb;
@@ -128,6 +129,37 @@ fn bench_assembly_by_mode(c: &mut Criterion) {
     group.finish();
 }
 
+/// The residual (energy and internal force) at a strained state on ~1,000 nodes: the
+/// small-strain linear law multiplies its kept stiffness, the neo-Hookean law evaluates every
+/// integration point.
+fn bench_residual_by_law(c: &mut Criterion) {
+    let mut group = c.benchmark_group("residual");
+    group.sample_size(10);
+    for law in [LawKind::Linear, LawKind::NeoHookean] {
+        let mut p = problem(0.0155, 4, IntegrationMode::WeightedCell);
+        p.material = Material::from_young_poisson(law, 4500.0, 0.49).unwrap();
+        let n = p.dofs();
+        // Two states taken in turn: the problem keeps the cells' force of the last state.
+        let states: Vec<Vec<f64>> = [0.37, 0.53]
+            .iter()
+            .map(|f| (0..n).map(|i| 1e-3 * ((i as f64) * f).sin()).collect())
+            .collect();
+        let mut r = vec![0.0; n];
+        // The first evaluation assembles the linear body's kept stiffness.
+        p.evaluate(&states[0], 1.0, Need::Force, Some(&mut r), None)
+            .unwrap();
+        let mut turn = 0;
+        group.bench_function(format!("{law:?}"), |b| {
+            b.iter(|| {
+                turn = 1 - turn;
+                p.evaluate(&states[turn], 1.0, Need::Force, Some(&mut r), None)
+                    .unwrap()
+            })
+        });
+    }
+    group.finish();
+}
+
 fn bench_grid_build(c: &mut Criterion) {
     let mut group = c.benchmark_group("grid_build");
     group.sample_size(10);
@@ -151,6 +183,7 @@ criterion_group!(
     benches,
     bench_newton_iteration,
     bench_assembly_by_mode,
+    bench_residual_by_law,
     bench_grid_build
 );
 criterion_main!(benches);

@@ -34,6 +34,21 @@ pub struct StaticProblem {
     pub springs: Vec<PenaltySprings>,
     assembler: Assembler,
     body_cache: Option<BodyCache>,
+    linear_stiffness: Option<LinearStiffness>,
+}
+
+/// The cells' stiffness `K` (N/m) of a small-strain linear body ([`Material::is_linear`]),
+/// assembled once: its strain energy is `½ uᵀKu`, its internal force `Ku` and its tangent `K`
+/// at every state (thesis eq. 4.9–4.11 with a quadratic energy density), so an evaluation is a
+/// sparse product instead of a pass over every cell's integration points. Kept with what it
+/// was assembled with (public fields of the problem, so checked at each use).
+#[derive(Clone)]
+struct LinearStiffness {
+    material: Material,
+    volumetric: VolumetricIntegration,
+    matrix: SymmetricCsc,
+    /// `Ku` of the last evaluation, N (scratch, reused).
+    product: Vec<f64>,
 }
 
 /// The body's own strain energy and internal force at the last state whose force was
@@ -92,6 +107,7 @@ impl StaticProblem {
             springs: Vec::new(),
             assembler,
             body_cache: None,
+            linear_stiffness: None,
         }
     }
 
@@ -212,6 +228,9 @@ impl StaticProblem {
         if let Some(k) = tangent.as_deref_mut() {
             k.zero_values();
         }
+        if self.material.is_linear() {
+            return self.evaluate_linear(u, load, extra, need, residual, tangent);
+        }
         let cached = self
             .body_cache
             .as_ref()
@@ -250,6 +269,98 @@ impl StaticProblem {
             }
             strain
         };
+        Ok(self.add_springs_and_loads(strain, u, load, extra, need, residual, tangent))
+    }
+
+    /// [`StaticProblem::evaluate_with`] for a small-strain linear body: the cells through
+    /// their kept stiffness ([`LinearStiffness`], assembled on first use or when the material
+    /// or the integration changed), then the springs and loads. `residual` and `tangent` are
+    /// zeroed on entry.
+    fn evaluate_linear(
+        &mut self,
+        u: &[f64],
+        load: f64,
+        extra: &[PenaltySprings],
+        need: Need,
+        residual: Option<&mut [f64]>,
+        tangent: Option<&mut SymmetricCsc>,
+    ) -> Result<Evaluation, CellFailure> {
+        let mut residual = residual;
+        let mut tangent = tangent;
+        let stiffness = self.linear_stiffness()?;
+        stiffness.matrix.mul_vec(u, &mut stiffness.product);
+        let strain = 0.5
+            * u.iter()
+                .zip(&stiffness.product)
+                .map(|(a, b)| a * b)
+                .sum::<f64>();
+        if let (true, Some(r)) = (need >= Need::Force, residual.as_deref_mut()) {
+            r.copy_from_slice(&stiffness.product);
+        }
+        if let (true, Some(k)) = (need >= Need::Tangent, tangent.as_deref_mut()) {
+            if k.col_ptr == stiffness.matrix.col_ptr && k.row_idx == stiffness.matrix.row_idx {
+                k.values.copy_from_slice(&stiffness.matrix.values);
+            } else {
+                self.assembler.assemble(
+                    &self.grid,
+                    &self.material,
+                    self.volumetric,
+                    u,
+                    Need::Tangent,
+                    None,
+                    Some(&mut *k),
+                )?;
+            }
+        }
+        Ok(self.add_springs_and_loads(strain, u, load, extra, need, residual, tangent))
+    }
+
+    /// The linear body's kept stiffness, assembled when missing or stale.
+    fn linear_stiffness(&mut self) -> Result<&mut LinearStiffness, CellFailure> {
+        let fresh = self
+            .linear_stiffness
+            .as_ref()
+            .is_some_and(|k| k.material == self.material && k.volumetric == self.volumetric);
+        if !fresh {
+            let mut matrix = self.assembler.pattern().clone();
+            let zero = vec![0.0; self.dofs()];
+            self.assembler.assemble(
+                &self.grid,
+                &self.material,
+                self.volumetric,
+                &zero,
+                Need::Tangent,
+                None,
+                Some(&mut matrix),
+            )?;
+            self.linear_stiffness = Some(LinearStiffness {
+                material: self.material,
+                volumetric: self.volumetric,
+                matrix,
+                product: zero,
+            });
+        }
+        Ok(self
+            .linear_stiffness
+            .as_mut()
+            .expect("the kept stiffness was just assembled"))
+    }
+
+    /// The total potential of a body of strain energy `strain` (J) at `u` (m) and load factor
+    /// `load`: its own and the `extra` springs' energies, forces and stiffnesses added to
+    /// `residual` and `tangent` as `need` asks, less the dead loads' work (their forces
+    /// subtracted from `residual`).
+    #[allow(clippy::too_many_arguments)]
+    fn add_springs_and_loads(
+        &self,
+        strain: f64,
+        u: &[f64],
+        load: f64,
+        extra: &[PenaltySprings],
+        need: Need,
+        mut residual: Option<&mut [f64]>,
+        mut tangent: Option<&mut SymmetricCsc>,
+    ) -> Evaluation {
         let mut potential = strain;
         for s in self.springs.iter().chain(extra) {
             potential += s.accumulate(
@@ -278,10 +389,10 @@ impl StaticProblem {
                 *ri -= load * f;
             }
         }
-        Ok(Evaluation {
+        Evaluation {
             potential,
             strain_energy: strain,
-        })
+        }
     }
 }
 
@@ -353,6 +464,89 @@ mod tests {
         let (_, expect) = force(&mut fresh, &u1, 1.0);
         assert_ne!(before, after);
         assert_eq!(after, expect);
+    }
+
+    /// A linear body's kept stiffness gives what a pass over its cells gives: energy, force
+    /// and tangent at a strained, loaded state with springs, to rounding; a changed modulus
+    /// is assembled anew. The cell pass is the assembler's own, called directly.
+    #[test]
+    fn a_linear_bodys_kept_stiffness_equals_its_cells() {
+        use crate::grid::Embedding;
+        let mut p = cut_box();
+        p.material = Material::from_young_poisson(LawKind::Linear, 4500.0, 0.45).unwrap();
+        let u = field(&p, 2.0);
+        let points: Vec<nalgebra::Point3<f64>> = [[0.02, 0.0, 0.03], [0.08, 0.05, 0.02]]
+            .iter()
+            .map(|c| nalgebra::Point3::new(c[0], c[1], c[2]))
+            .collect();
+        let springs = PenaltySprings {
+            embedding: Embedding::new(&p.grid, &points).unwrap(),
+            target: vec![Vector3::new(1e-3, -2e-3, 5e-4); 2],
+            stiffness: vec![30.0; 2],
+            follows_load: false,
+            normals: None,
+        };
+        let cells = |p: &mut StaticProblem, u: &[f64]| {
+            let mut r = vec![0.0; p.dofs()];
+            let mut k = p.new_tangent();
+            let (material, volumetric) = (p.material, p.volumetric);
+            let e = p
+                .assembler
+                .assemble(
+                    &p.grid,
+                    &material,
+                    volumetric,
+                    u,
+                    Need::Tangent,
+                    Some(&mut r),
+                    Some(&mut k),
+                )
+                .unwrap();
+            (e, r, k)
+        };
+        for young in [4500.0, 20000.0] {
+            p.material = Material::from_young_poisson(LawKind::Linear, young, 0.45).unwrap();
+            for need in [Need::Energy, Need::Force, Need::Tangent] {
+                let mut r = vec![0.0; p.dofs()];
+                let mut k = p.new_tangent();
+                let kept = p
+                    .evaluate_with(
+                        &u,
+                        0.7,
+                        std::slice::from_ref(&springs),
+                        need,
+                        Some(&mut r),
+                        Some(&mut k),
+                    )
+                    .unwrap();
+                let (e, mut r_cells, mut k_cells) = cells(&mut p, &u);
+                let expected = p.add_springs_and_loads(
+                    e,
+                    &u,
+                    0.7,
+                    std::slice::from_ref(&springs),
+                    Need::Tangent,
+                    Some(&mut r_cells),
+                    Some(&mut k_cells),
+                );
+                assert!(e > 0.0);
+                assert!(
+                    (kept.strain_energy - e).abs() <= 1e-12 * e,
+                    "{kept:?} against {e}"
+                );
+                assert!((kept.potential - expected.potential).abs() <= 1e-12 * e);
+                let close = |a: &[f64], b: &[f64]| {
+                    let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                    scale > 0.0 && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-12 * scale)
+                };
+                if need >= Need::Force {
+                    assert!(close(&r, &r_cells), "force at E = {young}");
+                }
+                if need >= Need::Tangent {
+                    assert!(close(&k.values, &k_cells.values), "tangent at E = {young}");
+                }
+            }
+        }
     }
 
     /// Global balance, an independent conservation law: at the equilibrium Newton reaches, a

@@ -16,6 +16,7 @@
 //! | the surface's topology for signed distances | its own count | triangles and the triangles around each vertex (`SurfaceTopology::heap_bytes`, counted, not fitted) |
 //! | the rest compliance of the contact force | 8 per factor value, 16 per tangent entry | its own f64 factor and copy of the rest tangent (`RestCompliance`, counted, not fitted; non-rigid sessions) |
 //! | the contact refit's solver | 8 per factor value, 16 per tangent entry | its own f64 factor and tangent (`registration.contact_refit`, counted like the rest compliance, not fitted; non-rigid sessions) |
+//! | the linear law's kept stiffness | 16 per tangent entry, 8 per unknown | its matrix and product (`StaticProblem`, small-strain linear models only, counted, not fitted) |
 //! | the still window's registered points | 800 per point, at the `max_cloud_points` cap | the data term, trees and neighbour lists of a union of clouds (non-rigid sessions with `still_frames` > 1; measured: below) |
 //!
 //! The factor's size comes from the same symbolic analysis the solver makes (fill-reducing
@@ -122,6 +123,17 @@ impl ModelSize {
     /// like the tangent's and its own tangent.
     pub fn contact_refit_bytes(&self) -> u64 {
         self.rest_compliance_bytes()
+    }
+
+    /// What a small-strain linear model's kept stiffness holds (its cells' matrix and one
+    /// product vector), bytes; nothing for the other laws, which evaluate their cells anew.
+    pub fn linear_stiffness_bytes(&self, linear: bool) -> u64 {
+        if linear {
+            (BYTES_PER_REST_TANGENT_ENTRY * self.tangent_entries as f64 + 8.0 * self.dofs as f64)
+                .ceil() as u64
+        } else {
+            0
+        }
     }
 
     /// The sizes of `model`, whose linear solver is `kind`. Runs the symbolic analysis of the

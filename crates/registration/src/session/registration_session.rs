@@ -121,10 +121,12 @@ impl Session {
     /// A non-rigid session adds its rest compliance for the contact force
     /// ([`ModelSize::rest_compliance_bytes`]), the contact refit's solver when it refits
     /// ([`ModelSize::contact_refit_bytes`]) and its still window at its point cap
-    /// ([`still_window_bytes`]). A rigid-only session (`settings.non_rigid`
+    /// ([`still_window_bytes`]), and a small-strain linear model its kept stiffness per grid
+    /// ([`ModelSize::linear_stiffness_bytes`]). A rigid-only session (`settings.non_rigid`
     /// false) never factorises: its factors are not counted.
     pub fn memory_estimate_bytes(&self) -> Result<u64, String> {
         let mut sizes = self.model_sizes()?;
+        let linear = self.model.problem.material.is_linear();
         let per_frame = if self.settings.non_rigid {
             sizes[0].rest_compliance_bytes()
                 + if self.settings.contact_refit {
@@ -133,6 +135,10 @@ impl Session {
                     0
                 }
                 + still_window_bytes(self.settings.still_frames, self.settings.max_cloud_points)
+                + sizes
+                    .iter()
+                    .map(|s| s.linear_stiffness_bytes(linear))
+                    .sum::<u64>()
         } else {
             sizes.iter_mut().for_each(|s| s.factor_values = 0);
             0
