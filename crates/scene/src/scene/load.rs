@@ -2,7 +2,6 @@
 
 use std::path::{Path, PathBuf};
 
-use super::derived_cell_size::derived_cell_size;
 use super::error::{
     json_key_at, line_column, missing_field, offset_of, one_line, toml_key_at,
     toml_value_with_span, Problem,
@@ -10,6 +9,7 @@ use super::error::{
 use super::types::{PointSource, Scene};
 use super::validate::validate_scene;
 use super::SceneError;
+use crate::grid::derived_cell_size;
 
 /// The syntax a scene is written in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

@@ -9,7 +9,6 @@
 //! tractions, gravity and spring stiffnesses are SI (Pa, kg/m³, m/s², N/m). See
 //! [`LoadedScene::length_scale`]. The full reference is `docs/scene.md`.
 
-pub(crate) mod derived_cell_size;
 pub(crate) mod derived_model;
 mod error;
 mod load;

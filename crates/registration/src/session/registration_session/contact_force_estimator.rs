@@ -7,6 +7,7 @@ use super::super::frame_flag::FrameFlag;
 use super::super::settings::SessionSettings;
 use super::model_surfaces::ModelSurfaces;
 use super::still_data::StillData;
+use crate::grid::derived_cell_size;
 use crate::mechanics::{NewtonSettings, NewtonSolver, PenaltySprings};
 use crate::mesh::TriSurface;
 use crate::model::{Model, DEFAULT_FIXED_PENALTY_FACTOR};
@@ -15,10 +16,10 @@ use crate::registration::contact_refit::{refit_at_contact, ContactRefitSettings,
 use crate::registration::{ContactForce, RestCompliance};
 
 /// What the registration may miss the cloud by at the contact (RMS, beyond its noise) for the
-/// refit to hold the contact region where it is: a tenth of the cell edge (what a trilinear
-/// cell cannot shape), but never less than this share of the cube root of the organ's volume,
-/// a tenth of its derived default cell (`V^(1/3) / 9`; 1.1–1.2 mm on the force-driven truths'
-/// livers). The bundled tool-indentation class's noisy deep dents (`livereg bench
+/// refit to hold the contact region where it is, as a share of a cell edge: a tenth of the
+/// cell edge (what a trilinear cell cannot shape), but never less than a tenth of the organ's
+/// derived default cell ([`derived_cell_size`], `V^(1/3) / 9`; 1.1–1.2 mm on the force-driven
+/// truths' livers). The bundled tool-indentation class's noisy deep dents (`livereg bench
 /// --indentation`) miss it by 2–3 mm and are refused. The registration reaches a 10–12 mm patch
 /// pushed 40 mm deep no closer on finer cells (0.8–1.2 mm RMS on random liver 1's
 /// press-release linear at 8 mm): a tenth of the cell alone would refuse those refits as the cells
@@ -27,7 +28,7 @@ use crate::registration::{ContactForce, RestCompliance};
 /// --set tuning --cell-size 8|5.75`; docs/force-truths.md#grid-refinement). Coarser cells than
 /// the derived ones keep their tenth: the phantom's 22.5 mm cells miss its body-load
 /// deformations by more, and a floor alone raised its TRE from 0.49 to 0.51 mm.
-const REFIT_ALLOWANCE_PER_VOLUME_ROOT: f64 = 0.1 / 9.0;
+const REFIT_ALLOWANCE_PER_CELL: f64 = 0.1;
 
 /// Largest share of the motion seen away from the contact the refit may leave unexplained
 /// ([`ContactRefit::unexplained_share`](crate::registration::contact_refit::ContactRefit::unexplained_share)).
@@ -202,16 +203,10 @@ impl ContactForceEstimator {
 }
 
 /// The contact refit's reach allowance (m) on cells of edge `h` (m) for an organ of closed
-/// `surface` (m): the larger of a tenth of `h` and [`REFIT_ALLOWANCE_PER_VOLUME_ROOT`] × the
-/// cube root of the volume the surface encloses (a tenth of `h` when it encloses none).
+/// `surface` (m): [`REFIT_ALLOWANCE_PER_CELL`] of the larger of `h` and the organ's derived
+/// cell ([`derived_cell_size`]; `h` alone when the surface encloses no volume).
 fn refit_allowance(surface: &TriSurface, h: f64) -> f64 {
-    let volume = surface.signed_volume().abs();
-    let cell = 0.1 * h;
-    if volume.is_finite() && volume > 0.0 {
-        cell.max(REFIT_ALLOWANCE_PER_VOLUME_ROOT * volume.cbrt())
-    } else {
-        cell
-    }
+    REFIT_ALLOWANCE_PER_CELL * derived_cell_size(surface).map_or(h, |d| d.max(h))
 }
 
 #[cfg(test)]

@@ -1,4 +1,5 @@
-//! The cell size a scene gets when `grid.cell_size` is omitted: derived from the
+//! The cell size a scene gets when `grid.cell_size` is omitted (and the organ's scale the
+//! contact refit's reach allowance is measured in): derived from the
 //! enclosed volume of its surface, so that one default serves livers of any size and any
 //! file unit.
 //!
@@ -12,10 +13,11 @@
 use crate::mesh::TriSurface;
 
 /// Cells across the cube root of the enclosed volume.
-pub(crate) const CELLS_PER_CUBE_ROOT: f64 = 9.0;
+pub const CELLS_PER_CUBE_ROOT: f64 = 9.0;
 
-/// The derived cell size of `surface` (its units), or `None` when it encloses no volume.
-pub(crate) fn derived_cell_size(surface: &TriSurface) -> Option<f64> {
+/// The derived cell size of `surface` (its units): the cube root of the volume it encloses over
+/// [`CELLS_PER_CUBE_ROOT`]; `None` when it encloses no volume.
+pub fn derived_cell_size(surface: &TriSurface) -> Option<f64> {
     let v = surface.signed_volume().abs();
     (v.is_finite() && v > 0.0).then(|| v.cbrt() / CELLS_PER_CUBE_ROOT)
 }
