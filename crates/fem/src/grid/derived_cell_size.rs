@@ -1,7 +1,6 @@
-//! The cell size a scene gets when `grid.cell_size` is omitted (and the organ's scale the
-//! contact refit's reach allowance is measured in): derived from the
-//! enclosed volume of its surface, so that one default serves livers of any size and any
-//! file unit.
+//! The cell size a scene gets when `grid.cell_size` is omitted, and an organ's own length
+//! scale for tolerances that must not shrink with the cells: derived from the enclosed volume
+//! of its surface, so that one default serves livers of any size and any file unit.
 //!
 //! Rule: `h = V^(1/3) / CELLS_PER_CUBE_ROOT`, with `V` the volume the surface encloses (scene
 //! units³). A liver of 1.1–1.2 L gets 11.5–11.8 mm cells (about 1,500 active nodes): on the

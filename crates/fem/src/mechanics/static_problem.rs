@@ -317,33 +317,29 @@ impl StaticProblem {
 
     /// The linear body's kept stiffness, assembled when missing or stale.
     fn linear_stiffness(&mut self) -> Result<&mut LinearStiffness, CellFailure> {
-        let fresh = self
-            .linear_stiffness
-            .as_ref()
-            .is_some_and(|k| k.material == self.material && k.volumetric == self.volumetric);
-        if !fresh {
-            let mut matrix = self.assembler.pattern().clone();
-            let zero = vec![0.0; self.dofs()];
-            self.assembler.assemble(
-                &self.grid,
-                &self.material,
-                self.volumetric,
-                &zero,
-                Need::Tangent,
-                None,
-                Some(&mut matrix),
-            )?;
-            self.linear_stiffness = Some(LinearStiffness {
-                material: self.material,
-                volumetric: self.volumetric,
-                matrix,
-                product: zero,
-            });
-        }
-        Ok(self
-            .linear_stiffness
-            .as_mut()
-            .expect("the kept stiffness was just assembled"))
+        let kept = match self.linear_stiffness.take() {
+            Some(k) if k.material == self.material && k.volumetric == self.volumetric => k,
+            _ => {
+                let mut matrix = self.assembler.pattern().clone();
+                let zero = vec![0.0; self.dofs()];
+                self.assembler.assemble(
+                    &self.grid,
+                    &self.material,
+                    self.volumetric,
+                    &zero,
+                    Need::Tangent,
+                    None,
+                    Some(&mut matrix),
+                )?;
+                LinearStiffness {
+                    material: self.material,
+                    volumetric: self.volumetric,
+                    matrix,
+                    product: zero,
+                }
+            }
+        };
+        Ok(self.linear_stiffness.insert(kept))
     }
 
     /// The total potential of a body of strain energy `strain` (J) at `u` (m) and load factor
