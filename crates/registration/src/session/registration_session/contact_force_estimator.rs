@@ -24,7 +24,7 @@ use crate::registration::{ContactForce, RestCompliance};
 /// pushed 40 mm deep no closer on finer cells (0.8–1.2 mm RMS on random liver 1's
 /// press-release linear at 8 mm): a tenth of the cell alone would refuse those refits as the cells
 /// shrink and the error would grow with refinement; with the floor the force-driven sets fall from
-/// 11.5 to 8 to 5.75 mm cells (tuning 1.11 / 1.05 / 1.03 mm, `livereg bench --force-truths
+/// 11.5 to 8 to 5.75 mm cells (tuning 1.10 / 1.03 / 0.96 mm, `livereg bench --force-truths
 /// --set tuning --cell-size 8|5.75`; docs/force-truths.md#grid-refinement). Coarser cells than
 /// the derived ones keep their tenth: the phantom's 22.5 mm cells miss its body-load
 /// deformations by more, and a floor alone raised its TRE from 0.49 to 0.51 mm.
