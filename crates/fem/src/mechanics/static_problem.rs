@@ -228,65 +228,74 @@ impl StaticProblem {
         if let Some(k) = tangent.as_deref_mut() {
             k.zero_values();
         }
-        if self.material.is_linear() {
-            return self.evaluate_linear(u, load, extra, need, residual, tangent);
-        }
-        let cached = self
-            .body_cache
-            .as_ref()
-            .filter(|c| need <= Need::Force && c.holds(u, &self.material, self.volumetric));
-        let strain = if let Some(c) = cached {
-            if let (true, Some(r)) = (need >= Need::Force, residual.as_deref_mut()) {
-                r.copy_from_slice(&c.force);
-            }
-            c.strain
+        let strain = if self.material.is_linear() {
+            self.linear_strain_energy(u, need, residual.as_deref_mut(), tangent.as_deref_mut())?
         } else {
-            let strain = self.assembler.assemble(
-                &self.grid,
-                &self.material,
-                self.volumetric,
-                u,
-                need,
-                residual.as_deref_mut(),
-                tangent.as_deref_mut(),
-            )?;
-            if let (true, Some(r)) = (need >= Need::Force, residual.as_deref()) {
-                let mut c = self.body_cache.take().unwrap_or_else(|| BodyCache {
-                    u: Vec::new(),
-                    material: self.material,
-                    volumetric: self.volumetric,
-                    strain,
-                    force: Vec::new(),
-                });
-                c.u.clear();
-                c.u.extend_from_slice(u);
-                c.force.clear();
-                c.force.extend_from_slice(r);
-                c.material = self.material;
-                c.volumetric = self.volumetric;
-                c.strain = strain;
-                self.body_cache = Some(c);
-            }
-            strain
+            self.cells_strain_energy(u, need, residual.as_deref_mut(), tangent.as_deref_mut())?
         };
         Ok(self.add_springs_and_loads(strain, u, load, extra, need, residual, tangent))
     }
 
-    /// [`StaticProblem::evaluate_with`] for a small-strain linear body: the cells through
-    /// their kept stiffness ([`LinearStiffness`], assembled on first use or when the material
-    /// or the integration changed), then the springs and loads. `residual` and `tangent` are
-    /// zeroed on entry.
-    fn evaluate_linear(
+    /// The cells' strain energy (J) at `u` (m), their internal force (N) into `residual` and
+    /// tangent (N/m) into `tangent` as `need` asks (both zeroed by the caller), by a pass over
+    /// their integration points, or from the kept force when `u` is the last state whose
+    /// force was assembled ([`BodyCache`]).
+    fn cells_strain_energy(
         &mut self,
         u: &[f64],
-        load: f64,
-        extra: &[PenaltySprings],
+        need: Need,
+        mut residual: Option<&mut [f64]>,
+        tangent: Option<&mut SymmetricCsc>,
+    ) -> Result<f64, CellFailure> {
+        let cached = self
+            .body_cache
+            .as_ref()
+            .filter(|c| need <= Need::Force && c.holds(u, &self.material, self.volumetric));
+        if let Some(c) = cached {
+            if let (true, Some(r)) = (need >= Need::Force, residual.as_deref_mut()) {
+                r.copy_from_slice(&c.force);
+            }
+            return Ok(c.strain);
+        }
+        let strain = self.assembler.assemble(
+            &self.grid,
+            &self.material,
+            self.volumetric,
+            u,
+            need,
+            residual.as_deref_mut(),
+            tangent,
+        )?;
+        if let (true, Some(r)) = (need >= Need::Force, residual.as_deref()) {
+            let mut c = self.body_cache.take().unwrap_or_else(|| BodyCache {
+                u: Vec::new(),
+                material: self.material,
+                volumetric: self.volumetric,
+                strain,
+                force: Vec::new(),
+            });
+            c.u.clear();
+            c.u.extend_from_slice(u);
+            c.force.clear();
+            c.force.extend_from_slice(r);
+            c.material = self.material;
+            c.volumetric = self.volumetric;
+            c.strain = strain;
+            self.body_cache = Some(c);
+        }
+        Ok(strain)
+    }
+
+    /// [`StaticProblem::cells_strain_energy`] of a small-strain linear body, through its kept
+    /// stiffness ([`LinearStiffness`], assembled on first use or when the material or the
+    /// integration changed).
+    fn linear_strain_energy(
+        &mut self,
+        u: &[f64],
         need: Need,
         residual: Option<&mut [f64]>,
         tangent: Option<&mut SymmetricCsc>,
-    ) -> Result<Evaluation, CellFailure> {
-        let mut residual = residual;
-        let mut tangent = tangent;
+    ) -> Result<f64, CellFailure> {
         let stiffness = self.linear_stiffness()?;
         stiffness.matrix.mul_vec(u, &mut stiffness.product);
         let strain = 0.5
@@ -294,10 +303,10 @@ impl StaticProblem {
                 .zip(&stiffness.product)
                 .map(|(a, b)| a * b)
                 .sum::<f64>();
-        if let (true, Some(r)) = (need >= Need::Force, residual.as_deref_mut()) {
+        if let (true, Some(r)) = (need >= Need::Force, residual) {
             r.copy_from_slice(&stiffness.product);
         }
-        if let (true, Some(k)) = (need >= Need::Tangent, tangent.as_deref_mut()) {
+        if let (true, Some(k)) = (need >= Need::Tangent, tangent) {
             if k.col_ptr == stiffness.matrix.col_ptr && k.row_idx == stiffness.matrix.row_idx {
                 k.values.copy_from_slice(&stiffness.matrix.values);
             } else {
@@ -312,7 +321,7 @@ impl StaticProblem {
                 )?;
             }
         }
-        Ok(self.add_springs_and_loads(strain, u, load, extra, need, residual, tangent))
+        Ok(strain)
     }
 
     /// The linear body's kept stiffness, assembled when missing or stale.
