@@ -3,7 +3,8 @@
 //! What it offers:
 //! - [`Model`]: what registration reads of a liver (the surface, its embedding in the immersed
 //!   grid, the static problem, the holds, the [`EmbeddedStructure`]s), in SI units, with its
-//!   [`ModelError`] and the [`DEFAULT_FIXED_PENALTY_FACTOR`] of its holds;
+//!   [`ModelError`] and the [`DEFAULT_FIXED_PENALTY_FACTOR`] and [`DEFAULT_POINT_HOLD_FACTOR`]
+//!   of its holds;
 //! - [`registration`]: rigid ICP, correspondences, the biomechanical non-rigid ICP, the
 //!   contact force and its refit, pose search and uncertainty, the change test;
 //! - [`session`]: a [`Session`](session::Session) registering a stream of
@@ -65,4 +66,6 @@ mod model;
 pub mod registration;
 pub mod session;
 
-pub use model::{EmbeddedStructure, Model, ModelError, DEFAULT_FIXED_PENALTY_FACTOR};
+pub use model::{
+    EmbeddedStructure, Model, ModelError, DEFAULT_FIXED_PENALTY_FACTOR, DEFAULT_POINT_HOLD_FACTOR,
+};

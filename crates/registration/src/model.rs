@@ -14,6 +14,19 @@ use crate::mesh::{MeshError, TriSurface};
 /// the region to about 1/κ of the local deformation.
 pub const DEFAULT_FIXED_PENALTY_FACTOR: f64 = 1e3;
 
+/// Default factor β of a surface held as points (a ligament given as the vertices it covers):
+/// a point standing for surface area A gets a spring of `β E A / h` (N/m), so the hold acts
+/// through a layer of tissue `h / β` thick, half a cell. A clamped patch concentrates strain at
+/// its edge over far less than a cell; the grid cannot resolve it and, held rigidly, turns too
+/// little about the patch. The tetrahedral truths of `fixtures/liver_force` (four tuning
+/// livers, both laws), solved forward on the grid under their own loads at the deepest frame,
+/// are off by 3.4–11 mm held rigidly per cell, 80–90 % of it a rotation about the ligament of
+/// 2.6–9.9° too little; held through this layer, by 0.3–1.4 mm, turning within 0.1–1.2°
+/// (`cargo test --test numerics ligament_hold -- --nocapture` prints two of them). β = 1.5
+/// turns the neo-Hookean presses 14–16 % too far. The layer thins with the cell, so the hold
+/// tightens as the grid refines.
+pub const DEFAULT_POINT_HOLD_FACTOR: f64 = 2.0;
+
 /// Errors building a model; every message names the file or key at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {

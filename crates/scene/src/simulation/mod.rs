@@ -6,6 +6,8 @@ pub(crate) mod model;
 pub(crate) mod simulate;
 
 pub use from_scene::{session_settings, FromScene};
-pub use livereg_registration::DEFAULT_FIXED_PENALTY_FACTOR;
-pub use model::{build_model, EmbeddedStructure, Model, ModelError, SceneModel};
+pub use livereg_registration::{DEFAULT_FIXED_PENALTY_FACTOR, DEFAULT_POINT_HOLD_FACTOR};
+pub use model::{
+    build_model, point_hold_stiffness, EmbeddedStructure, Model, ModelError, SceneModel,
+};
 pub use simulate::{simulate_scene, SimulateError};

@@ -5,7 +5,7 @@
 
 use nalgebra::{Point3, Vector3};
 
-use crate::geometry::Aabb;
+use crate::geometry::{area_per_point, Aabb};
 use crate::grid::{Embedding, GridOptions, WeightedCellGrid};
 use crate::mechanics::loads::{gravity_forces, traction_forces};
 use crate::mechanics::{
@@ -14,8 +14,8 @@ use crate::mechanics::{
 use crate::mesh::{read_points, read_surface, validate, SurfaceReport, TriSurface};
 use crate::scene::{FixedRegion, LoadedScene, PointSource, Scene};
 
-use livereg_registration::DEFAULT_FIXED_PENALTY_FACTOR;
 pub use livereg_registration::{EmbeddedStructure, Model, ModelError};
+use livereg_registration::{DEFAULT_FIXED_PENALTY_FACTOR, DEFAULT_POINT_HOLD_FACTOR};
 
 /// The model of a scene: the registration crate's [`Model`], under the name the scene layer
 /// has always given it.
@@ -145,9 +145,23 @@ fn external_loads(
     Ok(external)
 }
 
+/// The default spring (N/m) of each point of a surface held as `points` (m): `β E A / h`, with
+/// β = [`DEFAULT_POINT_HOLD_FACTOR`], `young` E (Pa), `h` the cell edge (m) and A the surface
+/// area the point stands for ([`area_per_point`]), so the hold is a stiffness per unit area
+/// (β E / h, a layer of tissue h / β thick) whatever the points' density. A single point
+/// stands for a cell face, h².
+pub fn point_hold_stiffness(points: &[Point3<f64>], young: f64, h: f64) -> Vec<f64> {
+    let per_area = DEFAULT_POINT_HOLD_FACTOR * young / h;
+    match area_per_point(points) {
+        Some(areas) => areas.into_iter().map(|a| per_area * a).collect(),
+        None => vec![per_area * h * h; points.len()],
+    }
+}
+
 /// The penalty springs of `[[boundary.fixed]]`, one set per entry in order. A box holds its
-/// surface samples at a spring density of κE/h per unit area; points each get κ E h, and the
-/// points that fall in one grid cell act as one spring on their mean displacement of their
+/// surface samples at a spring density of κE/h per unit area; points each get β E A / h
+/// ([`point_hold_stiffness`]: the hold acts through a layer of tissue half a cell thick), and
+/// the points that fall in one grid cell act as one spring on their mean displacement of their
 /// summed stiffness ([`PenaltySprings::lumped_per_cell`]): held point by point, eight or more
 /// points clamp the whole cell, so a ligament given as its vertices would hold up to a cell
 /// beyond itself (`tests/numerics/ligament_hold.rs`). The entry's or `[solver]`'s stiffness
@@ -182,13 +196,12 @@ fn fixed_regions(
             }
             Some(FixedRegion::Points(src)) => {
                 let pts = source_points(src, loaded, scale)?;
-                let k = f
-                    .stiffness
-                    .or(scene.solver.penalty_stiffness)
-                    .unwrap_or(DEFAULT_FIXED_PENALTY_FACTOR * young * h);
+                let k = match f.stiffness.or(scene.solver.penalty_stiffness) {
+                    Some(k) => vec![k; pts.len()],
+                    None => point_hold_stiffness(&pts, young, h),
+                };
                 let emb = embed(key.clone(), &pts, grid)?;
-                (!pts.is_empty())
-                    .then(|| PenaltySprings::fixed(emb, vec![k; pts.len()]).lumped_per_cell())
+                (!pts.is_empty()).then(|| PenaltySprings::fixed(emb, k).lumped_per_cell())
             }
             None => {
                 return Err(ModelError::Invalid(format!(
