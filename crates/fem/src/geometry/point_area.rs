@@ -14,6 +14,7 @@
 
 use nalgebra::Point3;
 
+use super::neighbour_grid::{MAX_CELLS_PER_POINT, MIN_CELLS};
 use super::NeighbourGrid;
 
 /// Neighbours the density estimate counts (`k`): six, the ring around a vertex of an even
@@ -40,9 +41,14 @@ pub fn area_per_point(points: &[Point3<f64>]) -> Option<Vec<f64>> {
     if extent <= 0.0 {
         return None;
     }
-    // Cells about the spacing of points spread evenly over a surface as large as the set's box.
-    let spacing = (extent * extent / points.len() as f64).sqrt();
-    let nearest: Vec<f64> = match NeighbourGrid::new(points, spacing) {
+    // Cells about the spacing of points spread evenly over a surface as large as the set's
+    // box, but no more of them than the neighbour grid allows (a dense set spans few cells
+    // more than a sparse one); the pairwise scan below only serves a set the grid refuses.
+    let n = points.len() as f64;
+    let spacing = (extent * extent / n).sqrt();
+    let most_cells = (MAX_CELLS_PER_POINT as f64 * n + MIN_CELLS as f64).cbrt() - 1.0;
+    let cell = spacing.max(extent / most_cells.max(1.0));
+    let nearest: Vec<f64> = match NeighbourGrid::new(points, cell) {
         Some(grid) => {
             let mut scratch = Vec::new();
             (0..points.len())
@@ -125,6 +131,25 @@ mod tests {
             let total: f64 = area_per_point(&pts).unwrap().iter().sum();
             assert!((0.9..1.5).contains(&total), "n = {n}: {total}");
         }
+    }
+
+    /// A dense set (a 150 × 150 lattice, 22,500 points, far more cells at its own spacing than
+    /// the neighbour grid allows) is answered on the grid, as the pairwise scan would: the same
+    /// areas as a small patch of the same lattice away from the rim.
+    #[test]
+    fn a_dense_set_has_the_areas_of_its_spacing() {
+        let s = 0.1;
+        let dense: Vec<Point3<f64>> = (0..150)
+            .flat_map(|i| (0..150).map(move |j| Point3::new(i as f64 * s, j as f64 * s, 0.3)))
+            .collect();
+        let a = area_per_point(&dense).unwrap();
+        let expected = std::f64::consts::PI * 2.0 * s * s / 6.0;
+        let centre = 75 * 150 + 75;
+        assert!(
+            (a[centre] - expected).abs() < 1e-9 * expected,
+            "{}",
+            a[centre]
+        );
     }
 
     #[test]
