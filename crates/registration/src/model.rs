@@ -9,9 +9,11 @@ use crate::grid::{Embedding, EmbeddingError, GridError};
 use crate::mechanics::{NewtonSettings, StaticProblem};
 use crate::mesh::{MeshError, TriSurface};
 
-/// Default penalty factor κ of fixed regions: a held surface sample of area A gets a spring of
-/// `κ E A / h` (N/m), a held point `κ E h`; relative to the cell stiffness `~E h` this holds
-/// the region to about 1/κ of the local deformation.
+/// Default penalty factor κ of rigid holds: a held surface sample of area A (a fixed box's)
+/// gets a spring of `κ E A / h` (N/m), a point held rigidly (the contact refit's held
+/// vertices) `κ E h`; relative to the cell stiffness `~E h` this holds the region to about
+/// 1/κ of the local deformation. A fixed point list is held through a layer instead
+/// ([`DEFAULT_POINT_HOLD_FACTOR`]).
 pub const DEFAULT_FIXED_PENALTY_FACTOR: f64 = 1e3;
 
 /// Default factor β of a surface held as points (a ligament given as the vertices it covers):
