@@ -5,7 +5,7 @@
 
 use nalgebra::{Point3, Vector3};
 
-use crate::geometry::{area_per_point, Aabb};
+use crate::geometry::Aabb;
 use crate::grid::{Embedding, GridOptions, WeightedCellGrid};
 use crate::mechanics::loads::{gravity_forces, traction_forces};
 use crate::mechanics::{
@@ -14,8 +14,10 @@ use crate::mechanics::{
 use crate::mesh::{read_points, read_surface, validate, SurfaceReport, TriSurface};
 use crate::scene::{FixedRegion, LoadedScene, PointSource, Scene};
 
+use super::point_hold::point_hold_stiffness;
+
+use livereg_registration::DEFAULT_FIXED_PENALTY_FACTOR;
 pub use livereg_registration::{EmbeddedStructure, Model, ModelError};
-use livereg_registration::{DEFAULT_FIXED_PENALTY_FACTOR, DEFAULT_POINT_HOLD_FACTOR};
 
 /// The model of a scene: the registration crate's [`Model`], under the name the scene layer
 /// has always given it.
@@ -143,19 +145,6 @@ fn external_loads(
         gravity_forces(grid, scene.material.density, g, &mut external);
     }
     Ok(external)
-}
-
-/// The default spring (N/m) of each point of a surface held as `points` (m): `β E A / h`, with
-/// β = [`DEFAULT_POINT_HOLD_FACTOR`], `young` E (Pa), `h` the cell edge (m) and A the surface
-/// area the point stands for ([`area_per_point`]), so the hold is a stiffness per unit area
-/// (β E / h, a layer of tissue h / β thick) whatever the points' density. A single point
-/// stands for a cell face, h².
-pub fn point_hold_stiffness(points: &[Point3<f64>], young: f64, h: f64) -> Vec<f64> {
-    let per_area = DEFAULT_POINT_HOLD_FACTOR * young / h;
-    match area_per_point(points) {
-        Some(areas) => areas.into_iter().map(|a| per_area * a).collect(),
-        None => vec![per_area * h * h; points.len()],
-    }
 }
 
 /// The penalty springs of `[[boundary.fixed]]`, one set per entry in order. A box holds its

@@ -1,21 +1,22 @@
-//! The surface area each point of a set stands for, when the set samples a surface (a
-//! ligament given as the vertices it covers, picked points): a `k`-nearest-neighbour density
-//! estimate on the surface, `Aᵢ = π dₖ(i)² / k`, with `dₖ(i)` the distance from point `i` to
-//! its `k`-th nearest other point and `k` = [`AREA_NEIGHBOURS`] (fewer when the set is
-//! smaller). A disc of radius `dₖ` around the point holds `k` other points, so each stands for
-//! `1/k` of it.
+//! The default hold of a surface given as points (a ligament given as the vertices it
+//! covers, picked points): a layer of tissue half a cell thick, a spring of `β E A / h` per
+//! point ([`point_hold_stiffness`], β = [`DEFAULT_POINT_HOLD_FACTOR`]), with A the surface
+//! area the point stands for ([`area_per_point`]).
 //!
-//! Points on the set's rim have neighbours on one side only and stand for more than their
-//! share: on the tetrahedral meshes' ligament discs of `fixtures/liver_force` (70–110
-//! vertices, 4,000–5,100 mm² by their triangles' areas) the estimate sums to 1.23–1.27 times
-//! the vertices' own area (one third of each incident triangle). The bias is the same on
-//! every disc, so a stiffness per unit area built on it scales with the disc alike.
-//! Lengths in the points' units, areas in their square.
+//! The area is a `k`-nearest-neighbour density estimate on the surface, `Aᵢ = π dₖ(i)² / k`,
+//! with `dₖ(i)` the distance from point `i` to its `k`-th nearest other point and `k` =
+//! [`AREA_NEIGHBOURS`] (fewer when the set is smaller): a disc of radius `dₖ` around the point
+//! holds `k` other points, so each stands for `1/k` of it. Points on the set's rim have
+//! neighbours on one side only and stand for more than their share: on the tetrahedral
+//! meshes' ligament discs of `fixtures/liver_force` (70–110 vertices, 4,000–5,100 mm² by their
+//! triangles' areas) the estimate sums to 1.23–1.27 times the vertices' own area (one third of
+//! each incident triangle). The bias is the same on every disc, so a stiffness per unit area
+//! built on it scales with the disc alike.
 
 use nalgebra::Point3;
 
-use super::neighbour_grid::{MAX_CELLS_PER_POINT, MIN_CELLS};
-use super::NeighbourGrid;
+use crate::registration::IndexedPoints;
+use livereg_registration::DEFAULT_POINT_HOLD_FACTOR;
 
 /// Neighbours the density estimate counts (`k`): six, the ring around a vertex of an even
 /// triangulation.
@@ -30,51 +31,35 @@ pub fn area_per_point(points: &[Point3<f64>]) -> Option<Vec<f64>> {
         || points
             .iter()
             .any(|p| !p.coords.iter().all(|c| c.is_finite()))
+        || points.iter().all(|p| *p == points[0])
     {
         return None;
     }
     let k = AREA_NEIGHBOURS.min(points.len() - 1);
-    let (lo, hi) = points
-        .iter()
-        .fold((points[0], points[0]), |(lo, hi), p| (lo.inf(p), hi.sup(p)));
-    let extent = (hi - lo).max();
-    if extent <= 0.0 {
-        return None;
-    }
-    // Cells about the spacing of points spread evenly over a surface as large as the set's
-    // box, but no more of them than the neighbour grid allows (a dense set spans few cells
-    // more than a sparse one); the pairwise scan below only serves a set the grid refuses.
-    let n = points.len() as f64;
-    let spacing = (extent * extent / n).sqrt();
-    let most_cells = (MAX_CELLS_PER_POINT as f64 * n + MIN_CELLS as f64).cbrt() - 1.0;
-    let cell = spacing.max(extent / most_cells.max(1.0));
-    let nearest: Vec<f64> = match NeighbourGrid::new(points, cell) {
-        Some(grid) => {
-            let mut scratch = Vec::new();
-            (0..points.len())
-                .map(|i| kth_distance(&grid.k_nearest_of(i, k + 1, &mut scratch)))
-                .collect()
-        }
-        None => points
-            .iter()
-            .map(|p| {
-                let mut d: Vec<f64> = points.iter().map(|q| (q - p).norm()).collect();
-                d.sort_by(f64::total_cmp);
-                d[k]
-            })
-            .collect(),
-    };
+    // Each point's k + 1 nearest: itself (or a point on it) and its k nearest others.
+    let nearest = IndexedPoints::new(points.to_vec())?.nearest_k_all(k + 1);
     Some(
         nearest
-            .into_iter()
-            .map(|d| std::f64::consts::PI * d * d / k as f64)
+            .iter()
+            .map(|nn| {
+                let d = nn.last().map_or(0.0, |&(_, d)| d);
+                std::f64::consts::PI * d * d / k as f64
+            })
             .collect(),
     )
 }
 
-/// The distance to the last of a point's nearest (the point itself first).
-fn kth_distance(nearest: &[(usize, f64)]) -> f64 {
-    nearest.last().map_or(0.0, |&(_, d)| d)
+/// The default spring (N/m) of each point of a surface held as `points` (m): `β E A / h`, with
+/// β = [`DEFAULT_POINT_HOLD_FACTOR`], `young` E (Pa), `h` the cell edge (m) and A the surface
+/// area the point stands for ([`area_per_point`]), so the hold is a stiffness per unit area
+/// (β E / h, a layer of tissue h / β thick) whatever the points' density. A single point
+/// stands for a cell face, h².
+pub fn point_hold_stiffness(points: &[Point3<f64>], young: f64, h: f64) -> Vec<f64> {
+    let per_area = DEFAULT_POINT_HOLD_FACTOR * young / h;
+    match area_per_point(points) {
+        Some(areas) => areas.into_iter().map(|a| per_area * a).collect(),
+        None => vec![per_area * h * h; points.len()],
+    }
 }
 
 #[cfg(test)]
@@ -123,7 +108,7 @@ mod tests {
     /// area (the rim adds a little), whatever the number of points.
     #[test]
     fn random_points_on_a_square_sum_to_about_its_area() {
-        let mut rng = crate::random::Rng::new(7);
+        let mut rng = livereg_fem::random::Rng::new(7);
         for n in [200, 2000] {
             let pts: Vec<Point3<f64>> = (0..n)
                 .map(|_| Point3::new(rng.uniform(), rng.uniform(), 0.0))
@@ -133,9 +118,8 @@ mod tests {
         }
     }
 
-    /// A dense set (a 150 × 150 lattice, 22,500 points, far more cells at its own spacing than
-    /// the neighbour grid allows) is answered on the grid, as the pairwise scan would: the same
-    /// areas as a small patch of the same lattice away from the rim.
+    /// A dense set (a 150 × 150 lattice, 22,500 points): the same areas as a small patch of
+    /// the same lattice away from the rim.
     #[test]
     fn a_dense_set_has_the_areas_of_its_spacing() {
         let s = 0.1;
@@ -149,6 +133,27 @@ mod tests {
             (a[centre] - expected).abs() < 1e-9 * expected,
             "{}",
             a[centre]
+        );
+    }
+
+    /// The default spring of a held point is `β E A / h`: per unit area `β E / h` whatever
+    /// the points' spacing, and a cell face `h²` for a single point.
+    #[test]
+    fn a_held_point_gets_its_area_times_the_layers_stiffness_per_area() {
+        let (young, h) = (4500.0, 0.0115);
+        let per_area = DEFAULT_POINT_HOLD_FACTOR * young / h;
+        for s in [0.002, 0.007] {
+            let square: Vec<Point3<f64>> = (0..9)
+                .flat_map(|i| (0..9).map(move |j| Point3::new(i as f64 * s, j as f64 * s, 0.0)))
+                .collect();
+            let k = point_hold_stiffness(&square, young, h);
+            let centre = 4 * 9 + 4;
+            let area = std::f64::consts::PI * 2.0 * s * s / 6.0;
+            assert!((k[centre] - per_area * area).abs() < 1e-9 * per_area * area);
+        }
+        assert_eq!(
+            point_hold_stiffness(&[Point3::origin()], young, h),
+            vec![per_area * h * h]
         );
     }
 
