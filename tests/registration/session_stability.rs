@@ -16,6 +16,7 @@ use livereg::simulation::FromScene;
 use std::time::Instant;
 
 use livereg::benchmark::workload::Workload;
+use livereg::registration::RELAX_NEWTON_ITERATIONS;
 use livereg::scene::load_scene;
 use livereg::session::{recovery_ladder, FrameFlag, FrameResult, Session};
 use livereg::synthetic::{generate_sequence, load_fraction, ScenarioKind, SequenceSpec};
@@ -102,6 +103,16 @@ fn fifty_frames_hold_still_after_the_load_stops() {
             } else {
                 0
             };
+        // Each penalty step may end by relaxing the body under its last springs.
+        let penalty_steps = caps.penalty_steps
+            + if retried {
+                ladder
+                    .iter()
+                    .map(|g| g.settings.penalty_steps)
+                    .sum::<usize>()
+            } else {
+                0
+            };
         let recovery_newton = ladder
             .iter()
             .map(|g| g.settings.newton_iterations)
@@ -118,11 +129,15 @@ fn fifty_frames_hold_still_after_the_load_stops() {
             r.flags
         );
         assert!(
-            r.newton_iterations <= r.icp_iterations * caps.newton_iterations.max(recovery_newton),
-            "frame {k}: {} Newton iterations for {} ICP iterations (cap {} each)",
+            r.newton_iterations
+                <= r.icp_iterations * caps.newton_iterations.max(recovery_newton)
+                    + penalty_steps * RELAX_NEWTON_ITERATIONS,
+            "frame {k}: {} Newton iterations for {} ICP iterations (cap {} each) and {} \
+             penalty steps (a relaxation of at most {RELAX_NEWTON_ITERATIONS} each)",
             r.newton_iterations,
             r.icp_iterations,
-            caps.newton_iterations
+            caps.newton_iterations,
+            penalty_steps
         );
     }
     assert!(session.displacement().iter().all(|v| v.is_finite()));
@@ -168,10 +183,9 @@ fn fifty_frames_hold_still_after_the_load_stops() {
     // Why "or toward the truth": a warm frame makes one ICP iteration from the last state, and
     // a still window that gathers every frame (`still:3` from frame 17 on) keeps refining the
     // same data, so the registration converges further over the still frames. Measured: the
-    // means moved 0.363 mm against a median step of 0.331 mm, 0.325 mm of it toward the truth
-    // on the target that moved most (its error 0.53 → 0.26 mm); the mean target error fell
-    // 0.311 → 0.263 mm and no target's error grew by more than 0.004 mm. Drift is motion away
-    // from the truth: no target's error may grow by more than 0.1σ between the two means.
+    // means moved 0.338 mm against a median step of 0.578 mm; the mean target error fell
+    // 0.344 → 0.266 mm and no target's error grew (largest change −0.009 mm). Drift is motion
+    // away from the truth: no target's error may grow by more than 0.1σ between the two means.
     let apart = session.settings.still_frames.max(1);
     let mut apart_steps: Vec<f64> = (still..FRAMES - apart)
         .map(|k| max_move(&results[k], &results[k + apart]))

@@ -77,7 +77,7 @@ pub use model_target::{ModelTarget, MAX_SAMPLES};
 pub use non_rigid_icp::{
     noise_weight, register_non_rigid, DataTerm, NonRigidError, NonRigidIcp, NonRigidReport,
     NonRigidSettings, NonRigidTimings, NormalScale, LOCAL_MOTION_FACTOR, MIN_NOISE_WEIGHT,
-    PENALTY_END_PER_EH, PENALTY_START_PER_EH, REFERENCE_NOISE,
+    PENALTY_END_PER_EH, PENALTY_START_PER_EH, REFERENCE_NOISE, RELAX_NEWTON_ITERATIONS,
 };
 pub use pose_covariance::PoseCovariance;
 pub use pose_search::{trimmed_score, truncated_score, PoseSearch, PoseSearchResult};
