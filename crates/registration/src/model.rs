@@ -26,9 +26,11 @@ pub const DEFAULT_FIXED_PENALTY_FACTOR: f64 = 1e3;
 /// 2.6–9.9° too little; held through this layer, by 0.3–1.4 mm, turning within 0.1–1.2°
 /// (`cargo test --test numerics ligament_hold -- --nocapture` prints two of them). β = 1.5
 /// turns the neo-Hookean presses 14–16 % too far. The layer thins with the cell, so the hold
-/// tightens as the grid refines; its springs keep the small-strain modulus, so on finer cells
-/// a deep neo-Hookean press turns too far (random liver 2 at 5.75 mm: 22 %; docs/force-truths.md,
-/// grid refinement).
+/// tightens as the grid refines, but not as fast as the neo-Hookean truths (ν = 0.49) need: on
+/// finer cells their deep press turns too far (random liver 2 at 5.75 mm: 22 %), already at
+/// small depth, while the linear truths stay right. A layer of the confined modulus instead
+/// suits both laws on 5.75 mm cells and holds the neo-Hookean presses far too stiffly on the
+/// derived ones (docs/force-truths.md, grid refinement).
 pub const DEFAULT_POINT_HOLD_FACTOR: f64 = 2.0;
 
 /// Errors building a model; every message names the file or key at fault.
