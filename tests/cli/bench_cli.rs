@@ -81,7 +81,7 @@ fn quick_sweep_reports_finite_numbers_for_every_configuration_and_draws_the_char
     // near rigid's, not the ~28 mm of an unregistered model. Measured 0.64 against 0.41 mm:
     // on a push loaded in three steps the non-rigid stage moves the still targets by a few
     // tenths of a millimetre (the contact refit's factorisation budget alone moves the mean
-    // between 0.58 and 0.64 mm); over the 10-frame scenarios it is 0.49 against 1.63 mm
+    // between 0.58 and 0.64 mm); over the 10-frame scenarios it is 0.52 against 1.63 mm
     // (docs/bench.md).
     let default = configs.iter().find(|c| c["default"] == true).unwrap();
     let tre = default["metrics"]["tre_mean_mm"].as_f64().unwrap();
