@@ -33,8 +33,8 @@ fn a_released_liver_unwinds_the_press_on_finer_cells() {
     let metrics = run_force_truth(case, &options).expect("registers");
     assert_eq!(metrics.frames.len(), 30, "the sequence has 30 frames");
     let release = &metrics.frames[20..25];
-    let error: f64 = release.iter().map(|f| f.mean_mm).sum::<f64>() / 5.0;
-    let none: f64 = release.iter().map(|f| f.none_mm).sum::<f64>() / 5.0;
+    let error: f64 = release.iter().map(|f| f.mean_mm).sum::<f64>() / release.len() as f64;
+    let none: f64 = release.iter().map(|f| f.none_mm).sum::<f64>() / release.len() as f64;
     let per_frame: Vec<String> = release
         .iter()
         .map(|f| format!("{:.2}/{:.1}", f.mean_mm, f.none_mm))

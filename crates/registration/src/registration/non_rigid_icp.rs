@@ -644,7 +644,7 @@ impl NonRigidIcp {
     /// `newton_iterations` Newton iterations ([`NonRigidIcp::newton_stage`]). Before each
     /// iteration but the first, the convergence check ([`surface_settled`]): the surface
     /// points the last iteration pulled stopped moving; a body still moving elsewhere is then
-    /// relaxed under the same springs ([`NonRigidIcp::relax_body`]). It needs no pairing, so a
+    /// relaxed under the same springs ([`RELAX_NEWTON_ITERATIONS`]). It needs no pairing, so a
     /// converged step ends without one (the pairs it would make are not used). The deadline is
     /// checked next, before each iteration but the first of the call.
     #[allow(clippy::too_many_arguments)]
@@ -681,7 +681,9 @@ impl NonRigidIcp {
                 if refactorised || !gap_open(report.surface_rms, settings.cloud_noise) {
                     if let (Some(springs), Some((prev, _))) = (pull.as_ref(), previous.as_ref()) {
                         if !body_settled(&x, prev, settings.tolerance) {
-                            self.relax_body(model, springs, u, report);
+                            let t = Instant::now();
+                            self.newton_stage(model, springs, u, report, RELAX_NEWTON_ITERATIONS);
+                            report.timings.newton_ms += ms(t);
                         }
                     }
                     return Ok(StepEnd::Converged);
@@ -702,7 +704,8 @@ impl NonRigidIcp {
             report.timings.pairing_ms += ms(t);
             let t = Instant::now();
             let springs = self.data_springs(paired, &model.surface_embedding, k);
-            solver_settled = self.newton_stage(model, &springs, u, report);
+            solver_settled =
+                self.newton_stage(model, &springs, u, report, settings.newton_iterations);
             *pull = Some(springs);
             report.timings.newton_ms += ms(t);
             previous = Some((x, sources));
@@ -866,8 +869,9 @@ impl NonRigidIcp {
         }
     }
 
-    /// Newton: `newton_iterations` iterations on the model with the data term's `springs`
-    /// added to its own; a failure (inversion, divergence) is reported as a warning and drops
+    /// Newton: at most `iterations` iterations on the model with the data term's `springs`
+    /// added to its own (`newton_iterations` per ICP iteration, [`RELAX_NEWTON_ITERATIONS`] to
+    /// relax the body); a failure (inversion, divergence) is reported as a warning and drops
     /// the kept factorisation (a stale one is the first suspect). Returns whether the solver
     /// settled: no failure and no step shortened below ½ by the line search.
     fn newton_stage(
@@ -876,12 +880,13 @@ impl NonRigidIcp {
         springs: &PenaltySprings,
         u: &mut [f64],
         report: &mut NonRigidReport,
+        iterations: usize,
     ) -> bool {
         let r = self.newton.improve(
             &mut model.problem,
             std::slice::from_ref(springs),
             u,
-            self.settings.newton_iterations,
+            iterations,
         );
         report.newton_iterations += r.iterations;
         let settled = r.failure.is_none() && r.steps.iter().all(|&a| a >= 0.5);
@@ -890,31 +895,6 @@ impl NonRigidIcp {
             self.newton.invalidate_factorization();
         }
         settled
-    }
-
-    /// The body relaxed to equilibrium under the last pairing's `springs`: at most
-    /// [`RELAX_NEWTON_ITERATIONS`] Newton iterations on `u` (m), counted into `report`. A
-    /// failure is a warning and drops the factorisation, as in [`NonRigidIcp::newton_stage`].
-    fn relax_body(
-        &mut self,
-        model: &mut Model,
-        springs: &PenaltySprings,
-        u: &mut [f64],
-        report: &mut NonRigidReport,
-    ) {
-        let t = Instant::now();
-        let r = self.newton.improve(
-            &mut model.problem,
-            std::slice::from_ref(springs),
-            u,
-            RELAX_NEWTON_ITERATIONS,
-        );
-        report.newton_iterations += r.iterations;
-        if let Some((outcome, msg)) = r.failure {
-            report.warnings.push(format!("{}: {msg}", outcome.name()));
-            self.newton.invalidate_factorization();
-        }
-        report.timings.newton_ms += ms(t);
     }
 }
 
