@@ -13,7 +13,7 @@ mod common;
 mod bad_frames;
 mod non_rigid_registration;
 mod partial_cloud_accuracy;
-mod release_on_finer_cells;
+mod release_after_press;
 mod rigid_pose_search;
 mod rigid_tracking;
 mod segmentation_python;
