@@ -14,8 +14,8 @@ use super::progress::bar;
 use super::register::frame_inputs;
 use crate::benchmark::config::law_name;
 use crate::benchmark::force_truths::{
-    force_truth_cases, force_truths_dir, force_truths_table, run_force_truth, CameraMotion,
-    ForceTruthMetrics, ForceTruthOptions, TruthSet,
+    force_truth_cases, force_truths_dir, force_truths_table, parse_cloud_noise, run_force_truth,
+    CameraMotion, ForceTruthMetrics, ForceTruthOptions, TruthSet,
 };
 use crate::benchmark::indentation::{
     indentation_cases, indentation_chart_point, indentation_table, run_indentation,
@@ -119,6 +119,10 @@ pub struct BenchArgs {
     /// scene's).
     #[arg(long, value_name = "MODE", requires = "moving_camera")]
     pub pose: Option<String>,
+    /// With `--force-truths`: Gaussian noise added to every cloud point, MM per axis (1σ,
+    /// seeded per case and frame), on the fixture's noise-free clouds.
+    #[arg(long = "noise", value_name = "MM", requires = "force_truths")]
+    pub cloud_noise: Option<String>,
 }
 
 /// Runs `livereg bench`; prints the table and writes the report and chart (the sweep's
@@ -343,6 +347,11 @@ pub fn run_force_truths_bench(args: &BenchArgs) -> Result<Vec<ForceTruthMetrics>
             .transpose()?,
         pose,
         max_frames: args.frame_count,
+        cloud_noise: args
+            .cloud_noise
+            .as_deref()
+            .map(parse_cloud_noise)
+            .transpose()?,
     };
     let cases = force_truth_cases(&force_truths_dir(), set)?;
     let pb = bar(cases.len(), "force truths");
