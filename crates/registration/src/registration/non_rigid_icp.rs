@@ -625,7 +625,8 @@ impl NonRigidIcp {
     ) -> Result<(), NonRigidError> {
         for step in 0..ramp.steps {
             let k = ramp.stiffness(step);
-            match self.penalty_step(model, target, camera, u, deadline, k, report, pull)? {
+            let last = step + 1 == ramp.steps;
+            match self.penalty_step(model, target, camera, u, deadline, (k, last), report, pull)? {
                 StepEnd::Converged => {}
                 StepEnd::IterationCap => report.converged = false,
                 StepEnd::Deadline => {
@@ -638,14 +639,17 @@ impl NonRigidIcp {
         Ok(())
     }
 
-    /// One penalty step at stiffness `k` (N/m per spring): at most `max_icp_iterations` ICP
+    /// One penalty step at stiffness `k` (N/m per spring; `last`: the ramp's last step, whose
+    /// state is the frame's result): at most `max_icp_iterations` ICP
     /// iterations, each of visibility ([`NonRigidIcp::update_visibility`]), pairing
     /// ([`NonRigidIcp::pair_points`]), spring building ([`NonRigidIcp::data_springs`]) and
     /// `newton_iterations` Newton iterations ([`NonRigidIcp::newton_stage`]). Before each
     /// iteration but the first, the convergence check ([`surface_settled`]): the surface
-    /// points the last iteration pulled stopped moving; a body still moving elsewhere, or one
-    /// a step on a fresh tangent still moves ([`NonRigidIcp::fresh_tangent_moves_body`]), is
-    /// then relaxed under the same springs ([`RELAX_NEWTON_ITERATIONS`]). It needs no pairing, so a
+    /// points the last iteration pulled stopped moving; a body still moving elsewhere, or, on
+    /// the last step, one a step on a fresh tangent still moves
+    /// ([`NonRigidIcp::fresh_tangent_moves_body`]; the ramp's earlier steps are stepping stones
+    /// whose rest need not be proven), is then relaxed under the same springs
+    /// ([`RELAX_NEWTON_ITERATIONS`]). It needs no pairing, so a
     /// converged step ends without one (the pairs it would make are not used). The deadline is
     /// checked next, before each iteration but the first of the call.
     #[allow(clippy::too_many_arguments)]
@@ -656,7 +660,7 @@ impl NonRigidIcp {
         camera: Option<&Camera>,
         u: &mut [f64],
         deadline: Option<Instant>,
-        k: f64,
+        (k, last): (f64, bool),
         report: &mut NonRigidReport,
         pull: &mut Option<PenaltySprings>,
     ) -> Result<StepEnd, NonRigidError> {
@@ -683,7 +687,8 @@ impl NonRigidIcp {
                     if let (Some(springs), Some((prev, _))) = (pull.as_ref(), previous.as_ref()) {
                         let t = Instant::now();
                         if !body_settled(&x, prev, settings.tolerance)
-                            || (!noise_above(settings.tolerance, settings.cloud_noise)
+                            || (last
+                                && !noise_above(settings.tolerance, settings.cloud_noise)
                                 && self.fresh_tangent_moves_body(model, springs, u, report, &x))
                         {
                             self.newton_stage(model, springs, u, report, RELAX_NEWTON_ITERATIONS);
