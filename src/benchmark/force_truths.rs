@@ -30,7 +30,7 @@ use serde::{Deserialize, Serialize};
 use crate::evaluation::percentile;
 use crate::evaluation::read_truth;
 use crate::mesh::{read_obj, read_points};
-use crate::random::Rng;
+use crate::random::{fnv1a, Rng};
 use crate::registration::{RigidTransform, SurfaceDistances, SurfaceTopology};
 use crate::scene::{load_scene, LoadedScene, PoseUpdate, RigidMode};
 use crate::session::{Frame, Session};
@@ -224,14 +224,7 @@ pub struct ForceTruthOptions {
 /// seeded by the case's name and the frame index `k` (the same noise on every run and
 /// machine, different on every frame).
 pub fn noisy_cloud(points: &[Point3<f64>], sigma: f64, case: &str, k: usize) -> Vec<Point3<f64>> {
-    // FNV-1a over the name, then the frame: a stable seed without a hashing dependency.
-    let seed = case
-        .bytes()
-        .chain((k as u64).to_le_bytes())
-        .fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
-            (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
-        });
-    let mut rng = Rng::new(seed);
+    let mut rng = Rng::new(fnv1a(case.bytes().chain((k as u64).to_le_bytes())));
     points
         .iter()
         .map(|p| p + rng.gaussian_vector(sigma))
@@ -448,11 +441,9 @@ pub fn run_force_truth(
                 .file_name()
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_default(),
-            points: match options.cloud_noise {
-                Some(sigma) if sigma > 0.0 => {
-                    noisy_cloud(&camera.apply_all(&raw_cloud), sigma, &case.name, k)
-                }
-                _ => camera.apply_all(&raw_cloud),
+            points: match (camera.apply_all(&raw_cloud), options.cloud_noise) {
+                (seen, Some(sigma)) if sigma > 0.0 => noisy_cloud(&seen, sigma, &case.name, k),
+                (seen, _) => seen,
             },
             camera: None,
         };

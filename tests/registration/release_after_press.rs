@@ -12,8 +12,29 @@
 //! while it is not, so rest is confirmed by one step on a fresh tangent.
 
 use livereg::benchmark::force_truths::{
-    force_truth_cases, force_truths_dir, run_force_truth, ForceTruthOptions, TruthSet,
+    force_truth_cases, force_truths_dir, run_force_truth, ForceTruthFrame, ForceTruthOptions,
+    TruthSet,
 };
+
+/// The 30 graded frames of the tuning case `name` registered with `options`.
+fn tuning_case_frames(name: &str, options: &ForceTruthOptions) -> Vec<ForceTruthFrame> {
+    let cases = force_truth_cases(&force_truths_dir(), TruthSet::Tuning).expect("SPLIT.md");
+    let case = cases
+        .iter()
+        .find(|c| c.name == name)
+        .expect("the case is in the tuning set");
+    let metrics = run_force_truth(case, options).expect("registers");
+    assert_eq!(metrics.frames.len(), 30, "the sequence has 30 frames");
+    metrics.frames
+}
+
+/// Each frame's error against no registration's (mm), for the messages.
+fn error_against_none(frames: &[ForceTruthFrame]) -> Vec<String> {
+    frames
+        .iter()
+        .map(|f| format!("{:.2}/{:.1}", f.mean_mm, f.none_mm))
+        .collect()
+}
 
 /// Random liver 2's press-release neo-Hookean sequence (tuning set) on 8 mm cells: the first
 /// five release frames (20–24, the press falling from 63 mm deep) end within 12 % of no
@@ -23,24 +44,15 @@ use livereg::benchmark::force_truths::{
 /// --set tuning --cell-size 8`).
 #[test]
 fn a_released_liver_unwinds_the_press_on_finer_cells() {
-    let cases = force_truth_cases(&force_truths_dir(), TruthSet::Tuning).expect("SPLIT.md");
-    let case = cases
-        .iter()
-        .find(|c| c.name == "random-liver-2/press-release_neo-hookean")
-        .expect("the case is in the tuning set");
     let options = ForceTruthOptions {
         cell_size: Some(8.0),
         ..Default::default()
     };
-    let metrics = run_force_truth(case, &options).expect("registers");
-    assert_eq!(metrics.frames.len(), 30, "the sequence has 30 frames");
-    let release = &metrics.frames[20..25];
+    let frames = tuning_case_frames("random-liver-2/press-release_neo-hookean", &options);
+    let release = &frames[20..25];
     let error: f64 = release.iter().map(|f| f.mean_mm).sum::<f64>() / release.len() as f64;
     let none: f64 = release.iter().map(|f| f.none_mm).sum::<f64>() / release.len() as f64;
-    let per_frame: Vec<String> = release
-        .iter()
-        .map(|f| format!("{:.2}/{:.1}", f.mean_mm, f.none_mm))
-        .collect();
+    let per_frame = error_against_none(release);
     println!("release frames 20-24 (error/none, mm): {per_frame:?}; mean {error:.2} against {none:.1} mm");
     assert!(
         error <= 0.12 * none,
@@ -58,18 +70,12 @@ fn a_released_liver_unwinds_the_press_on_finer_cells() {
 /// tuning`, case `indentation-liver/press-release_neo-hookean`).
 #[test]
 fn a_released_liver_does_not_keep_the_press_on_a_stale_tangent() {
-    let cases = force_truth_cases(&force_truths_dir(), TruthSet::Tuning).expect("SPLIT.md");
-    let case = cases
-        .iter()
-        .find(|c| c.name == "indentation-liver/press-release_neo-hookean")
-        .expect("the case is in the tuning set");
-    let metrics = run_force_truth(case, &ForceTruthOptions::default()).expect("registers");
-    assert_eq!(metrics.frames.len(), 30, "the sequence has 30 frames");
-    let late_release = &metrics.frames[22..];
-    let per_frame: Vec<String> = late_release
-        .iter()
-        .map(|f| format!("{:.2}/{:.1}", f.mean_mm, f.none_mm))
-        .collect();
+    let frames = tuning_case_frames(
+        "indentation-liver/press-release_neo-hookean",
+        &ForceTruthOptions::default(),
+    );
+    let late_release = &frames[22..];
+    let per_frame = error_against_none(late_release);
     println!("release frames 22-29 (error/none, mm): {per_frame:?}");
     for (k, f) in late_release.iter().enumerate() {
         assert!(

@@ -626,7 +626,7 @@ impl NonRigidIcp {
         for step in 0..ramp.steps {
             let k = ramp.stiffness(step);
             let last = step + 1 == ramp.steps;
-            match self.penalty_step(model, target, camera, u, deadline, (k, last), report, pull)? {
+            match self.penalty_step(model, target, camera, u, deadline, k, last, report, pull)? {
                 StepEnd::Converged => {}
                 StepEnd::IterationCap => report.converged = false,
                 StepEnd::Deadline => {
@@ -660,7 +660,8 @@ impl NonRigidIcp {
         camera: Option<&Camera>,
         u: &mut [f64],
         deadline: Option<Instant>,
-        (k, last): (f64, bool),
+        k: f64,
+        last: bool,
         report: &mut NonRigidReport,
         pull: &mut Option<PenaltySprings>,
     ) -> Result<StepEnd, NonRigidError> {

@@ -11,6 +11,8 @@
 //! downstream (grid, recordings, replays, calibration) sees an ordinary scene.
 
 use std::fmt::Write as _;
+
+use livereg_fem::random::fnv1a;
 use std::path::{Path, PathBuf};
 
 use super::types::Scene;
@@ -54,9 +56,12 @@ pub(crate) fn derive_into(scene: &mut Scene, dir: &Path) -> Result<(), String> {
         }
     }
     let bytes = std::fs::read(&labelmap).map_err(|e| format!("{}: {e}", labelmap.display()))?;
+    // FNV-1a of the labelmap then the request: a cache key, not a security measure.
     let key = fnv1a(
-        &bytes,
-        &format!("{request:?} {}", env!("CARGO_PKG_VERSION")),
+        bytes
+            .iter()
+            .copied()
+            .chain(format!("{request:?} {}", env!("CARGO_PKG_VERSION")).into_bytes()),
     );
     let name = labelmap
         .file_name()
@@ -160,14 +165,4 @@ fn cached_or_derived(
         }
     }
     Ok(target.to_path_buf())
-}
-
-/// FNV-1a (64 bits) of `bytes` then `extra`: a cache key, not a security measure.
-fn fnv1a(bytes: &[u8], extra: &str) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in bytes.iter().chain(extra.as_bytes()) {
-        h ^= u64::from(b);
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    h
 }
