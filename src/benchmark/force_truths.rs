@@ -265,6 +265,10 @@ pub struct ForceTruthFrame {
     pub seen_rigid_motion_mm: f64,
     /// The frame's `expected_error`, mm (`None` when it has none).
     pub expected_error_mm: Option<f64>,
+    /// Its parts, mm: pose, unseen deformation, residual beyond the noise, noise
+    /// (`registration::ErrorEstimate`; `None` when it has none): what a calibration of the
+    /// estimate's constants recomputes from.
+    pub expected_error_parts_mm: Option<[f64; 4]>,
     /// The truth's applied force, N.
     pub force_true_n: f64,
     /// The truth's applied force as a vector in the camera's frame (the cloud's), N.
@@ -593,6 +597,10 @@ fn grade_frame(g: &FrameToGrade<'_>) -> ForceTruthFrame {
         dent_mm,
         near_tool_mm: mean(&near),
         expected_error_mm: g.result.expected_error.map(|e| e.expected),
+        expected_error_parts_mm: g
+            .result
+            .expected_error
+            .map(|e| [e.pose, e.unseen, e.residual, e.noise]),
         force_true_n: g.force.norm(),
         force_true_vector_n: g.force.into(),
         force_estimate_n: estimate.map(|f| f.norm()),

@@ -525,7 +525,9 @@ impl Session {
         let (pose_ambiguous, pose_uncertainty) =
             self.pose
                 .pose_flags(&self.settings, scale, &self.good, held, result);
-        let estimate = done.error_estimate(&self.model, pose_uncertainty);
+        let contact_explained = result.flags.contains(&FrameFlag::ContactRefit)
+            && !result.flags.contains(&FrameFlag::RefitNotConverged);
+        let estimate = done.error_estimate(&self.model, pose_uncertainty, contact_explained);
         if estimate.expected > self.settings.max_expected_error {
             result.flags.push(FrameFlag::ExpectedErrorHigh);
         }
@@ -569,6 +571,7 @@ fn scaled_estimate(e: &ErrorEstimate, scale: f64) -> ErrorEstimate {
         pose: e.pose / scale,
         unseen: e.unseen / scale,
         residual: e.residual / scale,
+        noise: e.noise / scale,
     }
 }
 

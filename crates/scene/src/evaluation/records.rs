@@ -90,6 +90,9 @@ pub struct ErrorPartsRecord {
     pub unseen: f64,
     /// From the fit residual beyond the cloud's noise.
     pub residual: f64,
+    /// From the cloud's noise (absent in files written before it was estimated: 0).
+    #[serde(default)]
+    pub noise: f64,
 }
 
 fn is_zero(n: &usize) -> bool {
@@ -215,6 +218,7 @@ impl ResultRecord {
                     pose: e.pose,
                     unseen: e.unseen,
                     residual: e.residual,
+                    noise: e.noise,
                 }),
             },
             structures: r

@@ -137,7 +137,7 @@ pub(crate) fn result() -> Value {
                     "expected_error_parts": {
                         "type": "object",
                         "required": ["pose", "unseen", "residual"],
-                        "properties": {"pose": {"type": "number"}, "unseen": {"type": "number"}, "residual": {"type": "number"}}
+                        "properties": {"pose": {"type": "number"}, "unseen": {"type": "number"}, "residual": {"type": "number"}, "noise": {"type": "number"}}
                     }
                 }
             },

@@ -84,12 +84,14 @@ impl FrameSuccess {
     }
 
     /// The expected error of this frame on `model` when its pose has the uncertainty
-    /// `pose_uncertainty` (m): the evidence of [`ErrorEvidence`] from the registered
+    /// `pose_uncertainty` (m) and the contact refit did or did not explain its field
+    /// (`contact_explained`): the evidence of [`ErrorEvidence`] from the registered
     /// displacement of the structures, the fit of the cloud and its noise, metres.
     pub(super) fn error_estimate(
         &self,
         model: &Model,
         pose_uncertainty: Option<f64>,
+        contact_explained: bool,
     ) -> ErrorEstimate {
         let (mut sum, mut count) = (0.0, 0usize);
         for s in &model.structures {
@@ -103,6 +105,7 @@ impl FrameSuccess {
             displacement_rms: (sum / count.max(1) as f64).sqrt(),
             fit_rms: self.fit_rms,
             noise: self.noise,
+            contact_explained,
         })
     }
 }
