@@ -31,7 +31,10 @@ use crate::evaluation::percentile;
 use crate::evaluation::read_truth;
 use crate::mesh::{read_obj, read_points};
 use crate::random::{fnv1a, Rng};
-use crate::registration::{RigidTransform, SurfaceDistances, SurfaceTopology};
+use crate::registration::{
+    RigidTransform, SurfaceDistances, SurfaceTopology, NOISE_IMPRINT, UNSEEN_SHARE,
+    UNSEEN_SHARE_EXPLAINED,
+};
 use crate::scene::{load_scene, LoadedScene, PoseUpdate, RigidMode};
 use crate::session::{Frame, Session};
 
@@ -302,6 +305,10 @@ pub struct ForceTruthMetrics {
     pub moving_camera: Option<CameraMotion>,
     /// The noise added to the clouds, mm per axis (`None`: the fixture's noise-free clouds).
     pub cloud_noise_mm: Option<f64>,
+    /// The expected error's constants its frames' parts were made with: `UNSEEN_SHARE`,
+    /// `UNSEEN_SHARE_EXPLAINED`, `NOISE_IMPRINT` (`registration::error_estimate`), which a
+    /// calibration rescales (`fixtures/liver_force/calibrate_estimate.py`).
+    pub expected_error_constants: [f64; 3],
     /// Mean over frames of the mean node error, mm.
     pub mean_mm: f64,
     /// Median over frames of the frame's 95th percentile node error, mm.
@@ -672,6 +679,7 @@ fn summarise(
         cell_size_mm: scene.scene.grid.cell_size,
         moving_camera: options.moving_camera,
         cloud_noise_mm: options.cloud_noise,
+        expected_error_constants: [UNSEEN_SHARE, UNSEEN_SHARE_EXPLAINED, NOISE_IMPRINT],
         mean_mm: mean(&frames.iter().map(|f| f.mean_mm).collect::<Vec<_>>()),
         p95_mm: median(frames.iter().map(|f| f.p95_mm).collect()).unwrap_or(f64::NAN),
         none_mm: mean(&frames.iter().map(|f| f.none_mm).collect::<Vec<_>>()),

@@ -45,8 +45,8 @@ fn run(data_term: DataTerm) -> IndentationMetrics {
 /// Two sites, the first on the thin left lobe (30 mm deep), the second 70 mm deep on the
 /// thick lobe, 50 frames, no camera pose: the default registration follows (measured mean
 /// node error 0.73 mm against 2.90 mm unregistered, p95 2.29 against 10.16 mm, no failed
-/// frame; its expected error bounds every frame at a median 3.3× the true error), and better than the thesis's surface → cloud pairing (measured 4.25 mm here;
-/// docs/data-term.md).
+/// frame; its expected error bounds every frame at a median 3.3× the true error), and better
+/// than the thesis's surface → cloud pairing (measured 4.25 mm here; docs/data-term.md).
 #[test]
 fn the_default_follows_a_deep_indentation_without_camera_and_the_old_pairing_did_not() {
     let m = run(DataTerm::CloudToSurface);

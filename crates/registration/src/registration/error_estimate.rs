@@ -36,15 +36,15 @@
 /// estimate / true error (`python3 fixtures/liver_force/calibrate_estimate.py --tune …`):
 /// 96.0 / 97.3 / 95.0 % bounded at 2.65 / 2.66 / 2.59×. On the test set, 91.2 / 87.9 / 87.5 %
 /// at 2.83 / 3.02 / 2.72× (docs/error-estimate.md#expected-error).
-pub(crate) const UNSEEN_SHARE: f64 = 0.2;
+pub const UNSEEN_SHARE: f64 = 0.2;
 
 /// The share of the registered displacement counted as unseen-deformation error when the
 /// contact refit explained the field and converged ([`UNSEEN_SHARE`] for how it is chosen).
-pub(crate) const UNSEEN_SHARE_EXPLAINED: f64 = 0.09;
+pub const UNSEEN_SHARE_EXPLAINED: f64 = 0.09;
 
 /// The noise's imprint on the registered structures per unit of the cloud's noise σ (1σ along
 /// the normal; [`UNSEEN_SHARE`] for how it is chosen).
-pub(crate) const NOISE_IMPRINT: f64 = 1.0;
+pub const NOISE_IMPRINT: f64 = 1.0;
 
 /// What a frame's registration shows about its own error, metres.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]

@@ -70,7 +70,10 @@ pub use contact_refit::{
 pub use correspondences::{
     rejection_threshold, robust_threshold, Correspondences, IndexedPoints, PairingRule,
 };
-pub use error_estimate::{expected_error, ErrorEstimate, ErrorEvidence};
+pub use error_estimate::{
+    expected_error, ErrorEstimate, ErrorEvidence, NOISE_IMPRINT, UNSEEN_SHARE,
+    UNSEEN_SHARE_EXPLAINED,
+};
 pub use isolated_points::{isolated_mask, neighbour_spacing};
 pub use kabsch::{kabsch, DEGENERACY_RATIO};
 pub use model_target::{ModelTarget, MAX_SAMPLES};

@@ -11,9 +11,9 @@
 //! downstream (grid, recordings, replays, calibration) sees an ordinary scene.
 
 use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
 
 use livereg_fem::random::fnv1a;
-use std::path::{Path, PathBuf};
 
 use super::types::Scene;
 use crate::mesh::{write_obj, write_points};
