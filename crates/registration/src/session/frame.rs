@@ -54,13 +54,14 @@ pub enum FrameError {
         /// The limit, mm.
         limit_mm: f64,
     },
-    /// The held pose no longer fits the cloud and rigid ICP found no other pose that
-    /// converged with an RMS under the no-match limit: the frame is rejected rather than
+    /// The held pose no longer fits the cloud and rigid ICP found no other usable pose (one
+    /// with an RMS under the no-match limit that either converged or fits the cloud as well
+    /// as the last good frame fitted the held pose): the frame is rejected rather than
     /// registered at a pose that may be wrong.
     #[error(
         "the cloud no longer fits the held pose (RMS {held_rms_mm:.1} mm) and no pose was \
-         re-acquired: rigid ICP did not converge under {limit_mm:.1} mm from the held pose \
-         or from the cloud's centroid shift"
+         re-acquired: rigid ICP found no fit under {limit_mm:.1} mm that converged or fits as \
+         well as the last frame, from the held pose or from the cloud's centroid shift"
     )]
     PoseLost {
         /// RMS distance of the cloud to the model at the held pose, mm.
