@@ -313,6 +313,12 @@ impl SparseSolver {
         self.analyses
     }
 
+    /// Whether the current factorisation is a direct one (a sparse Cholesky or `LBLᵀ` factor),
+    /// not the conjugate gradient's preconditioner.
+    pub fn is_direct(&self) -> bool {
+        self.active == Some(Active::Direct)
+    }
+
     /// Method name of the current factorisation (same strings as
     /// [`SolveStats::method`]), or `None` if nothing is factorised.
     pub fn factorized_method(&self) -> Option<&'static str> {

@@ -127,6 +127,26 @@ impl RestCompliance {
         self.stiffness.n
     }
 
+    /// Whether the rest tangent is held as a direct factorisation (so that solving many
+    /// right-hand sides costs one pass over the factor each), not solved by conjugate gradient.
+    pub fn is_direct(&self) -> bool {
+        self.solver.is_direct()
+    }
+
+    /// Solves `K X = B` for `columns` right-hand sides `b` (N, `dofs × columns`, column after
+    /// column) into `x` (m), `K` the rest tangent; fails (with why) on a failed solve.
+    pub fn solve_columns(
+        &mut self,
+        b: &[f64],
+        x: &mut [f64],
+        columns: usize,
+    ) -> Result<(), String> {
+        self.solver
+            .solve_columns(&self.stiffness, b, x, columns)
+            .map(|_| ())
+            .map_err(|e| format!("rest compliance: {e}"))
+    }
+
     /// The concentrated load (module doc) that explains displacement `u` (m) at the points of
     /// the data term `springs` on `problem`, whose rest surface is `surface` (m); its centre is
     /// where the registered state `u` put the loaded patch; its expected error grows with the

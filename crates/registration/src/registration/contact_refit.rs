@@ -29,7 +29,9 @@ use std::sync::Arc;
 
 use nalgebra::{Matrix2, Point3, Vector2, Vector3};
 
+use super::contact_force::RestCompliance;
 use super::correspondences::rejection_threshold;
+use super::linear_held_body::{HeldColumns, LinearHeldBody};
 use super::surface_distances::{SurfaceDistances, SurfaceTopology};
 use crate::grid::Embedding;
 use crate::mechanics::{NewtonSolver, PenaltySprings, StaticProblem};
@@ -271,6 +273,9 @@ struct HeldBody<'a, 'b> {
     registered: Vec<Point3<f64>>,
     outside: &'a [Point3<f64>],
     plane: [Vector3<f64>; 2],
+    /// A linear law's held body through its compliance: every slide solved exactly, without
+    /// the Newton solver.
+    linear: Option<LinearHeldBody<'a>>,
 }
 
 impl HeldBody<'_, '_> {
@@ -326,6 +331,9 @@ impl HeldBody<'_, '_> {
         start: &[f64],
         iterations: usize,
     ) -> Result<Evaluated, RefitSkip> {
+        if let Some(linear) = &self.linear {
+            return self.measure(linear.solve(&self.targets(slide)), true);
+        }
         let held = PenaltySprings {
             embedding: self.embedding.clone(),
             target: self.targets(slide),
@@ -366,13 +374,17 @@ impl HeldBody<'_, '_> {
 }
 
 /// Refits the registered field of `input` with the load at the contact alone (module doc).
-/// `problem` is the model's (its own holds stay), `solver` one kept for this purpose. Refuses
+/// `problem` is the model's (its own holds stay), `solver` one kept for this purpose. With
+/// `linear` (the model's rest compliance and the compliance columns kept across frames), a
+/// linear law's held body is solved through its compliance ([`LinearHeldBody`]) instead of by
+/// `solver`: exact for every slide, no factorisation of the held body. Refuses
 /// ([`RefitSkip`]) when the registration did not reach the cloud at the contact, or when the
 /// refit leaves more than [`ContactRefitSettings::max_unexplained_share`] of the motion seen
 /// away from it unexplained.
 pub fn refit_at_contact(
     problem: &mut StaticProblem,
     solver: &mut NewtonSolver,
+    linear: Option<(&mut RestCompliance, &mut HeldColumns)>,
     input: &RefitInput<'_>,
     settings: &ContactRefitSettings,
 ) -> Result<ContactRefit, RefitSkip> {
@@ -383,6 +395,19 @@ pub fn refit_at_contact(
     split.check_reached(input.noise, settings.allowance)?;
     let plane = tangent_plane(&full, &split.held_ids)?;
     let held_ids = &split.held_ids;
+    // A compliance that cannot serve (a law that is not linear, a failed solve) leaves the
+    // held body to the Newton solver.
+    let linear = linear.and_then(|(compliance, columns)| {
+        LinearHeldBody::new(
+            problem,
+            compliance,
+            columns,
+            input.surface_embedding,
+            held_ids,
+            settings.hold_stiffness,
+        )
+        .ok()
+    });
     let mut body = HeldBody {
         problem,
         solver,
@@ -392,6 +417,7 @@ pub fn refit_at_contact(
         registered: held_ids.iter().map(|&v| x[v]).collect(),
         outside: &split.outside,
         plane,
+        linear,
     };
     // One factorisation of the refitted body's tangent serves every solve of this frame: the
     // springs are the same in all of them, only their targets move. The budget bounds the
@@ -596,6 +622,7 @@ mod tests {
                 .collect(),
             outside: &outside,
             plane: [Vector3::x(), Vector3::z()],
+            linear: None,
         };
         let relaxed = body.evaluate(&Vector2::zeros(), &u0, 8).unwrap();
         assert!(relaxed.converged);

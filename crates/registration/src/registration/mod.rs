@@ -43,6 +43,7 @@ pub(crate) mod correspondences;
 pub(crate) mod error_estimate;
 pub(crate) mod isolated_points;
 pub(crate) mod kabsch;
+pub(crate) mod linear_held_body;
 pub(crate) mod model_target;
 pub(crate) mod non_rigid_icp;
 pub(crate) mod pose_covariance;
@@ -76,6 +77,7 @@ pub use error_estimate::{
 };
 pub use isolated_points::{isolated_mask, neighbour_spacing};
 pub use kabsch::{kabsch, DEGENERACY_RATIO};
+pub use linear_held_body::{HeldColumns, LinearHeldBody};
 pub use model_target::{ModelTarget, MAX_SAMPLES};
 pub use non_rigid_icp::{
     noise_weight, register_non_rigid, DataTerm, NonRigidError, NonRigidIcp, NonRigidReport,

@@ -17,6 +17,7 @@
 //! | the rest compliance of the contact force | 8 per factor value, 16 per tangent entry | its own f64 factor and copy of the rest tangent (`RestCompliance`, counted, not fitted; non-rigid sessions) |
 //! | the contact refit's solver | 8 per factor value, 16 per tangent entry | its own f64 factor and tangent (`registration.contact_refit`, counted like the rest compliance, not fitted; non-rigid sessions) |
 //! | the linear law's kept stiffness | 16 per tangent entry, 8 per unknown | its matrix and product (`StaticProblem`, small-strain linear models only, counted, not fitted) |
+//! | the linear law's refit columns | 24 per unknown per vertex, for twice the most surface vertices within the contact radius, at most 64 MiB | the held body's compliance columns (`HeldColumns`, small-strain linear models that refit, counted, not fitted) |
 //! | the still window's registered points | 800 per point, at the `max_cloud_points` cap | the data term, trees and neighbour lists of a union of clouds (non-rigid sessions with `still_frames` > 1; measured: below) |
 //!
 //! The factor's size comes from the same symbolic analysis the solver makes (fill-reducing
@@ -36,6 +37,7 @@
 
 use crate::linalg::{predicted_factor_len, SolverKind};
 use crate::model::Model;
+use crate::registration::linear_held_body::HELD_COLUMNS_BUDGET_BYTES;
 
 /// Sizes of one model that drive a session's memory.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -134,6 +136,19 @@ impl ModelSize {
         } else {
             0
         }
+    }
+
+    /// What a small-strain linear model's contact refit keeps of its compliance columns
+    /// (`HeldColumns`), bytes: three f64 columns of all unknowns for each vertex, for twice
+    /// `region_vertices` (the most surface vertices one contact region holds; a sequence's
+    /// region moves, and the columns of vertices it left are kept), at most the columns'
+    /// memory cap; nothing for the other laws.
+    pub fn held_columns_bytes(&self, linear: bool, region_vertices: usize) -> u64 {
+        if !linear {
+            return 0;
+        }
+        let bytes = 2 * region_vertices * 3 * self.dofs * std::mem::size_of::<f64>();
+        bytes.min(HELD_COLUMNS_BUDGET_BYTES) as u64
     }
 
     /// The sizes of `model`, whose linear solver is `kind`. Runs the symbolic analysis of the

@@ -49,6 +49,7 @@ use super::memory_estimate::{still_window_bytes, ModelSize};
 use super::settings::SessionSettings;
 use crate::geometry::Camera;
 use crate::model::{Model, ModelError};
+use crate::registration::linear_held_body::most_vertices_within;
 use crate::registration::non_rigid_icp::NonRigidReport;
 use crate::registration::{ErrorEstimate, RigidTransform, SurfaceDistances};
 use change_tests::ChangeTests;
@@ -120,7 +121,8 @@ impl Session {
     /// first frame, so that a server can refuse a session its memory budget cannot hold.
     /// A non-rigid session adds its rest compliance for the contact force
     /// ([`ModelSize::rest_compliance_bytes`]), the contact refit's solver when it refits
-    /// ([`ModelSize::contact_refit_bytes`]) and its still window at its point cap
+    /// ([`ModelSize::contact_refit_bytes`]; a linear law's refit also its compliance columns,
+    /// [`ModelSize::held_columns_bytes`]) and its still window at its point cap
     /// ([`still_window_bytes`]), and a small-strain linear model its kept stiffness per grid
     /// ([`ModelSize::linear_stiffness_bytes`]). A rigid-only session (`settings.non_rigid`
     /// false) never factorises: its factors are not counted.
@@ -131,6 +133,13 @@ impl Session {
             sizes[0].rest_compliance_bytes()
                 + if self.settings.contact_refit {
                     sizes[0].contact_refit_bytes()
+                        + sizes[0].held_columns_bytes(
+                            linear,
+                            most_vertices_within(
+                                &self.model.surface.vertices,
+                                self.settings.contact_radius,
+                            ),
+                        )
                 } else {
                     0
                 }

@@ -13,7 +13,7 @@ use crate::mesh::TriSurface;
 use crate::model::{Model, DEFAULT_FIXED_PENALTY_FACTOR};
 use crate::registration::contact_force::dent_centre;
 use crate::registration::contact_refit::{refit_at_contact, ContactRefitSettings, RefitInput};
-use crate::registration::{ContactForce, RestCompliance};
+use crate::registration::{ContactForce, HeldColumns, RestCompliance};
 
 /// What the registration may miss the cloud by at the contact (RMS, beyond its noise) for the
 /// refit to hold the contact region where it is, as a share of a cell edge: a tenth of the
@@ -65,6 +65,9 @@ pub(super) struct ContactForceEstimator {
     /// The contact refit's own Newton solver (its factorisation holds the contact region's
     /// springs, not the data term's).
     refit_solver: NewtonSolver,
+    /// Compliance columns of the vertices a linear law's refit holds, kept across frames
+    /// ([`LinearHeldBody`](crate::registration::LinearHeldBody)).
+    held_columns: HeldColumns,
 }
 
 impl ContactForceEstimator {
@@ -77,6 +80,7 @@ impl ContactForceEstimator {
                 mixed_precision: false,
                 ..newton
             }),
+            held_columns: HeldColumns::new(),
         }
     }
 
@@ -179,9 +183,24 @@ impl ContactForceEstimator {
             noise: data.noise.unwrap_or(0.0),
             centre,
         };
+        // A linear law's held body is solved through the rest compliance, factorised once
+        // (also the data term's force fit's); a direct factor solves the new columns in one pass.
+        let linear = if model.problem.material.is_linear() {
+            self.rest_compliance
+                .get_or_insert_with(|| {
+                    RestCompliance::new(&mut model.problem, model.newton.linear_solver)
+                })
+                .as_mut()
+                .ok()
+                .filter(|c| c.is_direct())
+                .map(|c| (c, &mut self.held_columns))
+        } else {
+            None
+        };
         let result = refit_at_contact(
             &mut model.problem,
             &mut self.refit_solver,
+            linear,
             &input,
             &refit_settings,
         );
