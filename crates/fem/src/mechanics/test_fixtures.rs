@@ -3,8 +3,8 @@
 
 use nalgebra::Point3;
 
-use super::{LawKind, Material, StaticProblem, VolumetricIntegration};
-use crate::grid::{GridOptions, WeightedCellGrid};
+use super::{LawKind, Material, PenaltySprings, StaticProblem, VolumetricIntegration};
+use crate::grid::{Embedding, GridOptions, WeightedCellGrid};
 use crate::mesh::primitives::box_surface;
 use crate::mesh::TriSurface;
 
@@ -30,4 +30,14 @@ pub fn cut_box(top_y: f64) -> (TriSurface, StaticProblem) {
         s,
         StaticProblem::new(grid, material, VolumetricIntegration::Reduced),
     )
+}
+
+/// [`cut_box`] with its end face (the surface vertices within 1 mm of x = 3 mm) held fixed by
+/// springs of `stiffness` (N/m each).
+pub fn cut_box_held_at_end(top_y: f64, stiffness: f64) -> (TriSurface, StaticProblem) {
+    let (s, mut problem) = cut_box(top_y);
+    let end: Vec<Point3<f64>> = s.vertices.iter().filter(|v| v.x < 0.004).copied().collect();
+    let embedding = Embedding::new(&problem.grid, &end).unwrap();
+    problem.springs = vec![PenaltySprings::fixed(embedding, vec![stiffness; end.len()])];
+    (s, problem)
 }

@@ -566,7 +566,7 @@ impl ContactRefit {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mechanics::test_fixtures::cut_box;
+    use crate::mechanics::test_fixtures::cut_box_held_at_end;
     use crate::mechanics::{LawKind, Material, NewtonSettings};
 
     /// A linear law's held body responds to the contact region's slide affinely: the state the
@@ -576,11 +576,8 @@ mod tests {
     /// vertices within 2 cm of a point near the other end held where a 5 mm push put them.
     #[test]
     fn a_linear_bodys_slid_state_is_the_combination_of_its_probes() {
-        let (s, mut problem) = cut_box(0.05);
+        let (s, mut problem) = cut_box_held_at_end(0.05, 1e3);
         problem.material = Material::from_young_poisson(LawKind::Linear, 4500.0, 0.45).unwrap();
-        let end: Vec<Point3<f64>> = s.vertices.iter().filter(|v| v.x < 0.004).copied().collect();
-        let end_embedding = Embedding::new(&problem.grid, &end).unwrap();
-        problem.springs = vec![PenaltySprings::fixed(end_embedding, vec![1e3; end.len()])];
         let centre = Point3::new(0.08, 0.05, 0.03);
         let held_ids: Vec<usize> = (0..s.vertices.len())
             .filter(|&v| (s.vertices[v] - centre).norm() < 0.02)

@@ -107,18 +107,19 @@ impl HeldColumns {
         if (self.columns.len() + missing.len()) * per_vertex > HELD_COLUMNS_BUDGET_BYTES {
             self.columns.retain(|v, _| ids.contains(v));
         }
+        if let Some(v) = missing.iter().find(|&&v| v >= surface_embedding.len()) {
+            return Err(format!("held vertex {v} is not a surface vertex"));
+        }
+        // Column (j, axis): the grid forces of a unit force along `axis` at vertex j.
         let mut b = vec![0.0; 3 * n * missing.len()];
-        for (j, &v) in missing.iter().enumerate() {
-            let point = surface_embedding
-                .points
-                .get(v)
-                .ok_or_else(|| format!("held vertex {v} is not a surface vertex"))?;
-            for axis in 0..3 {
-                let column = &mut b[(3 * j + axis) * n..(3 * j + axis + 1) * n];
-                for (&node, &w) in point.nodes.iter().zip(&point.weights) {
-                    column[3 * node + axis] += w;
-                }
-            }
+        for (column, (v, axis)) in b.chunks_mut(n).zip(
+            missing
+                .iter()
+                .flat_map(|&v| (0..3).map(move |axis| (v, axis))),
+        ) {
+            surface_embedding
+                .select(&[v])
+                .spread_forces(&[Vector3::ith(axis, 1.0)], column);
         }
         let mut x = vec![0.0; b.len()];
         compliance.solve_columns(&b, &mut x, 3 * missing.len())?;
@@ -208,18 +209,11 @@ impl<'a> LinearHeldBody<'a> {
             .flat_map(|v| cache.columns[v].chunks(cache.dofs))
             .collect();
         let m = 3 * held_ids.len();
-        // S = I/k + N Z: entry (3i + c, j) is column j read at held point i along axis c.
+        // S = I/k + N Z: column j of N Z is column j of Z read at the held points.
         let mut s = DMatrix::<f64>::zeros(m, m);
         for (j, column) in columns.iter().enumerate() {
-            for (i, point) in embedding.points.iter().enumerate() {
-                for c in 0..3 {
-                    s[(3 * i + c, j)] = point
-                        .nodes
-                        .iter()
-                        .zip(&point.weights)
-                        .map(|(&node, &w)| w * column[3 * node + c])
-                        .sum::<f64>();
-                }
+            for (i, at) in embedding.interpolate(column).iter().enumerate() {
+                s.fixed_view_mut::<3, 1>(3 * i, j).copy_from(at);
             }
         }
         // N Z is symmetric in exact arithmetic (Maxwell–Betti); take its symmetric part.
@@ -272,7 +266,7 @@ impl<'a> LinearHeldBody<'a> {
 mod tests {
     use super::*;
     use crate::linalg::SolverKind;
-    use crate::mechanics::test_fixtures::cut_box;
+    use crate::mechanics::test_fixtures::cut_box_held_at_end;
     use crate::mechanics::{LawKind, Material, NewtonSettings, NewtonSolver, PenaltySprings};
 
     /// The held body solved through the compliance columns is the held system solved
@@ -283,11 +277,8 @@ mod tests {
     /// its end face fixed, a patch of its top face within 3.5 cm of a point pushed 5 mm and slid.
     #[test]
     fn the_held_body_through_its_compliance_is_the_held_system_solved_directly() {
-        let (s, mut problem) = cut_box(0.05);
+        let (s, mut problem) = cut_box_held_at_end(0.05, 1e3);
         problem.material = Material::from_young_poisson(LawKind::Linear, 4500.0, 0.45).unwrap();
-        let end: Vec<Point3<f64>> = s.vertices.iter().filter(|v| v.x < 0.004).copied().collect();
-        let end_embedding = Embedding::new(&problem.grid, &end).unwrap();
-        problem.springs = vec![PenaltySprings::fixed(end_embedding, vec![1e3; end.len()])];
         for (i, f) in problem.external.iter_mut().enumerate() {
             if i % 3 == 1 {
                 *f = -0.002;
@@ -376,10 +367,7 @@ mod tests {
     /// A law that is not linear has no such body: the caller solves it by Newton.
     #[test]
     fn a_law_that_is_not_linear_is_refused() {
-        let (s, mut problem) = cut_box(0.05);
-        let end: Vec<Point3<f64>> = s.vertices.iter().filter(|v| v.x < 0.004).copied().collect();
-        let end_embedding = Embedding::new(&problem.grid, &end).unwrap();
-        problem.springs = vec![PenaltySprings::fixed(end_embedding, vec![1e3; end.len()])];
+        let (s, mut problem) = cut_box_held_at_end(0.05, 1e3);
         problem.material = Material::from_young_poisson(LawKind::NeoHookean, 4500.0, 0.45).unwrap();
         let surface = Embedding::new(&problem.grid, &s.vertices).unwrap();
         let mut compliance = RestCompliance::new(&mut problem, SolverKind::default()).unwrap();

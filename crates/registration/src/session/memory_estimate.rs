@@ -142,11 +142,8 @@ impl ModelSize {
     /// (`HeldColumns`), bytes: three f64 columns of all unknowns for each vertex, for twice
     /// `region_vertices` (the most surface vertices one contact region holds; a sequence's
     /// region moves, and the columns of vertices it left are kept), at most the columns'
-    /// memory cap; nothing for the other laws.
-    pub fn held_columns_bytes(&self, linear: bool, region_vertices: usize) -> u64 {
-        if !linear {
-            return 0;
-        }
+    /// memory cap. The other laws keep none: give them 0 vertices.
+    pub fn held_columns_bytes(&self, region_vertices: usize) -> u64 {
         let bytes = 2 * region_vertices * 3 * self.dofs * std::mem::size_of::<f64>();
         bytes.min(HELD_COLUMNS_BUDGET_BYTES) as u64
     }

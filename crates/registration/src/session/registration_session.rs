@@ -129,17 +129,16 @@ impl Session {
     pub fn memory_estimate_bytes(&self) -> Result<u64, String> {
         let mut sizes = self.model_sizes()?;
         let linear = self.model.problem.material.is_linear();
+        // Only a linear law's refit keeps compliance columns: the region is measured for it alone.
+        let held_region = if linear && self.settings.contact_refit {
+            most_vertices_within(&self.model.surface.vertices, self.settings.contact_radius)
+        } else {
+            0
+        };
         let per_frame = if self.settings.non_rigid {
             sizes[0].rest_compliance_bytes()
                 + if self.settings.contact_refit {
-                    sizes[0].contact_refit_bytes()
-                        + sizes[0].held_columns_bytes(
-                            linear,
-                            most_vertices_within(
-                                &self.model.surface.vertices,
-                                self.settings.contact_radius,
-                            ),
-                        )
+                    sizes[0].contact_refit_bytes() + sizes[0].held_columns_bytes(held_region)
                 } else {
                     0
                 }
